@@ -1,0 +1,23 @@
+# spc3d: binary single-photon-camera images -> colour novel views.
+# Thin on purpose: the stages live in workflow/rules/*.smk, the logic in the spc3d library.
+from snakemake.utils import min_version
+
+min_version("8.0")
+
+
+# The repository's config.yaml is the default even with --directory elsewhere; --configfile overrides.
+configfile: f"{workflow.basedir}/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/scenes.smk"
+include: "workflow/rules/spc.smk"
+include: "workflow/rules/augment.smk"
+include: "workflow/rules/colmap.smk"
+include: "workflow/rules/summary.smk"
+
+
+rule all:
+    input:
+        get_final_output(),
+    default_target: True

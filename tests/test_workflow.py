@@ -1,0 +1,114 @@
+"""The Snakemake workflow: config checks with clear errors, dry runs, and a tiny end-to-end run."""
+import os
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from spc3d import io, spc
+from spc3d.scenes import LAYOUTS
+from spc3d.workflow import ConfigError, scene_specs
+from conftest import LLFF_ROOT, REPO
+
+SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
+
+
+def snakemake(workdir, *args, timeout=600):
+    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process."""
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def base_config():
+    return yaml.safe_load((REPO / "config.yaml").read_text())
+
+
+def test_default_config_names_only_known_scenes():
+    specs = scene_specs(base_config(), sorted(LAYOUTS), REPO)
+    assert set(specs) == {"tabletop", "orchard", "gallery", "courtyard"}
+    assert all(s["kind"] == "builtin" for s in specs.values())
+    assert len(LAYOUTS) >= 4
+
+
+@pytest.mark.parametrize("change,match", [
+    ({"scenes": {"train": ["tabletop"], "eval": ["mars"]}}, r"scenes.eval: unknown scene 'mars'.*courtyard"),
+    ({"scenes": {"train": ["tabletop"], "eval": ["tabletop"]}}, r"share \['tabletop'\]"),
+    ({"scenes": {"train": [], "eval": ["fern"]}, "llff_scenes": {"fern": "/nonexistent/fern"}},
+     r"llff_scenes.fern: /nonexistent/fern is not an LLFF folder"),
+])
+def test_bad_scene_config_is_named(change, match):
+    cfg = base_config() | change
+    with pytest.raises(ConfigError, match=match):
+        scene_specs(cfg, sorted(LAYOUTS), REPO)
+
+
+@pytest.mark.parametrize("override,match", [
+    ("resolution: {width: big}", r"'big' is not of type 'integer'.*\['resolution'\]\['width'\]"),
+    ("spc: {q: 1.5}", r"1.5 is greater than the maximum of 1"),
+    ("spc: {mode: poisson}", r"'poisson' is not one of \['bernoulli', 'paper'\]"),
+    ("colour: 3", r"Additional properties are not allowed \('colour' was unexpected\)"),
+])
+def test_schema_errors_name_the_key(tmp_path, override, match):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(override + "\n")
+    proc = snakemake(tmp_path, "-n", "--configfile", str(cfg), timeout=120)
+    assert proc.returncode != 0
+    assert re.search(match, proc.stderr + proc.stdout, re.S), proc.stderr[-2000:]
+
+
+def test_dry_run_lists_the_dag(tmp_path):
+    proc = snakemake(tmp_path, "-n", "--quiet", "rules", timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    counts = {line.split()[0]: int(line.split()[1]) for line in (proc.stdout + proc.stderr).splitlines()
+              if len(line.split()) == 2 and line.split()[1].isdigit()}
+    assert counts["scene_prepare"] == 4 and counts["spc_simulate"] == 4 and counts["augment"] == 3
+    assert counts["colmap_poses"] == 12 and counts["data_summary"] == 1
+
+
+@pytest.mark.slow
+def test_smoke_run_end_to_end(tmp_path):
+    """The whole current DAG on the smoke preset, then a single target, then a no-op rerun."""
+    proc = snakemake(tmp_path, "--cores", "2", "--configfile", str(SMOKE))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    res = tmp_path / "results"
+    table = pd.read_csv(res / "summary" / "data_summary.csv", index_col=0)
+    assert list(table.index) == ["tabletop", "courtyard"]
+    assert table.loc["courtyard", "detection_rate"] == pytest.approx(0.5, abs=0.05)  # calibrated exposure
+    assert (res / "summary" / "data_summary.png").stat().st_size > 10_000
+    # Records next to the outputs: seed, settings, wall time.
+    rec = io.read_json(res / "spc" / "courtyard" / "spc.json")
+    assert rec["seed"] == 0 and rec["params"]["frames"] == 4 and rec["wall_s"] > 0
+    frames = spc.unpack_frames(*io.load_frames(res / "spc" / "courtyard" / "frames" / "image000.npz"))
+    assert frames.shape == (4, 48, 64, 3) and 0.2 < frames.mean() < 0.8
+    pose = io.read_json(res / "colmap" / "courtyard" / "rgb" / "pose_error.json")
+    assert pose["total"] == 9 and "status" in pose
+    assert len(list((res / "augment" / "tabletop" / "rgb").glob("*.png"))) == 4
+    assert (tmp_path / "logs" / "spc_simulate" / "courtyard.log").read_text().strip()
+    assert (tmp_path / "benchmarks" / "spc_simulate" / "courtyard.tsv").exists()
+    # Nothing left to do on a rerun; one output path alone is a valid target.
+    again = snakemake(tmp_path, "--cores", "2", "--configfile", str(SMOKE), "-n")
+    assert "Nothing to be done" in again.stdout + again.stderr
+    single = snakemake(tmp_path, "--cores", "1", "--configfile", str(SMOKE), "results/scenes/orchard")
+    assert single.returncode == 0, single.stderr[-3000:]
+    assert np.load(res / "scenes" / "orchard" / "poses_bounds.npy").shape == (9, 17)
+    assert not (res / "spc" / "orchard").exists()  # only what was asked for
+
+
+@pytest.mark.slow
+def test_real_llff_scene_through_the_workflow(tmp_path):
+    if not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
+        pytest.skip("real LLFF scenes not available")
+    cfg = tmp_path / "fern.yaml"
+    cfg.write_text(yaml.safe_dump({"scenes": {"train": [], "eval": ["fern"]},
+                                   "llff_scenes": {"fern": str(LLFF_ROOT / "fern")},
+                                   "resolution": {"width": 96}, "spc": {"frames": 4},
+                                   "colmap": {"inputs": ["rgb"]}}))
+    proc = snakemake(tmp_path, "--cores", "2", "--configfile", str(cfg))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    meta = io.read_json(tmp_path / "results" / "scenes" / "fern" / "scene.json")
+    assert meta["source"] == "llff" and meta["width"] == 96 and meta["height"] == 72

@@ -1,0 +1,18 @@
+rule data_summary:
+    """Table and figure: per scene RGB | binary frame | K-frame average | MLE, exposure, COLMAP."""
+    input:
+        scenes=expand("results/scenes/{scene}", scene=ALL_SCENES),
+        spc=expand("results/spc/{scene}", scene=ALL_SCENES),
+        colmap=expand("results/colmap/{scene}/{images}", scene=ALL_SCENES, images=COLMAP_INPUTS),
+    output:
+        csv="results/summary/data_summary.csv",
+        md="results/summary/data_summary.md",
+        png="results/summary/data_summary.png",
+    params:
+        roles=get_summary_roles(),
+    log:
+        "logs/data_summary/data_summary.log",
+    conda:
+        ENV
+    script:
+        "../scripts/data_summary.py"

@@ -1,0 +1,6 @@
+"""Adapter: rule scene_prepare -> spc3d.prepare.prepare_scene."""
+from spc3d.prepare import prepare_scene
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    prepare_scene(snakemake.params.spec, snakemake.output[0])

@@ -1,0 +1,392 @@
+"""COLMAP poses with fixed intrinsics, and their error against the reference (LLFF) cameras.
+
+Procedure (pycolmap 4.x, CPU):
+
+1. one SQLite database per run; SIFT features of every image, all images sharing **one PINHOLE
+   camera** whose ``fx, fy, cx, cy`` are the reference intrinsics (``CameraMode.SINGLE``, the
+   parameters entered as a prior focal length);
+2. exhaustive matching with geometric verification;
+3. incremental mapping with focal length, principal point and extra parameters **held fixed** in
+   every bundle adjustment and absolute-pose step; the largest model is kept.
+
+Why the intrinsics are fixed: forward-facing captures move the camera sideways only, and then the
+focal length is nearly unobservable from the images (on a synthetic sideways rig COLMAP estimated
+469 px for a true 220 px). The LLFF ``hwf`` focal length is known, so it is entered, not estimated.
+
+Evaluation against reference cameras (internal convention, see :mod:`spc3d.cameras`):
+
+- **pose error**: a similarity maps the estimated world onto the reference world: its rotation
+  from the camera orientations (chordal mean), its scale and translation from the camera centres
+  (or, with ``align="centers"``, all three from the centres by Umeyama; ill-conditioned for
+  forward-facing captures, whose centres are nearly coplanar: see :func:`fit_similarity`).
+  Per view the rotation error is the geodesic angle between the aligned and reference rotations,
+  and the centre error is the distance between aligned and reference centres divided by the
+  *camera spread* = RMS distance of all reference centres from their mean;
+- **reprojection error**: the sparse 3-D points, mapped into the reference world by that
+  similarity, are projected with the reference cameras into the views where COLMAP observed them
+  and compared with the observed keypoints. COLMAP keypoints put the centre of the top-left pixel
+  at (0.5, 0.5), as our cameras do (principal point W / 2), so no offset is applied; the mean
+  signed residual is reported so that a half-pixel slip would show.
+
+A run that registers nothing (e.g. on binary SPC frames) is a finding, not an error: ``run_colmap``
+returns None and ``colmap_poses`` records ``"status": "failed: <reason>"``. Measured on fern at
+252 px: single 1-bit frames register 0 of 20 views; 16-frame averages register 20 of 20 (median
+rotation error 0.5°, centre error 6 % of the spread).
+
+COLMAP's glog output goes to ``colmap.log`` in the work / output folder instead of the terminal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from . import io, llff
+from .cameras import Cameras, project, rotation_angle_deg, transform_cameras, umeyama
+
+SPREAD_DEFINITION = "RMS distance of all reference camera centres from their mean"
+Similarity = tuple[float, np.ndarray, np.ndarray]  # (s, R, t): x_ref = s R x_est + t
+
+
+@contextlib.contextmanager
+def native_log_to(path: str | os.PathLike):
+    """Send COLMAP's glog output (C++ stderr) to ``path`` for the duration of the block.
+
+    ``logtostderr`` also stops glog from leaving ``*.INFO`` files in /tmp.
+    """
+    glog = pycolmap.logging
+    old = glog.logtostderr
+    glog.logtostderr = True
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(path, "ab") as f:
+        os.dup2(f.fileno(), 2)
+    try:
+        yield
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+        glog.logtostderr = old
+
+
+def mapping_options(seed: int, num_threads: int) -> pycolmap.IncrementalPipelineOptions:
+    """Incremental-mapping options: intrinsics fixed, seeded, ``num_threads`` threads."""
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.mapper.abs_pose_refine_focal_length = False
+    opts.mapper.abs_pose_refine_extra_params = False
+    opts.num_threads = opts.mapper.num_threads = num_threads
+    opts.random_seed = opts.mapper.random_seed = opts.triangulation.random_seed = seed
+    return opts
+
+
+def run_colmap(
+    image_dir: str | os.PathLike,
+    work_dir: str | os.PathLike,
+    cameras: Cameras,
+    max_features: int = 4096,
+    seed: int = 0,
+    num_threads: int = 1,
+) -> pycolmap.Reconstruction | None:
+    """SIFT + exhaustive matching + incremental mapping with the intrinsics of ``cameras[0]``.
+
+    ``work_dir`` receives ``database.db``, ``models/`` and ``colmap.log``. Returns the
+    reconstruction with the most registered images, or None when none could be built.
+    """
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    database = work_dir / "database.db"
+    database.unlink(missing_ok=True)  # COLMAP appends to an existing database
+    files = io.list_images(image_dir)
+    check_image_size(files[0], cameras)
+    fx, fy, cx, cy = (float(v) for v in cameras.intrinsics[0])
+    reader = pycolmap.ImageReaderOptions(camera_model="PINHOLE", camera_params=f"{fx!r},{fy!r},{cx!r},{cy!r}")
+    extraction = pycolmap.FeatureExtractionOptions(num_threads=num_threads)
+    extraction.sift.max_num_features = max_features
+    matching = pycolmap.FeatureMatchingOptions(num_threads=num_threads)
+    (work_dir / "models").mkdir(exist_ok=True)
+    pycolmap.set_random_seed(seed)
+    with native_log_to(work_dir / "colmap.log"):
+        pycolmap.extract_features(
+            database, image_dir, image_names=[f.name for f in files], camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+        )
+        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
+        options = mapping_options(seed, num_threads)
+        models = pycolmap.incremental_mapping(database, image_dir, work_dir / "models", options)
+    models = [m for m in models.values() if m.num_reg_images() > 0]
+    return max(models, key=lambda m: m.num_reg_images()) if models else None
+
+
+def check_image_size(path: Path, cameras: Cameras) -> None:
+    """The shared camera is only right for images of the cameras' size."""
+    h, w = io.read_image(path).shape[:2]
+    if (h, w) != (cameras.height, cameras.width):
+        raise ValueError(
+            f"{path} is {w}x{h} but the cameras are {cameras.width}x{cameras.height}; "
+            "rescale the cameras (Cameras.rescaled) to the images first"
+        )
+
+
+def reconstruction_cameras(rec: pycolmap.Reconstruction, names: list[str], like: Cameras) -> tuple[Cameras, np.ndarray]:
+    """Registered views of ``rec`` as internal cameras, sorted by view, and their indices into ``names``.
+
+    Views are matched by file stem. Image size comes from ``like``; bounds are the 0.1 / 99.9
+    percentiles of the depths of each view's observed points (as LLFF's imgs2poses), in COLMAP
+    units (NaN for a view without points).
+    """
+    index = {name: i for i, name in enumerate(names)}
+    xyz = {pid: p.xyz for pid, p in rec.points3D.items()}
+    rows = []
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        stem = Path(image.name).stem
+        if stem not in index:
+            raise ValueError(f"reconstructed image {image.name!r} matches no view name (e.g. {names[:3]})")
+        w2c = np.asarray(image.cam_from_world().matrix(), dtype=np.float64)
+        cam = image.camera
+        intr = [cam.focal_length_x, cam.focal_length_y, cam.principal_point_x, cam.principal_point_y]
+        rows.append((index[stem], w2c, intr, view_bounds(image, w2c, xyz)))
+    rows.sort(key=lambda r: r[0])
+    if not rows:
+        empty = Cameras(np.zeros((0, 3, 4)), np.zeros((0, 4)), like.height, like.width, np.zeros((0, 2)))
+        return empty, np.zeros(0, dtype=int)
+    idx, w2c, intr, bounds = zip(*rows)
+    cams = Cameras(np.stack(w2c), np.asarray(intr, float), like.height, like.width, np.asarray(bounds, float))
+    return cams, np.asarray(idx, dtype=int)
+
+
+def view_bounds(image: pycolmap.Image, w2c: np.ndarray, xyz: dict) -> list[float]:
+    """Near / far depth of the points a view observes (0.1 / 99.9 percentiles)."""
+    pts = [xyz[p.point3D_id] for p in image.get_observation_points2D()]
+    if not pts:
+        return [float("nan"), float("nan")]
+    z = np.asarray(pts) @ w2c[2, :3] + w2c[2, 3]
+    return [float(np.percentile(z, 0.1)), float(np.percentile(z, 99.9))]
+
+
+def finite_or_none(value: float) -> float | None:
+    """A float for JSON, or None for NaN / inf (JSON has no NaN)."""
+    return float(value) if np.isfinite(value) else None
+
+
+def summary(values: np.ndarray) -> dict:
+    """mean / median / max of a non-empty array as plain floats."""
+    return {"mean": float(np.mean(values)), "median": float(np.median(values)), "max": float(np.max(values))}
+
+
+def camera_spread(cams: Cameras) -> float:
+    """RMS distance of the camera centres from their mean."""
+    c = cams.centers
+    return float(np.sqrt(((c - c.mean(0)) ** 2).sum(1).mean()))
+
+
+ALIGNMENTS = ("rotations", "centers")
+
+
+def world_rotation(est: Cameras, ref: Cameras) -> np.ndarray:
+    """Rotation R (estimated world -> reference world) best matching the camera orientations.
+
+    Minimises sum_i ||R_est_i R^T - R_ref_i||_F (chordal L2 mean, closed form by SVD).
+    """
+    M = np.einsum("nji,njk->ik", est.w2c[:, :, :3], ref.w2c[:, :, :3])  # sum_i R_est_i^T R_ref_i
+    U, _, Vt = np.linalg.svd(M)
+    Rt = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return Rt.T
+
+
+def scale_translation(src: np.ndarray, dst: np.ndarray, R: np.ndarray) -> Similarity:
+    """Least-squares s, t of dst ≈ s R src + t for a given rotation R."""
+    xs, xd = src - src.mean(0), dst - dst.mean(0)
+    var = float((xs**2).sum())
+    if var < 1e-20:
+        raise ValueError("estimated camera centres coincide; cannot estimate a scale")
+    s = float((xd * (xs @ R.T)).sum() / var)
+    return s, R, dst.mean(0) - s * R @ src.mean(0)
+
+
+def fit_similarity(ref: Cameras, est: Cameras, align: str = "rotations") -> Similarity:
+    """Similarity (s, R, t) with x_ref = s R x_est + t for corresponding cameras ``est`` / ``ref``.
+
+    ``"centers"``: Umeyama on the camera centres alone. ``"rotations"`` (default): R from the
+    camera orientations, then s, t from the centres. Forward-facing centres are nearly coplanar
+    (fern: singular values 14.8 / 5.0 / 0.85), so a centre-only fit tilts the world by the
+    centres' depth noise (2.7° on fern at 252 px, every view then reads ~2.7° off and the points
+    reproject ~10 px off); the orientations fix R to ~0.2°.
+    """
+    if align == "centers":
+        return umeyama(est.centers, ref.centers)
+    if align == "rotations":
+        return scale_translation(est.centers, ref.centers, world_rotation(est, ref))
+    raise ValueError(f"unknown alignment {align!r}; choose one of {ALIGNMENTS}")
+
+
+def pose_error(ref: Cameras, est: Cameras, est_idx, align: str = "rotations") -> dict:
+    """Pose error of ``est`` (views ``est_idx`` of ``ref``) after a similarity alignment.
+
+    The similarity (s, R, t) maps the estimated world onto the reference world (see
+    :func:`fit_similarity`; at least 3 registered views). Per view: rotation error in degrees
+    between the aligned and reference camera rotations; centre error = |aligned centre −
+    reference centre| / spread, where spread = RMS distance of all reference centres from their
+    mean. JSON-ready: when no alignment is possible, statistics are null and ``reason`` says why.
+    """
+    est_idx = np.asarray(est_idx, dtype=int)
+    spread = camera_spread(ref) if len(ref) else 0.0
+    record = {"registered": int(len(est_idx)), "total": int(len(ref)), "aligned": False, "reason": None,
+              "alignment": align, "spread": spread, "spread_definition": SPREAD_DEFINITION, "rotation_deg": None,
+              "center_rel": None, "scale": None, "similarity": None, "per_view": None}
+    if len(est_idx) < 3:
+        return {**record, "reason": f"{len(est_idx)} of {len(ref)} views registered; a similarity needs at least 3"}
+    if spread <= 0.0:
+        return {**record, "reason": "reference camera centres coincide (spread 0)"}
+    try:
+        s, R, t = fit_similarity(ref.subset(est_idx), est, align)
+    except ValueError as e:
+        return {**record, "reason": str(e)}
+    aligned = transform_cameras(est, s, R, t)
+    rot = rotation_angle_deg(aligned.w2c[:, :, :3], ref.w2c[est_idx, :, :3])
+    cen = np.linalg.norm(aligned.centers - ref.centers[est_idx], axis=1) / spread
+    per_view = {"index": est_idx.tolist(), "rotation_deg": rot.tolist(), "center_rel": cen.tolist()}
+    return {**record, "aligned": True, "rotation_deg": summary(rot), "center_rel": summary(cen), "scale": s,
+            "similarity": {"scale": s, "rotation": R.tolist(), "translation": t.tolist()}, "per_view": per_view}
+
+
+def similarity_of(record: dict) -> Similarity:
+    """(s, R, t) from the ``similarity`` entry of a :func:`pose_error` record."""
+    sim = record["similarity"]
+    return float(sim["scale"]), np.asarray(sim["rotation"], float), np.asarray(sim["translation"], float)
+
+
+def observations(rec: pycolmap.Reconstruction, names: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All 2-D observations of 3-D points: view indices (K,), keypoints (K, 2), point xyz (K, 3)."""
+    index = {name: i for i, name in enumerate(names)}
+    view, uv, xyz = [], [], []
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        for p in image.get_observation_points2D():
+            view.append(index[Path(image.name).stem])
+            uv.append(p.xy)
+            xyz.append(rec.points3D[p.point3D_id].xyz)
+    return np.asarray(view, int), np.asarray(uv, float).reshape(-1, 2), np.asarray(xyz, float).reshape(-1, 3)
+
+
+def reprojection_error(rec: pycolmap.Reconstruction, ref: Cameras, names: list[str], sim: Similarity) -> dict:
+    """Pixel error of COLMAP's points, mapped by ``sim`` into the reference world and projected
+    with the reference cameras, against the keypoints COLMAP observed them at.
+
+    Returns observations (count), points behind a camera (excluded), median / mean / p90 error in
+    pixels, and the mean signed residual (projected − observed; ~0 unless a convention slips).
+    """
+    s, R, t = sim
+    view, uv_obs, xyz = observations(rec, names)
+    X = s * xyz @ R.T + t
+    uv = np.empty_like(uv_obs)
+    z = np.empty(len(view))
+    for v in np.unique(view):
+        sel = view == v
+        uv_v, z_v = project(ref.subset([v]), X[sel])
+        uv[sel], z[sel] = uv_v[0], z_v[0]
+    front = z > 0
+    err = np.linalg.norm(uv - uv_obs, axis=1)[front]
+    record = {"observations": int(front.sum()), "behind_camera": int((~front).sum())}
+    if not front.any():
+        return {**record, "median_px": None, "mean_px": None, "p90_px": None, "mean_residual_px": None}
+    return {**record, "median_px": float(np.median(err)), "mean_px": float(err.mean()),
+            "p90_px": float(np.percentile(err, 90)), "mean_residual_px": (uv - uv_obs)[front].mean(0).tolist()}
+
+
+def reference_cameras(
+    scene_dir_or_cameras: str | os.PathLike | Cameras, names: list[str] | None, image_files: list[Path]
+) -> tuple[Cameras, list[str]]:
+    """Reference cameras and names of the views that have an image, rescaled to the image size."""
+    if isinstance(scene_dir_or_cameras, Cameras):
+        ref = scene_dir_or_cameras
+        names = names if names is not None else [f.stem for f in image_files]
+    else:
+        scene = llff.read_scene(scene_dir_or_cameras)
+        ref, names = scene.cameras, names if names is not None else scene.names
+    if len(names) != len(ref):
+        raise ValueError(f"{len(names)} view names for {len(ref)} reference cameras")
+    unknown = sorted({f.stem for f in image_files} - set(names))
+    if unknown:
+        raise ValueError(f"images {unknown[:5]} match no reference view (views: {names[:3]} ...)")
+    present = {f.stem for f in image_files}
+    keep = [i for i, name in enumerate(names) if name in present]
+    ref, names = ref.subset(keep), [names[i] for i in keep]
+    h, w = io.read_image(image_files[0]).shape[:2]
+    return (ref if (h, w) == (ref.height, ref.width) else ref.rescaled(h, w)), names
+
+
+def colmap_poses(
+    image_dir: str | os.PathLike,
+    scene_dir_or_cameras: str | os.PathLike | Cameras,
+    out_dir: str | os.PathLike,
+    max_features: int = 4096,
+    seed: int = 0,
+    num_threads: int = 1,
+    names: list[str] | None = None,
+    align: str = "rotations",
+) -> dict:
+    """Run COLMAP on ``image_dir`` and score it against the reference cameras; write ``out_dir``.
+
+    ``image_dir`` holds one image per view (RGB, binary frames as 0/255 or K-frame averages)
+    named by view stem; views without an image are left out (``total`` counts the images). The reference is a canonical scene folder (``llff.read_scene``) or
+    ``Cameras`` (then ``names`` defaults to the sorted image stems); ``align`` is the similarity
+    fit of :func:`fit_similarity`. Writes atomically:
+
+        out_dir/sparse/0/        the largest reconstruction (only when one was built)
+        out_dir/pose_error.json  status, settings, registered/total, pose and reprojection errors
+        out_dir/colmap.log       COLMAP's log
+
+    Returns the JSON record.
+    """
+    start = time.perf_counter()
+    files = io.list_images(image_dir)
+    ref, names = reference_cameras(scene_dir_or_cameras, names, files)
+    settings = {"max_features": max_features, "seed": seed, "num_threads": num_threads, "camera_model": "PINHOLE",
+                "intrinsics_fixed": [float(v) for v in ref.intrinsics[0]], "matching": "exhaustive",
+                "mapper": "incremental", "alignment": align, "pycolmap": pycolmap.__version__}
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        tmp.mkdir(parents=True, exist_ok=True)
+        work = tmp / "work"
+        rec = run_colmap(image_dir, work, ref, max_features, seed, num_threads)
+        record = evaluate(rec, ref, names, align)
+        if rec is not None:
+            (tmp / "sparse" / "0").mkdir(parents=True)
+            rec.write(tmp / "sparse" / "0")
+        shutil.move(work / "colmap.log", tmp / "colmap.log")
+        shutil.rmtree(work)
+        reference = "cameras given" if isinstance(scene_dir_or_cameras, Cameras) else str(scene_dir_or_cameras)
+        record = {**record, "image_dir": str(image_dir), "reference": reference, "settings": settings, "seed": seed,
+                  "wall_time_s": time.perf_counter() - start}
+        io.write_json(tmp / "pose_error.json", record)
+    return record
+
+
+def evaluate(rec: pycolmap.Reconstruction | None, ref: Cameras, names: list[str], align: str = "rotations") -> dict:
+    """Status, counts, pose error and reprojection error of a reconstruction (None: nothing registered)."""
+    if rec is None:
+        pose = pose_error(ref, ref.subset(np.zeros(0, int)), [], align)
+        return {"status": "failed: no image registered", "registered": 0, "total": len(names), "num_points3D": 0,
+                "registered_names": [], "pose": pose, "reprojection": None}
+    est, idx = reconstruction_cameras(rec, names, ref)
+    pose = pose_error(ref, est, idx, align)
+    record = {"status": "ok" if pose["aligned"] else f"failed: {pose['reason']}", "registered": int(len(idx)),
+              "total": len(names), "num_points3D": int(rec.num_points3D()),
+              "colmap_mean_reprojection_error_px": finite_or_none(rec.compute_mean_reprojection_error()),
+              "registered_names": [names[i] for i in idx], "pose": pose, "reprojection": None}
+    if pose["aligned"]:
+        record["reprojection"] = reprojection_error(rec, ref, names, similarity_of(pose))
+    return record

@@ -1,0 +1,151 @@
+"""Photographic textures from scikit-image's bundled sample images (available offline).
+
+A :class:`Texture` holds a mip pyramid of **linear-light** RGB images (sRGB decoded with the
+IEC 61966-2-1 curve, then optionally tinted). Lookups are bilinear within a level and linear
+between levels (trilinear filtering), the level chosen per sample from its footprint in texels,
+so a texture seen from far away is band-limited like a photograph instead of aliasing.
+
+Texture coordinates: ``u`` runs left -> right, ``v`` top -> bottom of the source image; one unit
+spans the image once. Outside [0, 1] the image is mirror-repeated (seamless, no wrap seams).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..llff import area_matrix
+
+SAMPLE_IMAGES = (
+    "astronaut", "brick", "camera", "chelsea", "coffee", "coins", "colorwheel", "grass", "gravel",
+    "horse", "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket", "text",
+    "clock", "cell",
+)
+MAX_SIZE = 512  # textures are area-downscaled once so that their longer side is at most this
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB decoding, values in [0, 1] (any shape)."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 sRGB encoding of linear values, clipped to [0, 1] first (any shape)."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1.0 / 2.4) - 0.055)
+
+
+@dataclass(frozen=True, eq=False)
+class Texture:
+    """Mip pyramid of linear RGB images: ``levels[0]`` (3, h, w) float32, each next level half size."""
+
+    name: str
+    levels: tuple[np.ndarray, ...]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(h, w) of the full-resolution level, in texels."""
+        return self.levels[0].shape[1:]
+
+    @property
+    def size(self) -> int:
+        """Longer side of the full-resolution level, in texels."""
+        return max(self.shape)
+
+    def sample(self, u: np.ndarray, v: np.ndarray, footprint: np.ndarray) -> np.ndarray:
+        """Trilinear lookup at (u, v) (K,) each; footprint (K,): sample size in level-0 texels -> (3, K)."""
+        u, v = 1.0 - np.abs(np.mod(u, 2.0) - 1.0), 1.0 - np.abs(np.mod(v, 2.0) - 1.0)  # mirror repeat
+        lod = np.clip(np.log2(np.maximum(footprint, 1.0)), 0.0, len(self.levels) - 1.0)
+        lo = np.floor(lod).astype(np.int64)
+        frac = lod - lo
+        out = np.empty((3, len(u)))
+        for level in np.unique(lo):
+            m = lo == level
+            a = _bilinear(self.levels[level], u[m], v[m])
+            b = _bilinear(self.levels[min(level + 1, len(self.levels) - 1)], u[m], v[m])
+            out[:, m] = a + frac[m] * (b - a)
+        return out
+
+
+def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of img (3, h, w) at (u, v) (K,) each in [0, 1], edge-clamped -> (3, K)."""
+    h, w = img.shape[1:]
+    x, y = u * w - 0.5, v * h - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    x0i, y0i = x0.astype(np.int64), y0.astype(np.int64)
+    x0i, x1i = np.clip(x0i, 0, w - 1), np.clip(x0i + 1, 0, w - 1)
+    y0i, y1i = np.clip(y0i, 0, h - 1) * w, np.clip(y0i + 1, 0, h - 1) * w
+    flat = img.reshape(3, -1)
+    texel = lambda rows, cols: np.take(flat, rows + cols, axis=1)  # noqa: E731 (np.take: fast gather)
+    top = texel(y0i, x0i) * (1 - fx) + texel(y0i, x1i) * fx
+    bottom = texel(y1i, x0i) * (1 - fx) + texel(y1i, x1i) * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def _resample_rows(img: np.ndarray, n_out: int) -> np.ndarray:
+    """Area-resample axis 0 of (n, ...) to n_out, summing the few non-zero taps of each output row
+    in a fixed order (fast, and bit-reproducible: no BLAS)."""
+    A = area_matrix(img.shape[0], n_out)
+    taps = int((A > 0).sum(1).max())
+    first = np.argmax(A > 0, axis=1)
+    out = np.zeros((n_out,) + img.shape[1:])
+    for k in range(taps):
+        idx = np.minimum(first + k, img.shape[0] - 1)
+        w = np.where(first + k < img.shape[0], A[np.arange(n_out), idx], 0.0)
+        out += w.reshape((-1,) + (1,) * (img.ndim - 1)) * img[idx]
+    return out
+
+
+def _resample(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Area-resample (h, w, 3) -> (height, width, 3)."""
+    return _resample_rows(_resample_rows(img, height).transpose(1, 0, 2), width).transpose(1, 0, 2)
+
+
+def mip_pyramid(img: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Levels of (h, w, 3) halved (area filter) until 1 texel: a tuple of (3, h', w') float32 arrays."""
+    levels = [img]
+    while max(levels[-1].shape[:2]) > 1:
+        h, w = levels[-1].shape[:2]
+        levels.append(_resample(levels[-1], max(1, (h + 1) // 2), max(1, (w + 1) // 2)))
+    return tuple(np.ascontiguousarray(level.transpose(2, 0, 1), dtype=np.float32) for level in levels)
+
+
+@functools.lru_cache(maxsize=None)
+def _base_image(name: str) -> np.ndarray:
+    """Sample image ``name`` as linear RGB (h, w, 3) float64, longer side <= MAX_SIZE (read-only)."""
+    if name not in SAMPLE_IMAGES:
+        raise ValueError(f"unknown texture {name!r}; available: {', '.join(SAMPLE_IMAGES)}")
+    import skimage.data  # lazy: only scene generation needs it
+
+    img = np.asarray(getattr(skimage.data, name)())
+    img = img.astype(np.float64) if img.dtype == bool else img.astype(np.float64) / 255.0
+    img = srgb_to_linear(img if img.ndim == 3 else np.repeat(img[:, :, None], 3, axis=2))[:, :, :3]
+    scale = MAX_SIZE / max(img.shape[:2])
+    if scale < 1.0:
+        img = _resample(img, max(1, round(img.shape[0] * scale)), max(1, round(img.shape[1] * scale)))
+    img.setflags(write=False)
+    return img
+
+
+@functools.lru_cache(maxsize=None)
+def texture(name: str, tint: tuple[float, float, float] = (1.0, 1.0, 1.0),
+            base: tuple[float, float, float] = (0.0, 0.0, 0.0), gain: float = 1.0) -> Texture:
+    """Cached texture of sample image ``name``, coloured in linear light.
+
+    Each texel becomes ``base + gain * texel * (tint - base)`` (per channel, clipped to [0, 1]): a
+    duotone for gray images (black -> ``base``, white -> ``tint``), a colour cast for colour ones.
+    Colours are linear RGB in [0, 1].
+    """
+    img = _base_image(name)
+    tint_a, base_a = np.asarray(tint, float), np.asarray(base, float)
+    img = np.clip(base_a + gain * img * (tint_a - base_a), 0.0, 1.0)
+    return Texture(name, mip_pyramid(img))
+
+
+def solid(colour: tuple[float, float, float]) -> Texture:
+    """A one-texel texture of a linear RGB colour (frames, plain paint)."""
+    return Texture("solid", (np.asarray(colour, np.float32).reshape(3, 1, 1),))

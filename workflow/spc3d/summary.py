@@ -1,0 +1,89 @@
+"""The data summary: one table row and one figure row per scene.
+
+Table (``data_summary.csv`` / ``.md``): origin, size, the SPC exposure (flux scale, mean detection
+rate, saturated fraction), the K-frame MLE's PSNR against the ground truth, and for each COLMAP
+input (rgb / binary / average) the registered views and median pose errors.
+Figure (``data_summary.png``): RGB | one binary frame | K-frame average | MLE flux estimate, for
+the first test view of each scene.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import io
+from .simulate import read_spc_record
+
+
+def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role: str) -> dict:
+    """One table row from the records the scene, SPC and COLMAP steps wrote."""
+    meta, rec = io.read_json(scene_dir / "scene.json"), read_spc_record(spc_dir)
+    row = {"scene": scene_dir.name, "role": role, "source": meta.get("source"),
+           "layout/path": meta.get("layout") or meta.get("path"), "views": meta["views"],
+           "size": f"{meta['width']}x{meta['height']}", "K": rec["params"]["frames"],
+           "flux_scale": rec["flux_scale"], "detection_rate": rec["mean_detection_rate"],
+           "saturated": rec["mean_saturated_fraction"], "mle_psnr_db": rec["mean_mle_psnr_db"]}
+    for name, d in colmap_dirs.items():
+        err = io.read_json(d / "pose_error.json")
+        row[f"{name}_registered"] = f"{err.get('registered', 0)}/{err.get('total', meta['views'])}"
+        row[f"{name}_rot_deg"] = (err.get("rotation_deg") or {}).get("median")
+        row[f"{name}_center_rel"] = (err.get("center_rel") or {}).get("median")
+    return row
+
+
+def summary_table(rows: list[dict]) -> pd.DataFrame:
+    return pd.DataFrame(rows).set_index("scene")
+
+
+def write_tables(df: pd.DataFrame, csv_path: str | os.PathLike, md_path: str | os.PathLike) -> None:
+    io.write_text(csv_path, df.to_csv(float_format="%.4g"))
+    io.write_text(md_path, "# Data summary\n\n" + df.to_markdown(floatfmt=".4g") + "\n")
+
+
+def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray]]:
+    """(view name, [rgb, binary, average, mle_srgb]) of the scene's first view (a test view)."""
+    view = sorted((scene_dir / "images").glob("*.png"))[0].stem
+    paths = [scene_dir / "images" / f"{view}.png"] + [spc_dir / k / f"{view}.png" for k in ("binary", "average", "mle_srgb")]
+    return view, [io.read_rgb(p) for p in paths]
+
+
+def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: int) -> None:
+    """Grid figure: a row per scene, columns RGB | binary | K-frame average | MLE."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    titles = ["RGB (ground truth)", "one binary frame", f"{K}-frame average", f"MLE flux ({K} frames)"]
+    fig, axes = plt.subplots(len(scenes), 4, figsize=(12, 2.4 * len(scenes) + 0.4), squeeze=False)
+    for r, (scene_dir, spc_dir) in enumerate(scenes):
+        view, panels = figure_panels(scene_dir, spc_dir)
+        for c, img in enumerate(panels):
+            ax = axes[r, c]
+            ax.imshow(img, interpolation="nearest")
+            ax.set_xticks([]), ax.set_yticks([])
+            if r == 0:
+                ax.set_title(titles[c], fontsize=10)
+        axes[r, 0].set_ylabel(f"{scene_dir.name}\n{view}", fontsize=10)
+    fig.tight_layout()
+    with io.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def write_summary(scene_dirs: list[str], spc_dirs: list[str], colmap_dirs: list[str], roles: list[str],
+                  out_csv: str, out_md: str, out_png: str) -> pd.DataFrame:
+    """Entry point of the ``data_summary`` rule. ``colmap_dirs`` are ``results/colmap/{scene}/{input}``."""
+    by_scene: dict[str, dict[str, Path]] = {}
+    for d in map(Path, colmap_dirs):
+        by_scene.setdefault(d.parent.name, {})[d.name] = d
+    pairs = [(Path(s), Path(p)) for s, p in zip(scene_dirs, spc_dirs)]
+    rows = [scene_row(s, p, by_scene.get(s.name, {}), role) for (s, p), role in zip(pairs, roles)]
+    df = summary_table(rows)
+    write_tables(df, out_csv, out_md)
+    write_figure(pairs, out_png, int(df["K"].iloc[0]))
+    return df

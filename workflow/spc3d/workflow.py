@@ -1,0 +1,56 @@
+"""Glue between Snakemake and the library: config checks and logging for the thin rule scripts.
+
+Nothing in the rest of :mod:`spc3d` imports this module: the library never sees Snakemake.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from pathlib import Path
+
+
+class ConfigError(ValueError):
+    """A config value that passed the JSON schema but is still wrong (e.g. an unknown scene)."""
+
+
+@contextlib.contextmanager
+def logged(log_path: str):
+    """Send stdout, stderr and ``logging`` of a rule script to its log file; log the wall time."""
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    with open(log_path, "w", buffering=1) as f, contextlib.redirect_stdout(f), contextlib.redirect_stderr(f):
+        logging.basicConfig(stream=f, level=logging.INFO, force=True,
+                            format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        t0 = time.perf_counter()
+        try:
+            yield
+        except Exception:
+            logging.exception("failed after %.1f s", time.perf_counter() - t0)
+            raise
+        logging.info("done in %.1f s", time.perf_counter() - t0)
+
+
+def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
+    """Scene name -> spec for :func:`spc3d.prepare.prepare_scene`, checking every name in the config."""
+    res, llff_scenes = config["resolution"], config["llff_scenes"]
+    specs = {}
+    for role in ("train", "eval"):
+        for name in config["scenes"][role]:
+            if name in llff_scenes:
+                path = Path(base_dir) / llff_scenes[name]
+                if not (path / "poses_bounds.npy").is_file():
+                    raise ConfigError(f"llff_scenes.{name}: {path} is not an LLFF folder (no poses_bounds.npy)")
+                specs[name] = {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
+            elif name in builtin_layouts:
+                specs[name] = {"kind": "builtin", "layout": name, "height": res["height"], "width": res["width"],
+                               "views": config["builtin"]["views"], "supersample": config["builtin"]["supersample"],
+                               "seed": config["seed"]}
+            else:
+                raise ConfigError(f"scenes.{role}: unknown scene {name!r}; use a built-in layout "
+                                  f"({', '.join(builtin_layouts)}) or add it to llff_scenes as name: folder")
+    overlap = set(config["scenes"]["train"]) & set(config["scenes"]["eval"])
+    if overlap:
+        raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
+    return specs
+
