@@ -112,3 +112,10 @@ def test_bad_shapes_raise():
         C.llff_to_cameras(np.zeros((3, 15)))
     with pytest.raises(ValueError, match="coincide"):
         C.umeyama(np.zeros((4, 3)), np.ones((4, 3)))
+
+
+def test_look_at_rejects_degenerate_directions():
+    with pytest.raises(ValueError, match="parallel"):
+        C.look_at(np.zeros(3), np.array([0.0, 5.0, 0.0]))
+    with pytest.raises(ValueError, match="centre == target"):
+        C.look_at(np.ones(3), np.ones(3))

@@ -93,3 +93,12 @@ def test_canonical_scene_round_trip(tmp_path):
     np.testing.assert_allclose(back.cameras.w2c, cams.w2c, atol=1e-9)
     np.testing.assert_allclose(back.cameras.intrinsics, cams.intrinsics)
     assert np.load(tmp_path / "s" / "poses_bounds.npy").shape == (3, 17)
+
+
+def test_depth_is_resampled_not_blended():
+    depth = np.where(np.arange(8)[None, None, :] < 4, 1.0, 9.0) * np.ones((1, 6, 8))  # an occlusion edge
+    scene = llff.SceneData(np.zeros((1, 6, 8, 3), np.float32), None, ["a"], depth.astype(np.float32))
+    scene.cameras = cameras.Cameras(np.zeros((1, 3, 4)), np.array([[8.0, 8, 4, 3]]), 6, 8, np.ones((1, 2)))
+    small = llff.resize_scene(scene, 3)
+    assert set(np.unique(small.depths)) <= {1.0, 9.0}  # only depths of real surfaces
+    assert small.depths.shape == (1, 2, 3)

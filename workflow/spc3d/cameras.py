@@ -119,9 +119,14 @@ def look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0
     ``up`` is the world direction that should appear up in the image (image y points down).
     """
     fwd = np.asarray(target, float) - np.asarray(center, float)
+    if not np.linalg.norm(fwd) > 1e-12:
+        raise ValueError(f"look_at: centre == target ({center}); no viewing direction")
     fwd /= np.linalg.norm(fwd)
     right = np.cross(fwd, up)  # OpenCV: right = down x forward = forward x up
-    right /= np.linalg.norm(right)
+    norm = np.linalg.norm(right)
+    if not norm > 1e-9:
+        raise ValueError(f"look_at: viewing direction {fwd} is parallel to up {up}")
+    right /= norm
     down = np.cross(fwd, right)
     R = np.stack([right, down, fwd])  # rows: camera axes in world coordinates
     return np.concatenate([R, -R @ np.asarray(center, float)[:, None]], axis=1)

@@ -79,13 +79,17 @@ def resize_scene(scene: SceneData, width: int, height: int | None = None) -> Sce
         return scene
     Ay, Ax = area_matrix(h0, height), area_matrix(w0, width)
     images = np.einsum("yh,nhwc,xw->nyxc", Ay, scene.images, Ax, optimize=True).astype(np.float32)
-    depths = None if scene.depths is None else area_resize_depth(scene.depths, Ay, Ax)
+    depths = None if scene.depths is None else nearest_resize_depth(scene.depths, height, width)
     return SceneData(images, scene.cameras.rescaled(height, width), scene.names, depths, dict(scene.meta))
 
 
-def area_resize_depth(depths: np.ndarray, Ay: np.ndarray, Ax: np.ndarray) -> np.ndarray:
-    """Area-average depth (N, H, W) like the images (a box filter; edges blend as in the RGB)."""
-    return np.einsum("yh,nhw,xw->nyx", Ay, depths, Ax, optimize=True).astype(np.float32)
+def nearest_resize_depth(depths: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Depth (N, H, W) sampled at each output pixel's centre: averaging across an occlusion edge
+    would invent depths that belong to no surface, so depth is resampled, never filtered."""
+    _, h0, w0 = depths.shape
+    rows = np.minimum(((np.arange(height) + 0.5) * h0 / height).astype(int), h0 - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w0 / width).astype(int), w0 - 1)
+    return depths[:, rows][:, :, cols].astype(np.float32)
 
 
 def area_matrix(n_in: int, n_out: int) -> np.ndarray:

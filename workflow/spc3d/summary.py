@@ -28,11 +28,17 @@ def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role
            "flux_scale": rec["flux_scale"], "detection_rate": rec["mean_detection_rate"],
            "saturated": rec["mean_saturated_fraction"], "mle_psnr_db": rec["mean_mle_psnr_db"]}
     for name, d in colmap_dirs.items():
-        err = io.read_json(d / "pose_error.json")
-        row[f"{name}_registered"] = f"{err.get('registered', 0)}/{err.get('total', meta['views'])}"
-        row[f"{name}_rot_deg"] = (err.get("rotation_deg") or {}).get("median")
-        row[f"{name}_center_rel"] = (err.get("center_rel") or {}).get("median")
+        row |= colmap_columns(name, io.read_json(d / "pose_error.json"))
     return row
+
+
+def colmap_columns(name: str, rec: dict) -> dict:
+    """Registered views and median pose / reprojection errors of one COLMAP run (None if failed)."""
+    pose, reproj = rec.get("pose") or {}, rec.get("reprojection") or {}
+    return {f"{name}_registered": f"{rec['registered']}/{rec['total']}",
+            f"{name}_rot_deg": (pose.get("rotation_deg") or {}).get("median"),
+            f"{name}_center_rel": (pose.get("center_rel") or {}).get("median"),
+            f"{name}_reproj_px": reproj.get("median_px")}
 
 
 def summary_table(rows: list[dict]) -> pd.DataFrame:
@@ -41,7 +47,7 @@ def summary_table(rows: list[dict]) -> pd.DataFrame:
 
 def write_tables(df: pd.DataFrame, csv_path: str | os.PathLike, md_path: str | os.PathLike) -> None:
     io.write_text(csv_path, df.to_csv(float_format="%.4g"))
-    io.write_text(md_path, "# Data summary\n\n" + df.to_markdown(floatfmt=".4g") + "\n")
+    io.write_text(md_path, "# Data summary\n\n" + df.to_markdown(floatfmt=".4g", missingval="–") + "\n")
 
 
 def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray]]:

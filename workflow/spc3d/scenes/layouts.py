@@ -40,7 +40,7 @@ def ball(x: float, z: float, radius: float, tex: Texture, y0: float = 0.0, **kw)
 def tabletop() -> Layout:
     prims = [
         ground(0.0, texture("immunohistochemistry", (0.95, 0.9, 0.85), gain=1.1), tile=2.5, shading=0.8),
-        backdrop(-5.5, texture("brick", (0.85, 0.72, 0.55), base=(0.12, 0.08, 0.06), gain=1.4), (6.0, 6.0)),
+        backdrop(-5.5, texture("brick", (0.85, 0.72, 0.55), base=(0.12, 0.08, 0.06), gain=1.4), (8.0, 8.0)),
         ball(-0.75, -2.1, 0.32, texture("gravel", (0.1, 0.25, 0.85), base=(0.01, 0.02, 0.1), gain=1.3), spin=30),
         ball(0.5, -1.75, 0.2, texture("clock", (0.9, 0.55, 0.25), base=(0.05, 0.02, 0.01)), spin=-60),
         ball(1.05, -4.0, 0.42, texture("retina", base=(0.2, 0.03, 0.01), gain=1.3), spin=90),

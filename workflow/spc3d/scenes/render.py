@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..cameras import Cameras, look_at
+from ..spc import linear_to_srgb
 from .primitives import dot, nearest, occluded, rotate
-from .textures import linear_to_srgb
 
 RAYS_PER_CHUNK = 1 << 17  # bounds the working memory of one tracing step (~100 MB at most)
 

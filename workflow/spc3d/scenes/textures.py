@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..llff import area_matrix
+from ..spc import srgb_to_linear
 
 SAMPLE_IMAGES = (
     "astronaut", "brick", "camera", "chelsea", "coffee", "coins", "colorwheel", "grass", "gravel",
@@ -24,18 +25,6 @@ SAMPLE_IMAGES = (
     "clock", "cell",
 )
 MAX_SIZE = 512  # textures are area-downscaled once so that their longer side is at most this
-
-
-def srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding, values in [0, 1] (any shape)."""
-    x = np.asarray(x, dtype=np.float64)
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(x: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB encoding of linear values, clipped to [0, 1] first (any shape)."""
-    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1.0 / 2.4) - 0.055)
 
 
 @dataclass(frozen=True, eq=False)
