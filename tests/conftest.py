@@ -3,6 +3,8 @@ from pathlib import Path
 
 import pytest
 
+from spc3d import lpips_net
+
 REPO = Path(__file__).resolve().parents[1]
 LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"
 LLFF_SCENES = ("fern", "flower", "fortress", "trex")
@@ -18,3 +20,16 @@ def llff_scene(name: str) -> Path:
 @pytest.fixture
 def fern() -> Path:
     return llff_scene("fern")
+
+
+@pytest.fixture(scope="session")
+def lpips_cache(request, tmp_path_factory) -> Path:
+    """Converted LPIPS weights, fetched once per checkout into pytest's cache (else the shared tmp
+    root); with xdist the first worker fetches and the others wait on lpips_net's file lock."""
+    cache = getattr(request.config, "cache", None)
+    folder = cache.mkdir("spc3d_lpips") if cache is not None else tmp_path_factory.getbasetemp().parent / "spc3d_lpips"
+    try:
+        lpips_net.fetch_to_cache(folder)
+    except lpips_net.LPIPSDownloadError as exc:
+        pytest.skip(f"LPIPS weights cannot be fetched here: {exc}")
+    return Path(folder)

@@ -29,19 +29,6 @@ def fixture_image(name: str) -> np.ndarray:
     return read_rgb(path)
 
 
-@pytest.fixture(scope="session")
-def lpips_cache(request, tmp_path_factory) -> Path:
-    """Cache folder shared by all xdist workers (pytest's cache, else the shared tmp root); the
-    first worker fetches the weights, the others wait on lpips_net's file lock."""
-    cache = getattr(request.config, "cache", None)
-    folder = cache.mkdir("spc3d_lpips") if cache is not None else tmp_path_factory.getbasetemp().parent / "spc3d_lpips"
-    try:
-        lpips_net.fetch_to_cache(folder)
-    except lpips_net.LPIPSDownloadError as exc:
-        pytest.skip(f"LPIPS weights cannot be fetched here: {exc}")
-    return Path(folder)
-
-
 # --------------------------------------------------------------------------------------------- PSNR
 def test_psnr_known_mse_numpy_and_torch():
     a = np.zeros((8, 9, 3), np.float32)

@@ -68,17 +68,21 @@ def test_dry_run_lists_the_dag(tmp_path):
               if len(line.split()) == 2 and line.split()[1].isdigit()}
     assert counts["scene_prepare"] == 4 and counts["spc_simulate"] == 4 and counts["augment"] == 3
     assert counts["colmap_poses"] == 12 and counts["data_summary"] == 1
+    assert counts["reconstruct"] == 6 and counts["evaluate"] == 6 and counts["tables"] == 1
 
 
 @pytest.mark.slow
-def test_smoke_run_end_to_end(tmp_path):
-    """One output path alone, then the whole current DAG on the smoke preset, then a no-op rerun."""
+def test_smoke_run_end_to_end(tmp_path, lpips_cache):
+    """One output path alone, then the whole DAG on the smoke preset, then a no-op rerun."""
     res = tmp_path / "results"
-    single = snakemake(tmp_path, "results/spc/courtyard", "--cores", "2", "--configfile", str(SMOKE))
+    local = tmp_path / "local.yaml"  # the LPIPS weights the test session already fetched
+    local.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
+    configs = ["--configfile", str(SMOKE), str(local)]
+    single = snakemake(tmp_path, "results/spc/courtyard", "--cores", "2", *configs)
     assert single.returncode == 0, single.stderr[-3000:]
     assert (res / "spc" / "courtyard" / "spc.json").exists()
     assert not (res / "scenes" / "tabletop").exists()  # only what the target needs
-    proc = snakemake(tmp_path, "--cores", "2", "--configfile", str(SMOKE))
+    proc = snakemake(tmp_path, "--cores", "2", *configs)
     assert proc.returncode == 0, proc.stderr[-4000:]
     table = pd.read_csv(res / "summary" / "data_summary.csv", index_col=0)
     assert list(table.index) == ["tabletop", "courtyard"]
@@ -95,7 +99,14 @@ def test_smoke_run_end_to_end(tmp_path):
     assert np.load(res / "scenes" / "tabletop" / "poses_bounds.npy").shape == (9, 17)
     assert (tmp_path / "logs" / "spc_simulate" / "courtyard.log").read_text().strip()
     assert (tmp_path / "benchmarks" / "spc_simulate" / "courtyard.tsv").exists()
-    again = snakemake(tmp_path, "-n", "--cores", "2", "--configfile", str(SMOKE))
+    # Stage 2: every combination evaluated, the table in the paper's layout.
+    metrics = io.read_json(res / "eval" / "courtyard" / "bernoulli+3dgs" / "metrics.json")
+    assert set(metrics["mean"]) == {"psnr", "ssim", "lpips_alex", "lpips_vgg"} and metrics["seed"] == 0
+    assert metrics["capacity"]["gaussians"] > 0 and metrics["train_s"] > 0 and len(metrics["per_view"]) == 2
+    stage2 = pd.read_csv(res / "tables" / "single_stage.csv").set_index("combination")
+    assert stage2.loc["gt+nerf-grid", "runs"] == 1 and np.isfinite(stage2.loc["none+3dgs", "psnr_mean"])
+    assert (res / "checkpoints" / "courtyard" / "gt+3dgs" / "checkpoint.pt").exists()
+    again = snakemake(tmp_path, "-n", "--cores", "2", *configs)
     assert "Nothing to be done" in again.stdout + again.stderr
 
 
@@ -106,9 +117,11 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     cfg = tmp_path / "fern.yaml"
     cfg.write_text(yaml.safe_dump({"scenes": {"train": [], "eval": ["fern"]},
                                    "llff_scenes": {"fern": str(LLFF_ROOT / "fern")},
-                                   "resolution": {"width": 96}, "spc": {"frames": 4},
+                                   "resolution": {"width": 128}, "spc": {"frames": 4},
                                    "colmap": {"inputs": ["rgb"]}}))
-    proc = snakemake(tmp_path, "--cores", "2", "--configfile", str(cfg))
+    proc = snakemake(tmp_path, "results/summary/data_summary.md", "--cores", "2", "--configfile", str(SMOKE), str(cfg))
     assert proc.returncode == 0, proc.stderr[-4000:]
     meta = io.read_json(tmp_path / "results" / "scenes" / "fern" / "scene.json")
-    assert meta["source"] == "llff" and meta["width"] == 96 and meta["height"] == 72
+    assert meta["source"] == "llff" and meta["width"] == 128 and meta["height"] == 96
+    pose = io.read_json(tmp_path / "results" / "colmap" / "fern" / "rgb" / "pose_error.json")
+    assert pose["registered"] >= 18  # real photos register from their RGB views

@@ -10,7 +10,7 @@ validate(config, schema="../schemas/config.schema.yaml")
 sys.path.insert(0, str(Path(workflow.basedir) / "workflow"))
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import scene_specs
+from spc3d.workflow import resolve_combinations, scene_specs
 
 ENV = "../../envs/spc3d.yaml"
 SCENE_SPECS = scene_specs(config, sorted(LAYOUTS), workflow.basedir)
@@ -18,11 +18,15 @@ TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])
 ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
+STAGE2_MODELS = ["3dgs", "nerf", "nerf-grid"]
+COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 
 
 wildcard_constraints:
     scene="|".join(ALL_SCENES) or "(?!)",
     images="rgb|binary|average",
+    source="[a-z0-9]+",
+    model="|".join(STAGE2_MODELS),
 
 
 def get_final_output():
@@ -30,7 +34,31 @@ def get_final_output():
     return [
         "results/summary/data_summary.md",
         *expand("results/augment/{scene}", scene=TRAIN_SCENES),
+        "results/tables/single_stage.md",
     ]
+
+
+def get_eval_outputs():
+    """metrics.json of every configured combination on every evaluation scene."""
+    return expand("results/eval/{scene}/{combo}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS)
+
+
+def get_reconstruct_inputs(wildcards):
+    """The scene, plus its SPC folder for the SPC-derived sources."""
+    inputs = {"scene": f"results/scenes/{wildcards.scene}"}
+    if wildcards.source != "gt":
+        inputs["spc"] = f"results/spc/{wildcards.scene}"
+    return inputs
+
+
+def get_model_settings(wildcards):
+    """The config's settings of the stage-2 model (overrides of its dataclass defaults)."""
+    return dict(config["stage2"][wildcards.model])
+
+
+def get_checkpoint_path(wildcards):
+    """Outside the rule's output folder, so Snakemake's clean-up of a failed job keeps it."""
+    return f"results/checkpoints/{wildcards.scene}/{wildcards.source}+{wildcards.model}/checkpoint.pt"
 
 
 def get_scene_spec(wildcards):

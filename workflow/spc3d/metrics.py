@@ -141,6 +141,9 @@ def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: 
 # ---------------------------------------------------------------------------------------------
 # LPIPS
 # ---------------------------------------------------------------------------------------------
+LPIPS_MIN_SIZE = 32  # AlexNet: stride-4 conv + two 3x3/2 pools before conv3 need >= 32 px per side
+
+
 def lpips_batch(pred: torch.Tensor, target: torch.Tensor, net: str = "alex",
                 weights_path: str | os.PathLike | None = None,
                 cache_dir: str | os.PathLike | None = None) -> torch.Tensor:
@@ -148,6 +151,9 @@ def lpips_batch(pred: torch.Tensor, target: torch.Tensor, net: str = "alex",
 
     Weights resolve as in ``spc3d.lpips_net.lpips_weights``; the network is cached per process.
     """
+    if min(pred.shape[-2:]) < LPIPS_MIN_SIZE:
+        raise ValueError(f"LPIPS needs images of at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels (AlexNet's "
+                         f"strided layers and pools leave nothing of smaller ones), got {tuple(pred.shape[-2:])}")
     model = get_lpips_net(net, weights_path, cache_dir)
     if model.shift.device != pred.device:
         model.to(pred.device)

@@ -54,3 +54,14 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
         raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
     return specs
 
+
+
+def resolve_combinations(combinations: list[str], nerf_variant: str) -> list[str]:
+    """``source+model`` names with the family ``nerf`` resolved to the configured NeRF variant."""
+    out = []
+    for combo in combinations:
+        source, sep, model = combo.partition("+")
+        if not sep or not source or model not in ("3dgs", "nerf", "nerf-grid"):
+            raise ConfigError(f"stage2.combinations: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
+        out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
+    return list(dict.fromkeys(out))

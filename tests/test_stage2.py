@@ -1,0 +1,110 @@
+"""Stage 2 plumbing: image sources, reconstruct -> renders, evaluation records, paper tables."""
+import numpy as np
+import pytest
+import torch
+
+from spc3d import io, spc, tables
+from spc3d.evaluate import evaluate
+from spc3d.reconstruct import RECONSTRUCTORS, build_config
+from spc3d.reconstruct.gaussians import GaussianConfig
+from spc3d.reconstruct.objectives import BernoulliObjective
+from spc3d.scenes import write_builtin_scene
+from spc3d.simulate import simulate_scene
+from spc3d.sources import load_source
+from spc3d.stage2 import reconstruct
+
+TINY_3DGS = {"iterations": 12, "densify_from": 4, "densify_until": 10, "densify_every": 4, "init_points": 300,
+             "backend": "reference"}
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("stage2")
+    write_builtin_scene("gallery", root / "scenes" / "gallery", height=36, width=48, views=10, supersample=1)
+    simulate_scene(root / "scenes" / "gallery", root / "spc" / "gallery", spc.SPCParams(frames=4), seed=0)
+    return root
+
+
+def test_sources_hold_only_training_views(scene):
+    gt = load_source("gt", scene / "scenes" / "gallery")
+    assert gt.views.targets.shape == (8, 36, 48, 3) and gt.objective is None  # views 0 and 8 held out
+    assert "image000" not in gt.views.names and "image008" not in gt.views.names
+    none = load_source("none", scene / "scenes" / "gallery", scene / "spc" / "gallery")
+    assert set(torch.unique(none.views.targets).tolist()) <= {0.0, 1.0}
+    mle = load_source("mle", scene / "scenes" / "gallery", scene / "spc" / "gallery")
+    assert float((mle.views.targets - gt.views.targets).abs().mean()) < float((none.views.targets - gt.views.targets).abs().mean())
+
+
+def test_bernoulli_source_uses_the_simulation_physics(scene):
+    src = load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4)
+    rec = io.read_json(scene / "spc" / "gallery" / "spc.json")
+    assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == rec["flux_scale"]
+    assert set(torch.unique(src.views.targets * 4).round().tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
+    with pytest.raises(ValueError, match="stage2.frames=5 but .* K=4"):
+        load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=5)
+
+
+def test_unknown_source_and_setting_are_named(scene):
+    with pytest.raises(ValueError, match="unknown image source 'sketch'"):
+        load_source("sketch", scene / "scenes" / "gallery", scene / "spc" / "gallery")
+    with pytest.raises(ValueError, match=r"stage2.3dgs: unknown setting\(s\) \['iters'\]"):
+        build_config(GaussianConfig, {"iters": 3}, "stage2.3dgs")
+    assert set(RECONSTRUCTORS) == {"3dgs", "nerf", "nerf-grid"}
+
+
+def test_reconstruct_writes_renders_and_resumes(scene, tmp_path):
+    ckpt = tmp_path / "ckpt" / "checkpoint.pt"
+    out = tmp_path / "recon"
+    rec = reconstruct(scene / "scenes" / "gallery", out, "gt", "3dgs", TINY_3DGS, seed=1, checkpoint=ckpt)
+    train = io.read_json(out / "train.json")
+    assert train["test_views"] == ["image000", "image008"] and train["seed"] == 1
+    assert train["capacity"]["gaussians"] > 0 and train["settings"]["iterations"] == 12 and rec["train_s"] > 0
+    assert io.read_rgb(out / "renders" / "image008.png").shape == (36, 48, 3)
+    longer = reconstruct(scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs",
+                         {**TINY_3DGS, "iterations": 16}, seed=1, checkpoint=ckpt)
+    assert longer["resumed_from"] == 12  # a rerun continues from the checkpoint
+
+
+def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):
+    settings = {"n_iters": 6, "batch_rays": 256, "n_samples": 16, "res_schedule": [[0, 12]], "chunk": 1024}
+    rec = reconstruct(scene / "scenes" / "gallery", tmp_path / "r", "bernoulli", "nerf-grid", settings,
+                      spc_dir=scene / "spc" / "gallery", frames=2)
+    train = io.read_json(tmp_path / "r" / "train.json")
+    assert train["objective"] == "bernoulli" and train["frames"] == 2 and rec["capacity"]["resolution"] == 12
+
+
+def test_evaluate_perfect_renders(scene, tmp_path, lpips_cache):
+    recon = tmp_path / "recon"
+    for name in ("image000", "image008"):
+        io.write_image(recon / "renders" / f"{name}.png", io.read_rgb(scene / "scenes" / "gallery" / "images" / f"{name}.png"))
+    io.write_json(recon / "train.json", {"source": "gt", "model": "3dgs", "seed": 0, "test_views": ["image000", "image008"]})
+    rec = evaluate(recon, scene / "scenes" / "gallery", tmp_path / "metrics.json", lpips_dir=lpips_cache)
+    assert rec["mean"]["psnr"] == float("inf") and rec["mean"]["ssim"] == pytest.approx(1.0)
+    assert rec["mean"]["lpips_alex"] == pytest.approx(0.0, abs=1e-6) and rec["combination"] == "gt+3dgs"
+    assert io.read_json(tmp_path / "metrics.json")["mean"]["psnr"] == float("inf")
+    with pytest.raises(ValueError, match="at least 32x32"):
+        from spc3d.metrics import lpips
+        lpips(np.zeros((20, 40, 3)), np.zeros((20, 40, 3)), cache_dir=lpips_cache)
+
+
+def fake_metrics(path, scene, combo, seed, psnr, ssim, lpips):
+    io.write_json(path, {"scene": scene, "combination": combo, "seed": seed,
+                         "mean": {"psnr": psnr, "ssim": ssim, "lpips_alex": lpips, "lpips_vgg": lpips}})
+    return path
+
+
+def test_single_stage_table_marks_best_from_numbers(tmp_path):
+    files = [fake_metrics(tmp_path / "a.json", "s", "none+3dgs", 0, 18.0, 0.5, 0.5),
+             fake_metrics(tmp_path / "b.json", "s", "none+3dgs", 1, 20.0, 0.6, 0.4),
+             fake_metrics(tmp_path / "c.json", "s", "bernoulli+3dgs", 0, 21.0, 0.55, 0.45),
+             fake_metrics(tmp_path / "d.json", "s", "gt+3dgs", 0, 30.0, 0.9, 0.1)]
+    df = tables.single_stage_table([str(f) for f in files], str(tmp_path / "single_stage"), "nerf-grid")
+    row = df.set_index("combination").loc["none+3dgs"]
+    assert row["psnr_mean"] == pytest.approx(19.0) and row["psnr_std"] == pytest.approx(1.0) and row["runs"] == 2
+    md = (tmp_path / "single_stage.md").read_text()
+    assert "**21.00 ± 0.00**" in md and "*19.00 ± 1.00*" in md  # oracle rows are not ranked
+    assert "30.00 ± 0.00" in md and "**30.00" not in md
+    assert md.count("**0.5500 ±") == 2  # SSIM tie (0.55 both): both marked best
+    assert "19.42" in md and "NeRF on binary (single stage) [nerf-grid]" in md
+    assert "\\textbf{21.00 $\\pm$ 0.00}" in (tmp_path / "single_stage.tex").read_text()
+    assert (tmp_path / "single_stage.csv").read_text().startswith("approach,combination")

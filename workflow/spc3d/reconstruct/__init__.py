@@ -1,0 +1,62 @@
+"""Stage-2 reconstructors: one model per file, built through the plain registry ``RECONSTRUCTORS``.
+
+    3dgs        3D Gaussian Splatting (gaussians.py, densify.py, splatting.py; rasterizer in splat/)
+    nerf        the paper's NeRF: MLP with positional encoding, coarse + fine (nerf.py)
+    nerf-grid   explicit density/feature grids, coarse-to-fine, occupancy skipping (nerf_grid.py)
+
+Each entry maps ``(views, objective, settings, seed)`` to ``(trainer, iterations, config)``; a trainer
+has ``step / render / capacity / state / load`` and is driven by :func:`train.run`. ``objective``
+None means the model's own RGB loss (3DGS: 0.8 L1 + 0.2 D-SSIM; NeRF: MSE); a
+:class:`objectives.BernoulliObjective` fits binary frames through the SPAD likelihood instead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from .objectives import RGBObjective
+
+
+def build_config(cls, settings: dict, where: str, base=None):
+    """``cls`` with ``settings`` overriding ``base`` (or the defaults); unknown keys name themselves."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(settings) - fields)
+    if unknown:
+        raise ValueError(f"{where}: unknown setting(s) {unknown}; valid keys: {sorted(fields)}")
+    values = {k: _tuples(v) for k, v in settings.items()}
+    return dataclasses.replace(base, **values) if base is not None else cls(**values)
+
+
+def _tuples(v):
+    """YAML lists -> tuples, so frozen configs stay hashable."""
+    return tuple(_tuples(x) for x in v) if isinstance(v, list) else v
+
+
+def make_3dgs(views, objective, settings: dict, seed: int):
+    from .gaussians import GaussianConfig
+    from .splatting import SplatTrainer
+
+    cfg = build_config(GaussianConfig, settings, "stage2.3dgs")
+    trainer = SplatTrainer(views, objective or RGBObjective("l1", cfg.ssim_weight), cfg, seed)
+    return trainer, cfg.iterations, cfg
+
+
+def make_nerf(views, objective, settings: dict, seed: int):
+    from .nerf import NerfConfig, nerf_preset
+    from .nerf_trainer import RayTrainer
+
+    settings = dict(settings)
+    base = nerf_preset(settings.pop("preset", "paper"))
+    cfg = build_config(NerfConfig, settings, "stage2.nerf", base)
+    return RayTrainer(views, objective or RGBObjective("mse"), "nerf", cfg, seed), cfg.n_iters, cfg
+
+
+def make_nerf_grid(views, objective, settings: dict, seed: int):
+    from .nerf_grid import GridConfig
+    from .nerf_trainer import RayTrainer
+
+    cfg = build_config(GridConfig, settings, "stage2.nerf-grid")
+    return RayTrainer(views, objective or RGBObjective("mse"), "nerf-grid", cfg, seed), cfg.n_iters, cfg
+
+
+RECONSTRUCTORS = {"3dgs": make_3dgs, "nerf": make_nerf, "nerf-grid": make_nerf_grid}

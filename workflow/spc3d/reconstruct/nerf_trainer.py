@@ -1,0 +1,105 @@
+"""Training of the NeRF family (``nerf``: MLP, ``nerf-grid``: explicit grid) on NDC rays.
+
+The training cameras are recentred and rescaled as the LLFF NeRF does (:func:`rays.recenter`);
+every training pixel becomes one NDC ray, and each step fits a random batch of rays. Evaluation
+cameras are mapped by the same similarity. The MLP NeRF is supervised on its coarse and fine
+outputs (as the original); the grid adds its total-variation term, grows its resolution on the
+configured schedule and refreshes its occupancy mask (empty-space skipping) periodically.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Cameras, transform_cameras
+from . import nerf, nerf_grid
+from .rays import camera_rays, ndc_rays, recenter, view_dirs
+from .train import Views, psnr_of
+from .volume import render_chunked
+
+
+def all_rays(cams: Cameras, idx) -> tuple[Tensor, Tensor, Tensor]:
+    """NDC origins, NDC directions and unit world view directions of every pixel of views ``idx``."""
+    o_all, d_all, v_all = [], [], []
+    for i in idx:
+        o, d = camera_rays(cams, int(i))
+        fx, fy = cams.intrinsics[int(i), :2]
+        o_n, d_n = ndc_rays(o, d, float(fx), float(fy), cams.width, cams.height)
+        o_all.append(o_n), d_all.append(d_n), v_all.append(view_dirs(d))
+    return torch.cat(o_all), torch.cat(d_all), torch.cat(v_all)
+
+
+class RayTrainer:
+    """Fits a NeRF (``kind`` "nerf") or GridNeRF (``kind`` "nerf-grid") to ``views``."""
+
+    def __init__(self, views: Views, objective, kind: str, cfg, seed: int = 0):
+        torch.manual_seed(seed)
+        self.kind, self.cfg, self.objective = kind, cfg, objective
+        self.cams, self.similarity = recenter(views.cameras)
+        self.rays = all_rays(self.cams, range(len(self.cams)))
+        self.targets = views.targets.reshape(-1, views.targets.shape[-1])
+        self.model = nerf.NeRF(cfg) if kind == "nerf" else nerf_grid.GridNeRF(cfg)
+        self.lib = nerf if kind == "nerf" else nerf_grid
+        self.opt = self.lib.make_optimizer(self.model, cfg)
+        self.rng = np.random.default_rng(seed)
+
+    def step(self, it: int) -> dict:
+        if self.kind == "nerf-grid":
+            self._grid_schedule(it)
+        _set_lr(self.opt, self.lib.lr_at(it, self.cfg))
+        sel = torch.as_tensor(self.rng.integers(self.targets.shape[0], size=self.cfg.batch_rays))
+        out = self.model(self.rays[0][sel], self.rays[1][sel], train=True, viewdirs=self.rays[2][sel])
+        target = self.targets[sel]
+        loss = self.objective.loss(out["rgb"], target)
+        if self.kind == "nerf" and self.model.fine is not None:
+            loss = loss + self.objective.loss(out["rgb_coarse"], target)
+        if self.kind == "nerf-grid":
+            loss = loss + self.model.tv_loss()
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        self.opt.step()
+        rgb = self.objective.name == "rgb"
+        return {"loss": loss.item(), "psnr": psnr_of(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
+
+    def _grid_schedule(self, it: int) -> None:
+        """Coarse-to-fine growth and periodic occupancy refresh of the grid."""
+        res = self.model.res_for_step(it)
+        if res != self.model.res:
+            self.model.upsample(res)
+            self.opt = self.lib.make_optimizer(self.model, self.cfg, it)  # new parameter tensors
+        if it >= self.cfg.occupancy_warmup and it % self.cfg.occupancy_every == 0:
+            self.model.update_occupancy()
+
+    @torch.no_grad()
+    def render(self, cams: Cameras, i: int) -> Tensor:
+        view = transform_cameras(cams.subset([i]), *self.similarity)
+        o, d, v = all_rays(view, [0])
+        out = render_chunked(self.model, o, d, v, chunk=self.cfg.chunk)
+        return self.objective.to_srgb(out["rgb"]).reshape(cams.height, cams.width, -1)
+
+    def capacity(self) -> dict:
+        if self.kind == "nerf-grid":
+            return self.model.capacity()
+        return {"parameters": int(sum(p.numel() for p in self.model.parameters()))}
+
+    def state(self) -> dict:
+        return {"model": self.model.state_dict(), "opt": self.opt.state_dict(), "rng": self.rng.bit_generator.state,
+                "res": getattr(self.model, "res", None)}
+
+    def load(self, state: dict) -> None:
+        if self.kind == "nerf-grid" and state["res"] != self.model.res:
+            self.model.upsample(state["res"])  # shapes first; values come from the state dict
+            self.model.occupancy = state["model"]["occupancy"].clone()
+        self.model.load_state_dict(state["model"])
+        self.opt = self.lib.make_optimizer(self.model, self.cfg)
+        self.opt.load_state_dict(state["opt"])
+        self.rng.bit_generator.state = state["rng"]
+
+
+def _set_lr(opt: torch.optim.Optimizer, lrs: dict[str, float]) -> None:
+    for group in opt.param_groups:
+        group["lr"] = lrs[group["name"]]

@@ -1,0 +1,87 @@
+"""What a reconstructor is fitted to: sRGB images, or raw binary frames through the SPAD likelihood.
+
+``RGBObjective`` — the model renders sRGB and is compared with target images (ground truth, a
+stage-1 translation, the MLE image, or the raw binary frame as a 0/1 image for the paper's
+single-stage baselines). 3DGS uses 0.8·L1 + 0.2·(1 − SSIM) as Kerbl et al.; NeRF uses MSE.
+
+``BernoulliObjective`` — beyond the paper (as PhotonSplat / Quanta Radiance Fields): the model
+renders *linear* intensity ℓ ≥ 0, the SPAD sees flux φ = flux_scale·ℓ, a pixel fires with
+p = 1 − exp(−(qφ + dcr)T), and the loss is the binary cross-entropy of the observed bits. With K
+frames only the fraction f = S/K of ones matters: NLL = −[f·log p + (1 − f)·log(1 − p)], where
+log(1 − p) = −λT exactly and log p = log(−expm1(−λT)) (stable for tiny λT; λT is clamped at
+1e-12 from below because log p → −∞ as λT → 0, and the gradient with it). The rendered linear
+intensity is shown as sRGB for evaluation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+LN2 = 0.6931471805599453
+
+
+def srgb_to_linear(x: Tensor) -> Tensor:
+    """IEC 61966-2-1 sRGB decoding (torch; input clamped to [0, 1])."""
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(x: Tensor) -> Tensor:
+    """IEC 61966-2-1 sRGB encoding (torch; input clamped to [0, 1], power guarded at 0)."""
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
+
+
+@dataclass(frozen=True)
+class RGBObjective:
+    """Image loss on sRGB renders. ``ssim_weight`` 0.2 is 3DGS's λ; 0 gives plain L1/MSE."""
+
+    kind: str = "l1"  # "l1" (3DGS) or "mse" (NeRF)
+    ssim_weight: float = 0.0
+    name: str = "rgb"
+
+    def loss(self, pred: Tensor, target: Tensor) -> Tensor:
+        """pred, target: (..., H, W, 3) for SSIM, any (..., 3) without it."""
+        err = (pred - target).abs().mean() if self.kind == "l1" else (pred - target).square().mean()
+        if self.ssim_weight == 0.0:
+            return err
+        from ..metrics import ssim_loss
+
+        return (1.0 - self.ssim_weight) * err + self.ssim_weight * ssim_loss(_bchw(pred), _bchw(target))
+
+    def to_srgb(self, pred: Tensor) -> Tensor:
+        return pred.clamp(0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class BernoulliObjective:
+    """SPAD likelihood of the binary frames; target = fraction of ones over the K frames."""
+
+    flux_scale: float
+    q: float
+    exposure_s: float
+    dark_count_rate: float
+    name: str = "bernoulli"
+
+    def lam_t(self, linear: Tensor) -> Tensor:
+        """Expected detections λT per frame for a rendered linear intensity (clamped >= 0)."""
+        rate = self.q * self.flux_scale * linear.clamp_min(0.0) + self.dark_count_rate
+        return (rate * self.exposure_s).clamp_min(1e-12)  # log p -> -inf as λT -> 0 (see module doc)
+
+    def loss(self, pred: Tensor, target: Tensor) -> Tensor:
+        x = self.lam_t(pred)
+        # Each branch gets only the inputs where it is accurate, so the branch torch.where discards
+        # stays finite too (an inf there would turn its zero gradient into NaN).
+        small, large = x.clamp(max=LN2), x.clamp(min=LN2)
+        log_p = torch.where(x < LN2, torch.log(-torch.expm1(-small)), torch.log1p(-torch.exp(-large)))
+        return -(target * log_p - (1.0 - target) * x).mean()
+
+    def to_srgb(self, pred: Tensor) -> Tensor:
+        return linear_to_srgb(pred)
+
+
+def _bchw(x: Tensor) -> Tensor:
+    return (x if x.dim() == 4 else x[None]).permute(0, 3, 1, 2)

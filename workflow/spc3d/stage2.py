@@ -1,0 +1,67 @@
+"""Stage 2: fit a reconstructor to one scene's source images and render its held-out views.
+
+``reconstruct`` is the entry point of the workflow's ``reconstruct`` rule. Output folder
+(``results/recon/{scene}/{source}+{model}/``), written atomically at the end:
+
+    renders/{view}.png   the held-out (every 8th) views rendered in sRGB
+    train.json           model, source, objective, seed, resolved settings, iterations, training and
+                         rendering wall time, capacity (Gaussians / voxels / parameters, peak memory)
+
+The checkpoint lives outside that folder (``checkpoint``, e.g. ``results/checkpoints/...``) so
+that Snakemake's clean-up of an interrupted job's outputs keeps it: a rerun resumes from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import io, llff
+from .cameras import split_views
+from .reconstruct import RECONSTRUCTORS
+from .reconstruct.train import run, seed_everything
+from .sources import load_source
+
+log = logging.getLogger(__name__)
+
+
+def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source: str, model: str,
+                settings: dict, seed: int = 0, spc_dir: str | os.PathLike | None = None,
+                image_dir: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
+                frames: int = 1, threads: int | None = None) -> dict:
+    """Train ``model`` on ``source`` images of a scene, render the test views; return the record."""
+    if model not in RECONSTRUCTORS:
+        raise ValueError(f"unknown stage-2 model {model!r}; choose one of {sorted(RECONSTRUCTORS)}")
+    if threads:
+        torch.set_num_threads(threads)
+    seed_everything(seed)
+    src = load_source(source, scene_dir, spc_dir, image_dir, frames)
+    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed)
+    log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
+    if checkpoint:
+        Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
+    record = run(trainer, iterations, checkpoint, desc=f"{source}+{model}")
+    render_s = write_renders(trainer, scene_dir, out_dir, record | {
+        "model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"),
+        "seed": seed, "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None})
+    return record | {"render_s": render_s}
+
+
+def write_renders(trainer, scene_dir, out_dir, record: dict) -> float:
+    """Render every held-out view into ``out_dir/renders`` and write ``train.json``, atomically."""
+    scene = llff.read_scene(scene_dir)
+    _, test = split_views(len(scene.names))
+    t0 = time.perf_counter()
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        for i in test:
+            image = trainer.render(scene.cameras, int(i)).detach().cpu().numpy()
+            io.write_image(tmp / "renders" / f"{scene.names[i]}.png", np.clip(image, 0.0, 1.0))
+        render_s = time.perf_counter() - t0
+        io.write_json(tmp / "train.json", record | {"render_s": render_s, "test_views": [scene.names[i] for i in test]})
+    return render_s

@@ -1,0 +1,111 @@
+"""Paper-layout tables generated from ``metrics.json`` files (mean ± std over scenes and seeds).
+
+A table spec is a list of rows ``(label, source, stage-2 family, paper (PSNR, SSIM, LPIPS) or None,
+role)``; the family ``nerf`` resolves to the configured NeRF variant (``nerf`` or ``nerf-grid``),
+whose name appears in the row. Best and second-best values per column (among the non-oracle rows
+that have results) are marked bold and italic from the numbers themselves. The paper's values sit
+in adjacent columns; the paper does not name its LPIPS backbone, so both of ours are shown.
+
+Outputs: ``{stem}.csv`` (numbers), ``{stem}.md`` and ``{stem}.tex`` (formatted).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import io
+
+METRICS = {"psnr": ("PSNR↑", True), "ssim": ("SSIM↑", True), "lpips_alex": ("LPIPS-alex↓", False),
+           "lpips_vgg": ("LPIPS-vgg↓", False)}
+
+# Paper Table 2 (single-stage), then the rows this project adds.
+SINGLE_STAGE = [
+    ("NeRF on binary (single stage)", "none", "nerf", (19.42, 0.6252, 0.50013), "paper"),
+    ("3DGS on binary (single stage)", "none", "3dgs", (18.643, 0.5103, 0.4855), "paper"),
+    ("Pix2PixHD + NeRF", "pix2pixhd", "nerf", (22.70, 0.6843, 0.4949), "paper"),
+    ("Pix2PixHD + 3DGS", "pix2pixhd", "3dgs", (22.21, 0.6772, 0.4251), "paper"),
+    ("3DGS, SPAD likelihood on binary (single stage)", "bernoulli", "3dgs", None, "ours"),
+    ("MLE of K frames + 3DGS", "mle", "3dgs", None, "ours"),
+    ("Oracle: ground-truth RGB + NeRF", "gt", "nerf", None, "oracle"),
+    ("Oracle: ground-truth RGB + 3DGS", "gt", "3dgs", None, "oracle"),
+]
+
+
+def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
+    """One row per metrics.json: scene, combination, seed and the mean metrics."""
+    rows = []
+    for path in metrics_files:
+        rec = io.read_json(path)
+        rows.append({"scene": rec["scene"], "combination": rec["combination"], "seed": rec.get("seed"),
+                     **{k: rec["mean"][k] for k in METRICS}})
+    return pd.DataFrame(rows, columns=["scene", "combination", "seed", *METRICS])
+
+
+def summarise(df: pd.DataFrame) -> pd.DataFrame:
+    """Mean, std and count per combination over scenes and seeds."""
+    g = df.groupby("combination")[list(METRICS)]
+    out = g.mean().add_suffix("_mean").join(g.std(ddof=0).add_suffix("_std")).join(g.size().rename("runs"))
+    return out
+
+
+def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
+    """Numeric table in the spec's row order (NaN where a combination has no results yet)."""
+    rows = []
+    for label, source, family, paper, role in spec:
+        model = nerf_variant if family == "nerf" else family
+        combo = f"{source}+{model}"
+        have = combo in summary.index
+        row = {"approach": label + (f" [{model}]" if family == "nerf" else ""), "combination": combo, "role": role,
+               "runs": int(summary.loc[combo, "runs"]) if have else 0}
+        for k in METRICS:
+            row[f"{k}_mean"] = summary.loc[combo, f"{k}_mean"] if have else np.nan
+            row[f"{k}_std"] = summary.loc[combo, f"{k}_std"] if have else np.nan
+        row.update(dict(zip(("paper_psnr", "paper_ssim", "paper_lpips"), paper or (np.nan,) * 3)))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def ranks(df: pd.DataFrame, key: str, higher_better: bool) -> pd.Series:
+    """1 = best, 2 = second among non-oracle rows with a value; 0 otherwise."""
+    vals = df[key].where(df["role"] != "oracle")
+    order = vals.rank(ascending=not higher_better, method="min")
+    return order.where(order <= 2, 0).fillna(0).astype(int)
+
+
+def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
+    """Display strings: mean ± std (best / second marked), paper values alongside."""
+    out = pd.DataFrame({"Approach": df["approach"], "combination": df["combination"], "runs": df["runs"]})
+    for k, (title, higher) in METRICS.items():
+        r = ranks(df, f"{k}_mean", higher)
+        digits = 2 if k == "psnr" else 4
+        cells = []
+        for mean, std, rank in zip(df[f"{k}_mean"], df[f"{k}_std"], r):
+            text = "–" if np.isnan(mean) else f"{mean:.{digits}f} ± {std:.{digits}f}"
+            cells.append(bold(text) if rank == 1 else italic(text) if rank == 2 else text)
+        out[title] = cells
+    for k, title in (("paper_psnr", "paper PSNR"), ("paper_ssim", "paper SSIM"), ("paper_lpips", "paper LPIPS")):
+        out[title] = [("–" if np.isnan(v) else f"{v:g}") for v in df[k]]
+    return out
+
+
+def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None:
+    """``stem``.csv (numbers), .md and .tex (formatted) atomically."""
+    stem = Path(stem)
+    io.write_text(stem.with_suffix(".csv"), df.to_csv(index=False, float_format="%.6g"))
+    md = formatted(df, lambda s: f"**{s}**", lambda s: f"*{s}*")
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + "\n")
+    tex = formatted(df, lambda s: f"\\textbf{{{s}}}", lambda s: f"\\textit{{{s}}}")
+    tex = tex.map(lambda s: s.replace("±", "$\\pm$").replace("↑", "$\\uparrow$").replace("↓", "$\\downarrow$")
+                  .replace("–", "--") if isinstance(s, str) else s)
+    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=caption, escape=False))
+
+
+def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
+    """Paper Table 2 layout (+ this project's rows) from the given metrics files."""
+    df = table(summarise(collect(metrics_files)), SINGLE_STAGE, nerf_variant)
+    write_table(df, stem, "Single-stage vs two-stage (paper Table 2 layout); mean ± std over scenes and seeds")
+    return df
