@@ -68,7 +68,7 @@ def test_split_children_are_smaller_and_near_the_parent():
 
 def test_densification_grows_where_gradients_demand(scene):
     cfg = GaussianConfig(iterations=60, densify_from=10, densify_until=60, densify_every=20, init_points=300,
-                         opacity_reset_every=10_000, densify_grad=1e-9, backend="reference", sh_interval=1000)
+                         opacity_reset_every=10_000, densify_grad=1e-9, backend="native", sh_interval=1000)
     t = SplatTrainer(tiny_views(scene), RGBObjective("l1", 0.2), cfg, seed=0)
     run(t, 60, desc="densify")
     assert len(t.model) > 300  # every Gaussian with a gradient was cloned or split
@@ -90,7 +90,7 @@ def one_thread():
 
 def test_resume_matches_uninterrupted_run(scene, tmp_path, one_thread):
     cfg = GaussianConfig(iterations=24, densify_from=5, densify_until=20, densify_every=5, init_points=200,
-                         opacity_reset_every=1000, backend="reference", sh_interval=8)
+                         opacity_reset_every=1000, backend="native", sh_interval=8)
     views = tiny_views(scene)
     full = SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=3)
     run(full, 24, desc="full")

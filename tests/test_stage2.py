@@ -14,7 +14,7 @@ from spc3d.sources import load_source
 from spc3d.stage2 import reconstruct
 
 TINY_3DGS = {"iterations": 12, "densify_from": 4, "densify_until": 10, "densify_every": 4, "init_points": 300,
-             "backend": "reference"}
+             "backend": "native"}
 
 
 @pytest.fixture(scope="module")

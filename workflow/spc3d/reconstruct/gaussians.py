@@ -22,7 +22,7 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import Cameras
-from .splat import eval_sh, project_gaussians, rasterize
+from .splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
 from .splat.project import SH_C0
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
@@ -88,7 +88,8 @@ class GaussianModel(nn.Module):
     def render(self, cams: Cameras, i: int, background: Tensor, backend: str = "native") -> dict:
         """Render view ``i``: image (H, W, 3), alpha (H, W), and the projection (for densification)."""
         K, w2c = cams.intrinsics[i], torch.as_tensor(cams.w2c[i], dtype=torch.float32)
-        proj = project_gaussians(self.means, self.scales, self.quats, w2c, *map(float, K), cams.height, cams.width)
+        project = project_gaussians_native if backend == "native" else project_gaussians  # same math
+        proj = project(self.means, self.scales, self.quats, w2c, *map(float, K), cams.height, cams.width)
         centre = torch.as_tensor(cams.centers[i], dtype=torch.float32)
         sh = torch.cat([self.sh_dc, self.sh_rest], 1)
         rgb = eval_sh(self.active_degree, sh, self.means - centre)

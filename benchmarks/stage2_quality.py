@@ -1,0 +1,96 @@
+"""Held-out quality vs training time of stage-2 combinations on a built-in scene (or real LLFF).
+
+Builds the scene and its SPC frames like the workflow does (default: courtyard, 128x96, 24 views,
+K = 16, calibrated exposure), trains each combination with the config's settings and prints the
+mean held-out PSNR (every 8th view) at fixed wall-clock marks, then the final PSNR / SSIM and the
+capacity. Single-threaded by default, as the workflow runs each job (`threads: 1`).
+
+    python benchmarks/stage2_quality.py                                   # gt+3dgs gt+nerf-grid ...
+    python benchmarks/stage2_quality.py --combos gt+3dgs --scene fern --width 504 --marks 60 300
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from spc3d import llff, metrics
+from spc3d.cameras import split_views
+from spc3d.prepare import prepare_scene
+from spc3d.reconstruct import RECONSTRUCTORS
+from spc3d.simulate import simulate_scene
+from spc3d.sources import load_source
+from spc3d.spc import SPCParams
+
+REPO = Path(__file__).resolve().parents[1]
+LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"
+
+
+def build_scene(name: str, width: int, work: Path) -> tuple[Path, Path]:
+    scene_dir, spc_dir = work / "scenes" / name, work / "spc" / name
+    if (LLFF_ROOT / name).is_dir():
+        spec = {"kind": "llff", "path": str(LLFF_ROOT / name), "factor": 8, "width": width}
+    else:
+        spec = {"kind": "builtin", "layout": name, "height": width * 3 // 4, "width": width, "views": 24,
+                "supersample": 3, "seed": 0}
+    prepare_scene(spec, scene_dir)
+    simulate_scene(scene_dir, spc_dir, SPCParams(frames=16), seed=0)
+    return scene_dir, spc_dir
+
+
+def held_out_psnr(trainer, scene) -> tuple[float, float]:
+    _, test = split_views(len(scene.names))
+    renders = [trainer.render(scene.cameras, int(i)).numpy() for i in test]
+    return (float(np.mean([metrics.psnr(r, scene.images[i]) for r, i in zip(renders, test)])),
+            float(np.mean([metrics.ssim(r, scene.images[i]) for r, i in zip(renders, test)])))
+
+
+def train_combo(combo: str, scene_dir: Path, spc_dir: Path, settings: dict, marks: list[float]) -> str:
+    source, model = combo.split("+")
+    src = load_source(source, scene_dir, spc_dir, frames=1)
+    trainer, iterations, _ = RECONSTRUCTORS[model](src.views, src.objective, settings.get(model, {}), 0)
+    scene = llff.read_scene(scene_dir)
+    at, pending, clock, it = [], list(marks), 0.0, 0
+    while it < iterations:
+        t0 = time.perf_counter()
+        it += 1
+        trainer.step(it)
+        clock += time.perf_counter() - t0
+        if pending and clock >= pending[0]:
+            at.append(f"{held_out_psnr(trainer, scene)[0]:6.2f}@{it}")
+            pending.pop(0)
+    psnr, ssim = held_out_psnr(trainer, scene)
+    at += ["     -"] * len(pending)
+    return f"{combo:<18} {' '.join(f'{a:>11}' for a in at)} {psnr:8.2f} {ssim:7.4f} {it:6d} {clock:8.1f}  {trainer.capacity()}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="courtyard")
+    ap.add_argument("--width", type=int, default=128)
+    ap.add_argument("--combos", nargs="+", default=["gt+3dgs", "gt+nerf-grid", "none+3dgs", "none+nerf-grid",
+                                                     "mle+3dgs", "bernoulli+3dgs"])
+    ap.add_argument("--marks", nargs="+", type=float, default=[30, 60, 120], help="seconds of training")
+    ap.add_argument("--config", default=str(REPO / "config.yaml"), help="settings from its stage2 section")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    settings = yaml.safe_load(Path(args.config).read_text())["stage2"]
+    settings["nerf"] = settings.get("nerf", {})
+    print(f"scene {args.scene} width {args.width}, {args.threads} thread(s); PSNR (dB) @ iteration at each mark")
+    print(f"{'combination':<18} {' '.join(f'{m:>10.0f}s' for m in args.marks)} {'PSNR':>8} {'SSIM':>7} "
+          f"{'iters':>6} {'train_s':>8}  capacity")
+    with tempfile.TemporaryDirectory() as tmp:
+        scene_dir, spc_dir = build_scene(args.scene, args.width, Path(tmp))
+        for combo in args.combos:
+            print(train_combo(combo, scene_dir, spc_dir, settings, args.marks), flush=True)
+
+
+if __name__ == "__main__":
+    main()
