@@ -138,3 +138,11 @@ def test_torch_srgb_matches_numpy():
     x = torch.linspace(0, 1, 101, dtype=torch.float64)
     np.testing.assert_allclose(srgb_to_linear(x).numpy(), spc.srgb_to_linear(x.numpy()), atol=1e-12)
     np.testing.assert_allclose(linear_to_srgb(x).numpy(), spc.linear_to_srgb(x.numpy()), atol=1e-12)
+
+
+def test_cap_keeps_the_strongest_candidates():
+    cand = torch.tensor([True, False, True, True, True])
+    grads = torch.tensor([0.5, 9.0, 0.1, 0.7, 0.3])
+    assert densify.cap_candidates(cand, grads, 2).tolist() == [True, False, False, True, False]
+    assert densify.cap_candidates(cand, grads, 10).tolist() == cand.tolist()
+    assert not densify.cap_candidates(cand, grads, 0).any()

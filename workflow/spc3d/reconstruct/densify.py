@@ -60,7 +60,7 @@ class DensityControl:
         big = model.scales.detach().max(1).values > self.cfg.percent_dense * self.extent
         cand = grads >= self.cfg.densify_grad
         room = max(self.cfg.max_gaussians - len(model), 0)
-        cand = cap_candidates(cand, grads, room, per_candidate=(1 + big.long()))
+        cand = cap_candidates(cand, grads, room)  # a clone adds one; a split adds two, removes one
         clone, split = cand & ~big, cand & big
         new = concat_dicts(clone_params(model, clone), split_params(model, split, self.generator))
         n_old = len(model)
@@ -77,14 +77,12 @@ class DensityControl:
         self.reset_stats(len(model))
 
 
-def cap_candidates(cand: Tensor, grads: Tensor, room: int, per_candidate: Tensor) -> Tensor:
-    """Keep the highest-gradient candidates whose new Gaussians fit into ``room``."""
-    if int(per_candidate[cand].sum()) <= room:
+def cap_candidates(cand: Tensor, grads: Tensor, room: int) -> Tensor:
+    """Keep at most ``room`` candidates, those with the highest mean gradient."""
+    if int(cand.sum()) <= room:
         return cand
-    order = torch.argsort(torch.where(cand, grads, torch.full_like(grads, -1.0)), descending=True)
-    fits = torch.cumsum(per_candidate[order] * cand[order], 0) <= room
     out = torch.zeros_like(cand)
-    out[order[fits & cand[order]]] = True
+    out[torch.where(cand, grads, torch.full_like(grads, -1.0)).topk(room).indices] = True
     return out
 
 
