@@ -108,3 +108,42 @@ def test_single_stage_table_marks_best_from_numbers(tmp_path):
     assert "19.42" in md and "NeRF on binary (single stage) [nerf-grid]" in md
     assert "\\textbf{21.00 $\\pm$ 0.00}" in (tmp_path / "single_stage.tex").read_text()
     assert (tmp_path / "single_stage.csv").read_text().startswith("approach,combination")
+
+
+@pytest.fixture(scope="module")
+def colmap_scene(tmp_path_factory):
+    """A built-in scene COLMAP registers (128 x 96, 24 views, as the default config) and its COLMAP run."""
+    from spc3d.colmap import colmap_poses
+
+    root = tmp_path_factory.mktemp("colmap_init")
+    write_builtin_scene("courtyard", root / "scene", height=96, width=128, views=24, supersample=2)
+    rec = colmap_poses(root / "scene" / "images", root / "scene", root / "colmap", max_features=2048)
+    if rec["registered"] < 3:
+        pytest.skip(f"COLMAP registered only {rec['registered']} views here")
+    return root
+
+
+def test_colmap_points_land_on_the_scene(colmap_scene):
+    from spc3d.cameras import project
+    from spc3d.colmap import sparse_points
+    from spc3d.llff import read_scene
+
+    xyz, rgb = sparse_points(colmap_scene / "colmap")
+    scene = read_scene(colmap_scene / "scene", with_depth=True)
+    uv, z = project(scene.cameras.subset([0]), xyz)
+    inside = (z[0] > 0) & (uv[0, :, 0] >= 0) & (uv[0, :, 0] < 128) & (uv[0, :, 1] >= 0) & (uv[0, :, 1] < 96)
+    assert len(xyz) > 50 and inside.mean() > 0.8 and rgb.min() >= 0 and rgb.max() <= 1
+    # In the scene's world, visible points sit on the rendered surfaces (depth agrees within 5 %).
+    u, v = uv[0, inside, 0].astype(int), uv[0, inside, 1].astype(int)
+    rel = np.abs(z[0, inside] - scene.depths[0, v, u]) / scene.depths[0, v, u]
+    assert np.median(rel) < 0.05
+
+
+def test_reconstruct_starts_from_colmap_points(colmap_scene, tmp_path):
+    settings = {**TINY_3DGS, "iterations": 2}
+    reconstruct(colmap_scene / "scene", tmp_path / "r", "gt", "3dgs", settings, points_dir=colmap_scene / "colmap")
+    assert io.read_json(tmp_path / "r" / "train.json")["init"].startswith("colmap sparse points")
+    failed = tmp_path / "failed"
+    io.write_json(failed / "pose_error.json", {"status": "failed: no image registered", "pose": {"aligned": False}})
+    reconstruct(colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed)
+    assert io.read_json(tmp_path / "r2" / "train.json")["init"].startswith("random (")

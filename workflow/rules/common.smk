@@ -44,10 +44,12 @@ def get_eval_outputs():
 
 
 def get_reconstruct_inputs(wildcards):
-    """The scene, plus its SPC folder for the SPC-derived sources."""
+    """The scene, its SPC folder for the SPC-derived sources, COLMAP's points for a 3DGS init."""
     inputs = {"scene": f"results/scenes/{wildcards.scene}"}
     if wildcards.source != "gt":
         inputs["spc"] = f"results/spc/{wildcards.scene}"
+    if wildcards.model == "3dgs" and config["stage2"]["init"] == "colmap":
+        inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     return inputs
 
 

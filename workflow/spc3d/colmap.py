@@ -390,3 +390,21 @@ def evaluate(rec: pycolmap.Reconstruction | None, ref: Cameras, names: list[str]
     if pose["aligned"]:
         record["reprojection"] = reprojection_error(rec, ref, names, similarity_of(pose))
     return record
+
+
+def sparse_points(colmap_dir: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """COLMAP's sparse points of a ``colmap_poses`` folder, in the reference (scene) world.
+
+    Returns xyz (M, 3) mapped by the run's similarity (x_ref = s R x + t) and rgb (M, 3) in [0, 1].
+    Raises ValueError when the run has no aligned reconstruction (e.g. nothing registered).
+    """
+    colmap_dir = Path(colmap_dir)
+    record = io.read_json(colmap_dir / "pose_error.json")
+    if not (record.get("pose") or {}).get("aligned") or not (colmap_dir / "sparse" / "0").is_dir():
+        raise ValueError(f"{colmap_dir}: no aligned COLMAP reconstruction to take points from ({record.get('status')})")
+    rec = pycolmap.Reconstruction(str(colmap_dir / "sparse" / "0"))
+    points = list(rec.points3D.values())
+    xyz = np.array([p.xyz for p in points], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for p in points], dtype=np.float64).reshape(-1, 3) / 255.0
+    s, R, t = similarity_of(record["pose"])
+    return s * xyz @ R.T + t, rgb

@@ -24,6 +24,7 @@ import torch
 
 from . import io, llff
 from .cameras import split_views
+from .colmap import sparse_points
 from .reconstruct import RECONSTRUCTORS
 from .reconstruct.train import run, seed_everything
 from .sources import load_source
@@ -34,23 +35,41 @@ log = logging.getLogger(__name__)
 def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source: str, model: str,
                 settings: dict, seed: int = 0, spc_dir: str | os.PathLike | None = None,
                 image_dir: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
-                frames: int = 1, threads: int | None = None) -> dict:
-    """Train ``model`` on ``source`` images of a scene, render the test views; return the record."""
+                frames: int = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None) -> dict:
+    """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
+
+    ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
+    initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
+    """
     if model not in RECONSTRUCTORS:
         raise ValueError(f"unknown stage-2 model {model!r}; choose one of {sorted(RECONSTRUCTORS)}")
     if threads:
         torch.set_num_threads(threads)
     seed_everything(seed)
     src = load_source(source, scene_dir, spc_dir, image_dir, frames)
-    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed)
+    points, init = initial_points(points_dir)
+    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
     log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
     if checkpoint:
         Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
     record = run(trainer, iterations, checkpoint, desc=f"{source}+{model}")
     render_s = write_renders(trainer, scene_dir, out_dir, record | {
         "model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"),
-        "seed": seed, "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None})
+        "seed": seed, "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None,
+        "init": init})
     return record | {"render_s": render_s}
+
+
+def initial_points(points_dir) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
+    """(sparse points or None, how the model was initialised) for the record."""
+    if points_dir is None:
+        return None, "random"
+    try:
+        xyz, rgb = sparse_points(points_dir)
+    except ValueError as e:
+        log.warning("random initialisation: %s", e)
+        return None, f"random ({e})"
+    return (xyz, rgb), f"colmap sparse points ({len(xyz)}) from {points_dir}"
 
 
 def write_renders(trainer, scene_dir, out_dir, record: dict) -> float:

@@ -4,7 +4,8 @@
     nerf        the paper's NeRF: MLP with positional encoding, coarse + fine (nerf.py)
     nerf-grid   explicit density/feature grids, coarse-to-fine, occupancy skipping (nerf_grid.py)
 
-Each entry maps ``(views, objective, settings, seed)`` to ``(trainer, iterations, config)``; a trainer
+Each entry maps ``(views, objective, settings, seed, points=None)`` to ``(trainer, iterations, config)``
+(``points``: optional (xyz (M, 3), rgb (M, 3)) sparse points to start from; 3DGS uses them); a trainer
 has ``step / render / capacity / state / load`` and is driven by :func:`train.run`. ``objective``
 None means the model's own RGB loss (3DGS: 0.8 L1 + 0.2 D-SSIM; NeRF: MSE); a
 :class:`objectives.BernoulliObjective` fits binary frames through the SPAD likelihood instead.
@@ -32,16 +33,17 @@ def _tuples(v):
     return tuple(_tuples(x) for x in v) if isinstance(v, list) else v
 
 
-def make_3dgs(views, objective, settings: dict, seed: int):
+def make_3dgs(views, objective, settings: dict, seed: int, points=None):
     from .gaussians import GaussianConfig
     from .splatting import SplatTrainer
 
     cfg = build_config(GaussianConfig, settings, "stage2.3dgs")
-    trainer = SplatTrainer(views, objective or RGBObjective("l1", cfg.ssim_weight), cfg, seed)
+    xyz, rgb = points if points is not None else (None, None)
+    trainer = SplatTrainer(views, objective or RGBObjective("l1", cfg.ssim_weight), cfg, seed, xyz, rgb)
     return trainer, cfg.iterations, cfg
 
 
-def make_nerf(views, objective, settings: dict, seed: int):
+def make_nerf(views, objective, settings: dict, seed: int, points=None):  # points: unused by NeRF
     from .nerf import NerfConfig, nerf_preset
     from .nerf_trainer import RayTrainer
 
@@ -51,7 +53,7 @@ def make_nerf(views, objective, settings: dict, seed: int):
     return RayTrainer(views, objective or RGBObjective("mse"), "nerf", cfg, seed), cfg.n_iters, cfg
 
 
-def make_nerf_grid(views, objective, settings: dict, seed: int):
+def make_nerf_grid(views, objective, settings: dict, seed: int, points=None):  # points: unused
     from .nerf_grid import GridConfig
     from .nerf_trainer import RayTrainer
 
