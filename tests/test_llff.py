@@ -4,7 +4,7 @@ import shutil
 import numpy as np
 import pytest
 
-from spc3d import cameras, io, llff
+from spc3d import cameras, llff
 from conftest import LLFF_SCENES, llff_scene
 
 

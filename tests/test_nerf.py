@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from spc3d.cameras import project, rotation_angle_deg
+from spc3d.metrics import psnr
 from spc3d.reconstruct import nerf, nerf_grid
 from spc3d.reconstruct.rays import (average_pose, camera_rays, ndc_points_to_world, ndc_rays, ndc_t_to_depth,
                                     recenter, view_dirs)
@@ -234,7 +235,7 @@ def _fit(model, opt, lr_fn, cfg, data, iters, batch, extra_loss):
 def _psnr(model, data):
     o, d, v, c = (x[:2].reshape(-1, 3) for x in data)
     with torch.no_grad():
-        return nerf.psnr(((model(o, d, train=False, viewdirs=v)["rgb"] - c) ** 2).mean())
+        return psnr(model(o, d, train=False, viewdirs=v)["rgb"], c)
 
 
 def test_grid_nerf_overfits(ndc_data):

@@ -64,8 +64,11 @@ def _pair_hwc(pred, target, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Ten
 # PSNR
 # ---------------------------------------------------------------------------------------------
 def psnr(pred, target) -> float:
-    """PSNR in dB (data range 1) between two (H, W, C) images; ``inf`` when they are identical."""
-    a, b = _pair_hwc(pred, target, torch.float64)
+    """PSNR in dB (data range 1) between two arrays of one shape (images (H, W, C), ray batches
+    (R, 3), ...); ``inf`` when they are identical. No gradient."""
+    a, b = _as_tensor(pred, torch.float64).detach(), _as_tensor(target, torch.float64).detach()
+    if a.shape != b.shape:
+        raise ValueError(f"expected two arrays of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
     mse = torch.mean((a - b) ** 2).item()
     if mse == 0.0:
         return float("inf")

@@ -22,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import io, llff, spc
+from .metrics import psnr
 
 log = logging.getLogger(__name__)
 
@@ -90,12 +91,6 @@ def view_stats(gt_srgb: np.ndarray, products: dict[str, np.ndarray]) -> dict[str
 def summarise(stats: list[dict[str, float]]) -> dict[str, float]:
     """Means over views of :func:`view_stats` (``mean_`` prefixed)."""
     return {f"mean_{k}": float(np.mean([s[k] for s in stats])) for k in stats[0]}
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR in dB of images in [0, 1]; identical images give inf (JSON writes it as Infinity)."""
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return float("inf") if mse == 0.0 else float(-10.0 * np.log10(mse))
 
 
 def read_spc_record(spc_dir: str | os.PathLike) -> dict:

@@ -8,7 +8,6 @@ is MSE on both ``rgb_coarse`` and ``rgb``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -144,10 +143,5 @@ def set_lr(optimizer: torch.optim.Optimizer, lrs: dict[str, float]) -> None:
         group["lr"] = lrs[group["name"]]
 
 
-def psnr(mse: torch.Tensor | float) -> float:
-    """PSNR in dB of images in [0, 1] from their mean squared error."""
-    return -10.0 * math.log10(max(float(mse), 1e-10))  # clamp: a perfect fit would be log(0)
-
-
 __all__ = ["NerfConfig", "nerf_preset", "NeRF", "NerfMLP", "positional_encoding", "lr_at", "make_optimizer",
-           "set_lr", "psnr"]
+           "set_lr"]

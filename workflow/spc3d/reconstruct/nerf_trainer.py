@@ -18,7 +18,8 @@ from torch import Tensor
 from ..cameras import Cameras, transform_cameras
 from . import nerf, nerf_grid
 from .rays import camera_rays, ndc_rays, recenter, view_dirs
-from .train import Views, psnr_of
+from ..metrics import psnr
+from .train import Views
 from .volume import render_chunked
 
 
@@ -63,7 +64,7 @@ class RayTrainer:
         loss.backward()
         self.opt.step()
         rgb = self.objective.name == "rgb"
-        return {"loss": loss.item(), "psnr": psnr_of(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
+        return {"loss": loss.item(), "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
 
     def _grid_schedule(self, it: int) -> None:
         """Coarse-to-fine growth and periodic occupancy refresh of the grid."""

@@ -18,7 +18,8 @@ from torch import Tensor
 from ..cameras import Cameras
 from .densify import DensityControl
 from .gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
-from .train import Views, psnr_of
+from ..metrics import psnr
+from .train import Views
 
 
 def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> torch.optim.Adam:
@@ -63,12 +64,12 @@ class SplatTrainer:
                              self.views.cameras.width)
         self.opt.step()
         self.control.step(it, self.model, self.opt)
-        self.losses.append(loss.item())
+        self.losses = self.losses[-(self.cfg.sh_interval - 1):] + [loss.item()]  # one interval is all it needs
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).
         rgb = self.objective.name == "rgb"
-        return {"loss": loss.item(), "psnr": psnr_of(out["image"].clamp(0, 1), self.views.targets[i]) if rgb else math.nan}
+        return {"loss": loss.item(), "psnr": psnr(out["image"].clamp(0, 1), self.views.targets[i]) if rgb else math.nan}
 
     def maybe_raise_degree(self) -> None:
         """Raise the SH degree while the loss still improves by >= 0.5 % per interval."""

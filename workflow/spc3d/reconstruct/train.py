@@ -45,11 +45,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def psnr_of(pred: Tensor, target: Tensor) -> float:
-    mse = float((pred.detach() - target).square().mean())
-    return float("inf") if mse == 0.0 else -10.0 * float(np.log10(mse))
-
-
 def save_checkpoint(path: str | os.PathLike, it: int, trainer, elapsed: float) -> None:
     with io.atomic_path(path) as tmp:
         torch.save({"iteration": it, "state": trainer.state(), "elapsed_s": elapsed,
