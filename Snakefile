@@ -15,6 +15,7 @@ include: "workflow/rules/spc.smk"
 include: "workflow/rules/augment.smk"
 include: "workflow/rules/colmap.smk"
 include: "workflow/rules/summary.smk"
+include: "workflow/rules/stage1.smk"
 include: "workflow/rules/stage2.smk"
 
 

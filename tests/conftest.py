@@ -2,6 +2,7 @@
 from pathlib import Path
 
 import pytest
+import torch
 
 from spc3d import lpips_net
 
@@ -33,3 +34,13 @@ def lpips_cache(request, tmp_path_factory) -> Path:
     except lpips_net.LPIPSDownloadError as exc:
         pytest.skip(f"LPIPS weights cannot be fetched here: {exc}")
     return Path(folder)
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Tiny networks gain nothing from threads, and OpenMP spin-waiting is slow on a busy 2-core
+    machine: a module using this runs torch on one thread, restored afterwards."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

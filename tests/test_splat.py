@@ -42,15 +42,15 @@ def screen_scene(n, height, width, seed=0, dtype=torch.float32, sigma=(0.5, 3.0)
 
 def grads(fn, args, seed=1):
     """Gradients of a random linear loss of (image, alpha) w.r.t. means2d, conics, opacities,
-    colors and background."""
+    colors and background (the loss weights are drawn in float64: the same for any dtype)."""
     leaves = [args[i].detach().clone().requires_grad_() for i in (0, 1, 2, 3, 8)]
     full = list(args)
     for i, t in zip((0, 1, 2, 3, 8), leaves):
         full[i] = t
     image, alpha = fn(*full)
     g = torch.Generator().manual_seed(seed)
-    w_img = torch.randn(image.shape, generator=g, dtype=image.dtype)
-    w_alpha = torch.randn(alpha.shape, generator=g, dtype=alpha.dtype)
+    w_img = torch.randn(image.shape, generator=g, dtype=torch.float64).to(image.dtype)
+    w_alpha = torch.randn(alpha.shape, generator=g, dtype=torch.float64).to(alpha.dtype)
     ((image * w_img).sum() + (alpha * w_alpha).sum()).backward()
     return [t.grad for t in leaves]
 
@@ -119,6 +119,55 @@ def test_native_float64_in_float64_out():
     args = screen_scene(30, 8, 8, seed=2, dtype=torch.float64)
     image, alpha = rasterize_native(*args)
     assert image.dtype == torch.float64 and alpha.dtype == torch.float64
+
+
+def test_native_float32_simd_matches_float64_path():
+    """float32 RGB runs the SIMD kernels (native_simd), float64 the exact float64 kernels: the
+    two agree in values and gradients (opaque stacks included: early termination, clamps)."""
+    args = screen_scene(1500, 40, 56, seed=21)
+    args[2][:300] = 0.99  # clamped alphas and pixels that terminate early
+    args64 = [a.double() if torch.is_tensor(a) and a.is_floating_point() else a for a in args]
+    for a, b in zip(rasterize_native(*args), rasterize_native(*args64)):
+        assert a.dtype == torch.float32 and b.dtype == torch.float64
+        assert (a.double() - b).abs().max() < 1e-5
+    for name, g32, g64 in zip(("means2d", "conics", "opacities", "colors", "background"),
+                              grads(rasterize_native, args), grads(rasterize_native, args64)):
+        assert (g32.double() - g64).norm() / g64.norm() < 1e-4, name
+
+
+def test_native_exp_polynomial_accuracy():
+    from spc3d.reconstruct.splat.native_simd import _exp
+
+    x = np.linspace(-20.0, 0.0, 20001).astype(np.float32)
+    got = np.array([_exp(v) for v in x], dtype=np.float64)
+    assert np.abs(got / np.exp(x.astype(np.float64)) - 1).max() < 5e-7
+
+
+@pytest.mark.parametrize("use_openmp", [True, False])
+def test_native_worker_threads_run_every_share_once(use_openmp, monkeypatch):
+    from spc3d.reconstruct.splat import native_threads
+
+    if not use_openmp:
+        monkeypatch.setattr(native_threads, "_GOMP", None)
+    seen = []
+    native_threads.run_parallel(seen.append, 5)
+    assert sorted(seen) == [0, 1, 2, 3, 4]
+
+    def fail(w):
+        if w == 3:
+            raise KeyError("worker 3")
+    with pytest.raises(KeyError, match="worker 3"):
+        native_threads.run_parallel(fail, 4)
+
+
+def test_native_two_threads_match_one(monkeypatch):
+    args = screen_scene(800, 40, 56, seed=22)
+    results = []
+    for n in (1, 2):
+        monkeypatch.setattr(torch, "get_num_threads", lambda n=n: n)
+        results.append([*rasterize_native(*args), *grads(rasterize_native, args)])
+    for a, b in zip(*results):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-6)
 
 
 # ---------------------------------------------------------------- rasterizers: extremes

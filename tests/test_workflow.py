@@ -68,7 +68,9 @@ def test_dry_run_lists_the_dag(tmp_path):
               if len(line.split()) == 2 and line.split()[1].isdigit()}
     assert counts["scene_prepare"] == 4 and counts["spc_simulate"] == 4 and counts["augment"] == 3
     assert counts["colmap_poses"] == 12 and counts["data_summary"] == 1
-    assert counts["reconstruct"] == 6 and counts["evaluate"] == 6 and counts["tables"] == 1
+    assert counts["reconstruct"] == 14 and counts["evaluate"] == 14 and counts["paper_tables"] == 1
+    assert counts["train_translator"] == 5 and counts["translate"] == 5 and counts["stage1_evaluate"] == 7
+    assert counts["qualitative_figure"] == 1 and "tables" not in counts  # `tables` is an explicit target only
 
 
 @pytest.mark.slow
@@ -106,8 +108,24 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     stage2 = pd.read_csv(res / "tables" / "single_stage.csv").set_index("combination")
     assert stage2.loc["gt+nerf-grid", "runs"] == 1 and np.isfinite(stage2.loc["none+3dgs", "psnr_mean"])
     assert (res / "checkpoints" / "courtyard" / "gt+3dgs" / "checkpoint.pt").exists()
+    # Stage 1: trained models with records, translated views, scores before 3D, both paper tables.
+    model = io.read_json(res / "models" / "pix2pixhd" / "train.json")
+    assert model["seed"] == 0 and model["iterations"] == 4 and model["parameters"]["G"] > 0
+    assert (res / "models" / "restormer" / "curve.png").exists() and not (res / "models" / "cyclegan").exists()
+    assert len(list((res / "translate" / "courtyard" / "diffusion" / "images").glob("*.png"))) == 9
+    s1 = pd.read_csv(res / "tables" / "stage1.csv").set_index("combination")
+    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "mle", "none"}
+    two = pd.read_csv(res / "tables" / "two_stage.csv").set_index("combination")
+    assert two.loc["pix2pixhd+3dgs", "runs"] == 1 and two.loc["pix2pix+nerf-grid", "runs"] == 0
+    assert (res / "figures" / "qualitative_courtyard.png").stat().st_size > 10_000
     again = snakemake(tmp_path, "-n", "--cores", "2", *configs)
     assert "Nothing to be done" in again.stdout + again.stderr
+    # `tables` rewrites the tables from the metrics on disk and runs nothing else.
+    (res / "tables" / "two_stage.md").unlink()
+    tables = snakemake(tmp_path, "tables", "--cores", "2", *configs)
+    assert tables.returncode == 0, tables.stderr[-3000:]
+    assert (res / "tables" / "two_stage.md").exists()
+    assert re.search(r"^tables\s+1$", tables.stdout + tables.stderr, re.M) and "reconstruct" not in tables.stderr
 
 
 @pytest.mark.slow

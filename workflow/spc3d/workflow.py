@@ -56,6 +56,16 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
 
 
 
+# Stage-1 methods (keys of spc3d.translate.TRANSLATORS, repeated here so parsing the Snakefile does
+# not import torch; a test keeps the two equal) and the stage-2 sources that need no stage 1.
+STAGE1_METHODS = ("pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion")
+PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
+# How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
+LABELS = {"pix2pixhd": "Pix2PixHD", "pix2pix": "Pix2Pix", "cyclegan": "CycleGAN", "restormer": "Restormer",
+          "diffusion": "Diffusion (DiffBIR stand-in)", "mle": "MLE of K frames", "none": "binary frame (no stage 1)",
+          "gt": "ground truth", "bernoulli": "SPAD likelihood on binary"}
+
+
 def resolve_combinations(combinations: list[str], nerf_variant: str) -> list[str]:
     """``source+model`` names with the family ``nerf`` resolved to the configured NeRF variant."""
     out = []
@@ -63,5 +73,21 @@ def resolve_combinations(combinations: list[str], nerf_variant: str) -> list[str
         source, sep, model = combo.partition("+")
         if not sep or not source or model not in ("3dgs", "nerf", "nerf-grid"):
             raise ConfigError(f"stage2.combinations: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
+        if source not in PLAIN_SOURCES + STAGE1_METHODS:
+            raise ConfigError(f"stage2.combinations: {combo!r} has unknown source {source!r}; use one of "
+                              f"{list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}")
         out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
     return list(dict.fromkeys(out))
+
+
+def stage1_sources(combinations: list[str]) -> list[str]:
+    """The stage-1 methods the combinations need (in registry order)."""
+    used = {c.partition("+")[0] for c in combinations}
+    return [m for m in STAGE1_METHODS if m in used]
+
+
+def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:
+    """(model overrides, training settings) of ``method``: its ``train`` block overrides stage1.train."""
+    settings = dict(stage1.get(method) or {})
+    train = {**stage1.get("train", {}), **settings.pop("train", {})}
+    return settings, train

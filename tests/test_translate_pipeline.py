@@ -1,0 +1,246 @@
+"""Stage-1 plumbing: pairs and crops, lr schedule, training loop with resume, model folders,
+translating a scene, stage-1 scores, the paper tables and the qualitative figure.
+
+A tiny one-layer translator is registered for these tests so they check the plumbing alone (the
+real models are tested in test_translate_gan.py / test_translate_denoisers.py)."""
+import dataclasses
+import types
+
+import numpy as np
+import pytest
+import torch
+from spc3d import io, spc, tables, translate
+from spc3d.augment import AugmentSettings, augment_scene
+from spc3d.figures import pick_view, qualitative_figure
+from spc3d.scenes import write_builtin_scene
+from spc3d.simulate import simulate_scene
+from spc3d.translate import base, data, train
+from spc3d.translate.apply import score_images, translate_scene
+from spc3d.workflow import LABELS, STAGE1_METHODS, translator_settings
+from torch import nn
+
+
+@dataclasses.dataclass(frozen=True)
+class TinyConfig:
+    width: int = 4  # hidden channels
+    lr: float = 1e-2  # Adam learning rate
+
+
+class TinyTranslator(base.TranslatorBase):
+    """conv-relu-conv-sigmoid; enough to learn a colour map of the binary image."""
+
+    multiple = 4
+
+    def __init__(self, cfg, device, vgg_weights=None):
+        self.device = device
+        self.net = nn.Sequential(nn.Conv2d(3, cfg.width, 3, padding=1), nn.ReLU(), nn.Conv2d(cfg.width, 3, 1))
+        self.opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr)
+
+    def modules(self):
+        return {"G": self.net}
+
+    def optimizers(self):
+        return {"G": self.opt}
+
+    def forward_image(self, binary):
+        return torch.sigmoid(self.net(binary))
+
+    def train_step(self, binary, rgb):
+        loss = (self.forward_image(binary) - rgb).abs().mean()
+        self.opt.zero_grad()
+        loss.backward()
+        self.opt.step()
+        return {"loss": loss.item()}
+
+
+@pytest.fixture
+def tiny_registered(monkeypatch):
+    module = types.SimpleNamespace(Config=TinyConfig, PAPER={"width": 8}, Translator=TinyTranslator)
+    monkeypatch.setitem(translate.TRANSLATORS, "tiny", module)
+    return "tiny"
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """Two tiny built-in scenes: one augmented for training, one simulated for evaluation."""
+    root = tmp_path_factory.mktemp("stage1")
+    for name in ("orchard", "gallery"):
+        write_builtin_scene(name, root / "scenes" / name, height=32, width=40, views=9, supersample=1)
+        simulate_scene(root / "scenes" / name, root / "spc" / name, spc.SPCParams(frames=4), seed=0)
+    augment_scene(root / "scenes" / "orchard", root / "spc" / "orchard", root / "augment" / "orchard", count=6,
+                  settings=AugmentSettings(), seed=0)
+    return root
+
+
+def test_registry_matches_the_workflow_names():
+    assert tuple(translate.TRANSLATORS) == STAGE1_METHODS
+    for name, module in translate.TRANSLATORS.items():
+        assert dataclasses.is_dataclass(module.Config) and set(module.PAPER) <= {
+            f.name for f in dataclasses.fields(module.Config)}, name
+        assert name in LABELS
+
+
+def test_pairs_are_aligned_and_averaged(world):
+    b1, rgb = data.load_pairs([world / "augment" / "orchard"], frames=1)
+    b4, _ = data.load_pairs([world / "augment" / "orchard"], frames=4)
+    assert b1.shape == rgb.shape == (6, 3, 32, 40)
+    assert set(torch.unique(b1).tolist()) <= {0.0, 1.0}
+    assert set(torch.unique(b4 * 4).tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
+    with pytest.raises(ValueError, match="stage1.frames=5.*K=4"):
+        data.load_pairs([world / "augment" / "orchard"], frames=5)
+    with pytest.raises(FileNotFoundError, match="run the augment rule"):
+        data.load_pairs([world / "spc" / "gallery" / "nothing"], frames=1)
+
+
+def test_sampler_crops_the_same_pixels_and_is_reproducible():
+    binary = torch.arange(2 * 3 * 10 * 12, dtype=torch.float32).view(2, 3, 10, 12)
+    s1, s2 = data.PairSampler(binary, binary + 0.5, 3, 6, seed=1), data.PairSampler(binary, binary + 0.5, 3, 6, seed=1)
+    b, r = s1()
+    assert b.shape == (3, 3, 6, 6) and torch.equal(r, b + 0.5)  # paired: identical windows
+    assert torch.equal(s2()[0], b)
+    state = s1.state()
+    nxt = s1()[0]
+    s1.load(state)
+    assert torch.equal(s1()[0], nxt)
+    unpaired = data.PairSampler(binary, binary + 0.5, 64, 6, seed=1, paired=False)
+    b, r = unpaired()
+    assert not torch.equal(r, b + 0.5)
+    with pytest.raises(ValueError, match="crop=11 exceeds"):
+        data.PairSampler(binary, binary, 1, 11, seed=0)
+
+
+def test_lr_schedule_is_constant_then_linear_to_zero():
+    s = train.TrainSettings(iterations=100, decay_from=0.5)
+    assert [train.lr_scale(i, s) for i in (1, 50, 75, 100)] == [1.0, 1.0, 0.5, 0.0]
+    with pytest.raises(ValueError, match="decay_from"):
+        train.TrainSettings(decay_from=1.5)
+
+
+def test_model_config_presets_and_unknown_keys(tiny_registered):
+    assert train.model_config("tiny", {}).width == 4
+    assert train.model_config("tiny", {"preset": "paper"}).width == 8
+    assert train.model_config("tiny", {"preset": "paper", "width": 3}).width == 3
+    with pytest.raises(ValueError, match="stage1.tiny: unknown setting.*'depth'"):
+        train.model_config("tiny", {"depth": 3})
+    with pytest.raises(ValueError, match="unknown stage-1 method 'pix3pix'"):
+        train.model_config("pix3pix", {})
+    with pytest.raises(ValueError, match="preset='huge'"):
+        train.model_config("tiny", {"preset": "huge"})
+
+
+def test_translator_settings_merge_the_method_train_block():
+    stage1 = {"train": {"iterations": 10, "crop": 32}, "pix2pix": {"ngf": 8, "train": {"iterations": 3}}}
+    assert translator_settings(stage1, "pix2pix") == ({"ngf": 8}, {"iterations": 3, "crop": 32})
+    assert translator_settings(stage1, "cyclegan") == ({}, {"iterations": 10, "crop": 32})
+
+
+def test_translate_pads_and_crops_back(tiny_registered):
+    model = TinyTranslator(TinyConfig(), torch.device("cpu"))
+    x = torch.rand(2, 3, 7, 9)
+    y = model.translate(x)
+    assert y.shape == x.shape and 0 <= y.min() and y.max() <= 1
+    padded, size = base.pad_to_multiple(x, 4)
+    assert padded.shape[-2:] == (8, 12) and size == (7, 9)
+    assert base.pad_to_multiple(torch.rand(1, 3, 1, 1), 16)[0].shape[-2:] == (16, 16)  # too small to reflect
+    with pytest.raises(ValueError, match=r"\(B, 3, H, W\)"):
+        model.translate(torch.rand(3, 7, 9))
+
+
+def _train(world, out, ckpt, iterations, tiny):
+    return train.train_translator(tiny, [world / "augment" / "orchard"], out, {}, {"iterations": iterations,
+                                  "crop": 16, "checkpoint_every": 5, "log_every": 5,
+                                  "decay_from": 1.0}, seed=3, checkpoint=ckpt)
+
+
+def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_registered):
+    torch.set_num_threads(1)
+    full = _train(world, tmp_path / "full", tmp_path / "full.pt", 40, tiny_registered)
+    curve = io.read_json(tmp_path / "full" / "train.json")
+    assert curve["seed"] == 3 and curve["parameters"] == {"G": 4 * 27 + 4 + 3 * 4 + 3} and curve["pairs"] == 6
+    assert {"train_s", "peak_rss_mb", "settings", "train"} <= set(curve)
+    assert (tmp_path / "full" / "curve.png").stat().st_size > 1000
+    losses = np.loadtxt(tmp_path / "full" / "curve.csv", delimiter=",", skiprows=1)[:, 1]
+    assert losses[-1] < losses[0]
+    # stopped after 20 iterations (constant lr, so a 20-run is a 40-run cut short), rerun to 40: same losses
+    _train(world, tmp_path / "part", tmp_path / "resume.pt", 20, tiny_registered)
+    resumed = _train(world, tmp_path / "resumed", tmp_path / "resume.pt", 40, tiny_registered)
+    assert resumed["resumed_from"] == 20
+    assert resumed["final_losses"]["loss"] == pytest.approx(full["final_losses"]["loss"], rel=1e-6)
+
+
+def test_translate_scene_and_stage1_scores(world, tmp_path, tiny_registered, lpips_cache):
+    _train(world, tmp_path / "model", None, 5, tiny_registered)
+    rec = translate_scene(tmp_path / "model", world / "spc" / "gallery", world / "scenes" / "gallery",
+                          tmp_path / "translated")
+    assert rec["views"] == 9 and rec["method"] == "tiny"
+    img = io.read_rgb(tmp_path / "translated" / "images" / "image000.png")
+    assert img.shape == (32, 40, 3)
+    scores = score_images(world / "scenes" / "gallery" / "images", world / "scenes" / "gallery",
+                          tmp_path / "gt.json", "gt", lpips_dir=lpips_cache)
+    assert scores["mean"]["psnr"] == float("inf") and scores["mean"]["lpips_alex"] == pytest.approx(0, abs=1e-6)
+    assert sorted(scores["views"]) == ["image000", "image008"]
+    with pytest.raises(FileNotFoundError, match="no image for view"):
+        score_images(tmp_path, world / "scenes" / "gallery", tmp_path / "x.json", "empty", lpips_dir=lpips_cache)
+
+
+def test_load_translator_names_a_missing_model(tmp_path):
+    with pytest.raises(FileNotFoundError, match="model.pt is missing.*train_translator"):
+        train.load_translator(tmp_path)
+
+
+def _metrics(path, combo, psnr):
+    io.write_json(path, {"scene": "s", "combination": combo, "seed": 0,
+                         "mean": {"psnr": psnr, "ssim": psnr / 40, "lpips_alex": 1 / psnr, "lpips_vgg": 1 / psnr}})
+    return str(path)
+
+
+def test_two_stage_and_stage1_tables(tmp_path):
+    files = [_metrics(tmp_path / f"{i}.json", c, p) for i, (c, p) in enumerate(
+        [("pix2pixhd+nerf-grid", 22.0), ("restormer+3dgs", 23.0), ("diffusion+3dgs", 20.0), ("gt+3dgs", 30.0)])]
+    df = tables.two_stage_table(files, tmp_path / "two_stage", "nerf-grid")
+    assert list(df["combination"][:2]) == ["pix2pixhd+nerf-grid", "pix2pixhd+3dgs"]
+    md = (tmp_path / "two_stage.md").read_text()
+    assert "**23.00 ± 0.00**" in md and "*22.00 ± 0.00*" in md and "DiffBIR stand-in" in md and "22.7" in md
+    s1 = []
+    for i, (src, p) in enumerate([("pix2pixhd", 21.0), ("mle", 19.0), ("none", 9.0)]):
+        s1.append(str(tmp_path / f"s{i}.json"))
+        io.write_json(s1[-1], {"scene": "s", "source": src, "mean": {"psnr": p, "ssim": 0.5, "lpips_alex": 0.3,
+                                                                        "lpips_vgg": 0.4}})
+    df = tables.stage1_table(s1, tmp_path / "stage1", LABELS)
+    assert list(df["approach"]) == ["Pix2PixHD", "MLE of K frames", "binary frame (no stage 1)"]
+    assert "**21.00" in (tmp_path / "stage1.md").read_text()
+
+
+def test_qualitative_figure(world, tmp_path):
+    view = pick_view(world / "scenes" / "gallery")
+    assert view == "image000"
+    with pytest.raises(ValueError, match="not a held-out view"):
+        pick_view(world / "scenes" / "gallery", "image001")
+    recon = tmp_path / "recon" / "gt+3dgs"
+    (recon / "renders").mkdir(parents=True)
+    io.write_image(recon / "renders" / f"{view}.png", io.read_rgb(world / "scenes" / "gallery" / "images" / f"{view}.png"))
+    out = tmp_path / "fig.png"
+    qualitative_figure(world / "scenes" / "gallery", world / "spc" / "gallery", {"gt+3dgs": str(recon)}, out,
+                       labels=LABELS)
+    assert io.read_image(out).shape[2] in (3, 4)
+
+
+def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
+    """stage1.restormer.checkpoint: an official-format .pth ({"params": state_dict}) is loaded and,
+    with 0 iterations, is exactly the model that translates (the paper's pretrained variant)."""
+    from spc3d.translate import restormer
+
+    tiny = {"dim": 8, "heads": [1, 1, 1, 1]}
+    torch.manual_seed(5)
+    published = restormer.Translator(train.model_config("restormer", tiny), torch.device("cpu"))
+    torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
+    rec = train.train_translator("restormer", [world / "augment" / "orchard"], tmp_path / "model",
+                                 {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
+                                 {"iterations": 0, "crop": 16}, seed=0)
+    assert rec["pretrained"].endswith("real_denoising.pth") and rec["iterations"] == 0
+    _, loaded = train.load_translator(tmp_path / "model")
+    x = torch.rand(1, 3, 16, 24).round()
+    assert torch.equal(loaded.translate(x), published.translate(x))
+    with pytest.raises(ValueError, match="real_denoising.pth: checkpoint does not match"):
+        train.train_translator("restormer", [world / "augment" / "orchard"], tmp_path / "model2",
+                               {"dim": 16, "checkpoint": str(tmp_path / "real_denoising.pth")}, {"iterations": 0})

@@ -1,0 +1,68 @@
+# Stage 1: train the translators on the augmented pairs, apply them to the evaluation scenes,
+# and score their images (and the training-free MLE / binary images) before any 3D.
+
+
+rule train_translator:
+    """Train one stage-1 method on the augmented (binary, RGB) pairs of every training scene."""
+    input:
+        pairs=expand("results/augment/{scene}", scene=TRAIN_SCENES),
+        vgg=LPIPS_WEIGHTS["vgg"],
+    output:
+        directory("results/models/{method}"),
+    params:
+        settings=get_translator_settings,
+        train=get_translator_train,
+        frames=config["stage1"]["frames"],
+        seed=config["seed"],
+        checkpoint=get_translator_checkpoint,
+    log:
+        "logs/train_translator/{method}.log",
+    benchmark:
+        "benchmarks/train_translator/{method}.tsv"
+    threads: 1
+    priority: 10  # eight stage-2 jobs wait on the translators: start them before other training
+    conda:
+        ENV
+    script:
+        "../scripts/train_translator.py"
+
+
+rule translate:
+    """Every view of a scene through a trained stage-1 method (stage 2 reads these as a source)."""
+    input:
+        model="results/models/{method}",
+        spc="results/spc/{scene}",
+        scene="results/scenes/{scene}",
+    output:
+        directory("results/translate/{scene}/{method}"),
+    params:
+        frames=config["stage1"]["frames"],
+    log:
+        "logs/translate/{scene}/{method}.log",
+    benchmark:
+        "benchmarks/translate/{scene}/{method}.tsv"
+    threads: 1
+    priority: 10
+    conda:
+        ENV
+    script:
+        "../scripts/translate.py"
+
+
+rule stage1_evaluate:
+    """PSNR / SSIM / LPIPS of a source's held-out views before 3D (stage-1 error alone)."""
+    input:
+        images=get_stage1_images,
+        scene="results/scenes/{scene}",
+        lpips=list(LPIPS_WEIGHTS.values()),
+    output:
+        "results/stage1/{scene}/{source}.json",
+    params:
+        subdir=get_stage1_subdir,
+    log:
+        "logs/stage1_evaluate/{scene}/{source}.log",
+    threads: 1
+    conda:
+        ENV
+    script:
+        "../scripts/stage1_evaluate.py"

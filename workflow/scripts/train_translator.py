@@ -1,0 +1,10 @@
+"""Adapter: rule train_translator -> spc3d.translate.train.train_translator."""
+from spc3d.lpips_net import load_npz
+from spc3d.translate.train import train_translator
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    p = snakemake.params
+    train_translator(snakemake.wildcards.method, list(snakemake.input.pairs), snakemake.output[0], p.settings,
+                     p.train, seed=p.seed, frames=p.frames, checkpoint=p.checkpoint,
+                     vgg_weights=load_npz(snakemake.input.vgg, "vgg"), threads=snakemake.threads)

@@ -1,0 +1,22 @@
+"""Stage-1 models: binary SPC image -> sRGB, one model per file, built through ``TRANSLATORS``.
+
+    pix2pixhd   global generator (+ local enhancer), multiscale LSGAN, feature matching, VGG loss
+    pix2pix     U-Net generator, 70x70 PatchGAN, vanilla GAN + L1
+    cyclegan    two ResNet generators, LSGAN, cycle + identity losses, image pools (unpaired)
+    restormer   MDTA + GDFN transformer denoiser trained with L1 (loads official weights by path)
+    diffusion   a compact conditional DDPM/DDIM restorer: the offline stand-in for DiffBIR
+
+Each module holds ``Config`` (CPU-budget defaults), ``PAPER`` (the published sizes) and
+``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks`. The
+training loop is :mod:`.train`, applying a model to a scene and stage-1 scoring :mod:`.apply`.
+Physics baselines without training (``mle``, the raw binary frame ``none``) are stage-2 sources
+(:mod:`spc3d.sources`), scored before 3D alongside the translators.
+"""
+
+from __future__ import annotations
+
+from . import cyclegan, diffusion, pix2pix, pix2pixhd, restormer
+
+TRANSLATORS = {"pix2pixhd": pix2pixhd, "pix2pix": pix2pix, "cyclegan": cyclegan, "restormer": restormer,
+               "diffusion": diffusion}
+

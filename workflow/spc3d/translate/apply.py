@@ -1,0 +1,73 @@
+"""Applying a trained stage-1 model to a scene, and scoring stage-1 images before 3D.
+
+``translate_scene`` (rule ``translate``) turns every view's binary input of a scene (the mean
+of its first K SPC frames, K = 1 by default) into sRGB with a trained model and writes
+``results/translate/{scene}/{method}/`` (atomically):
+
+    images/{view}.png   one image per view, named like the scene's views (stage 2's source)
+    translate.json      method, model folder, frames, per-image inference time, seed
+
+``score_images`` (rule ``stage1_evaluate``) compares the held-out views of any image source
+(a translator's folder, the MLE image, the raw binary frame) with the ground truth, so stage-1
+and stage-2 errors can be told apart: ``results/stage1/{scene}/{source}.json``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import io, llff
+from ..cameras import split_views
+from ..evaluate import mean_scores, score_view
+from .data import binary_input
+from .train import load_translator
+
+log = logging.getLogger(__name__)
+
+
+def translate_scene(model_dir: str | os.PathLike, spc_dir: str | os.PathLike, scene_dir: str | os.PathLike,
+                    out_dir: str | os.PathLike, frames: int = 1, threads: int | None = None) -> dict:
+    """Translate all views of a scene with the model in ``model_dir``; returns the record."""
+    if threads:
+        torch.set_num_threads(threads)
+    method, model = load_translator(model_dir)
+    names = llff.read_scene(scene_dir).names
+    times = []
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        (Path(tmp) / "images").mkdir(parents=True)
+        for name in names:
+            x = torch.from_numpy(binary_input(Path(spc_dir) / "frames" / f"{name}.npz", frames))
+            t0 = time.perf_counter()
+            y = model.translate(x.permute(2, 0, 1)[None].to(model.device))[0]
+            times.append(time.perf_counter() - t0)
+            io.write_image(Path(tmp) / "images" / f"{name}.png", y.permute(1, 2, 0).cpu().numpy())
+        record = {"method": method, "model_dir": str(model_dir), "scene": Path(scene_dir).name, "frames": frames,
+                  "views": len(names), "seconds_per_image": float(np.mean(times)), "device": str(model.device)}
+        io.write_json(Path(tmp) / "translate.json", record)
+    log.info("%s: %d views of %s in %.2f s each", method, len(names), Path(scene_dir).name, record["seconds_per_image"])
+    return record
+
+
+def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out_json: str | os.PathLike,
+                 source: str, lpips_dir: str | os.PathLike | None = None) -> dict:
+    """PSNR / SSIM / LPIPS of a source's held-out views (before any 3D) against the ground truth."""
+    scene = llff.read_scene(scene_dir)
+    _, test = split_views(len(scene.names))
+    per_view = {}
+    for i in test:
+        name = scene.names[i]
+        pred_path = Path(image_dir) / f"{name}.png"
+        if not pred_path.is_file():
+            raise FileNotFoundError(f"{pred_path} is missing: source {source!r} has no image for view {name}")
+        per_view[name] = score_view(io.read_rgb(pred_path), io.read_rgb(Path(scene_dir) / "images" / f"{name}.png"),
+                                    lpips_dir)
+    record = {"scene": Path(scene_dir).name, "source": source, "stage": 1, "views": per_view,
+              "mean": mean_scores(list(per_view.values()))}
+    io.write_json(out_json, record)
+    return record

@@ -1,0 +1,135 @@
+"""The interface every stage-1 model implements, and the helpers they share.
+
+A stage-1 model ("translator") maps a 3-channel binary SPC image (K = 1: the bits of frame 0;
+K > 1: the average of K frames) to an sRGB image of the same size. Each model file defines
+
+    Config       a frozen @dataclass of the model's settings (widths, depths, losses, lr),
+                 one comment per field; the defaults fit the CPU budget, ``PAPER`` (a dict of
+                 overrides) holds the published sizes.
+    Translator   class Translator(TranslatorBase) with
+
+        __init__(cfg: Config, device: torch.device, vgg_weights: dict | None = None)
+        paired: bool                  False for methods trained unpaired (CycleGAN)
+        multiple: int                 input sides are padded (reflect) to a multiple of this
+        train_step(binary, rgb) -> dict[str, float]
+                                      one optimisation step on a batch; binary, rgb: (B, 3, h, w)
+                                      float32 in [0, 1]; returns named losses (at least "loss")
+        forward_image(binary) -> Tensor
+                                      (B, 3, H', W') padded input in [0, 1] -> output in [0, 1]
+                                      (the network alone; called under torch.no_grad in eval mode)
+        modules() -> dict[str, nn.Module]     every network (generators, discriminators)
+        optimizers() -> dict[str, Optimizer]  every optimiser (for checkpoints)
+        set_lr_scale(scale: float)    multiply every optimiser's base lr by scale (linear decay)
+        device: torch.device          where the networks live (set in __init__)
+        load_pretrained(path)         optional: published weights given by path (Restormer)
+
+``TranslatorBase`` supplies ``translate`` (pad, run, crop back, clamp), ``state`` / ``load`` for
+checkpoints, and ``parameter_count``. Models keep their outputs in [0, 1] at the interface even
+when their networks work in [-1, 1] (pix2pix convention) internally.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+
+def pad_to_multiple(x: Tensor, multiple: int) -> tuple[Tensor, tuple[int, int]]:
+    """Reflect-pad (B, C, H, W) so H and W are multiples of ``multiple``; returns (padded, (H, W))."""
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    if ph == 0 and pw == 0:
+        return x, (h, w)
+    mode = "reflect" if ph < h and pw < w else "replicate"  # reflect needs pad < size
+    return F.pad(x, (0, pw, 0, ph), mode=mode), (h, w)
+
+
+def to_signed(x: Tensor) -> Tensor:
+    """[0, 1] -> [-1, 1]."""
+    return x * 2.0 - 1.0
+
+
+def from_signed(x: Tensor) -> Tensor:
+    """[-1, 1] -> [0, 1]."""
+    return (x + 1.0) * 0.5
+
+
+class TranslatorBase:
+    """Shared behaviour of the stage-1 models (see the module docstring for the contract)."""
+
+    paired: bool = True
+    multiple: int = 16
+    device: torch.device = torch.device("cpu")
+
+    def load_pretrained(self, path) -> None:
+        raise ValueError(f"{type(self).__module__}: loading published weights ({path}) is not supported "
+                         "for this method; remove its 'checkpoint' setting")
+
+    def modules(self) -> dict[str, nn.Module]:
+        raise NotImplementedError
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        raise NotImplementedError
+
+    def forward_image(self, binary: Tensor) -> Tensor:
+        raise NotImplementedError
+
+    def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
+        raise NotImplementedError
+
+    def set_lr_scale(self, scale: float) -> None:
+        for opt in self.optimizers().values():
+            for group in opt.param_groups:
+                group.setdefault("base_lr", group["lr"])
+                group["lr"] = group["base_lr"] * scale
+
+    def train(self, mode: bool = True) -> None:
+        for m in self.modules().values():
+            m.train(mode)
+
+    @torch.no_grad()
+    def translate(self, binary: Tensor) -> Tensor:
+        """(B, 3, H, W) binary image in [0, 1] -> (B, 3, H, W) sRGB in [0, 1] at any H, W."""
+        if binary.ndim != 4 or binary.shape[1] != 3:
+            raise ValueError(f"translate expects (B, 3, H, W), got {tuple(binary.shape)}")
+        was_training = [m.training for m in self.modules().values()]
+        self.train(False)
+        try:
+            padded, (h, w) = pad_to_multiple(binary, self.multiple)
+            out = self.forward_image(padded)[..., :h, :w]
+        finally:
+            for m, flag in zip(self.modules().values(), was_training):
+                m.train(flag)
+        return out.clamp(0.0, 1.0)
+
+    def parameter_count(self) -> dict[str, int]:
+        return {name: sum(p.numel() for p in m.parameters()) for name, m in self.modules().items()}
+
+    def state(self) -> dict:
+        return {"modules": {k: m.state_dict() for k, m in self.modules().items()},
+                "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
+
+    def load(self, state: dict) -> None:
+        for k, m in self.modules().items():
+            m.load_state_dict(state["modules"][k])
+        for k, o in self.optimizers().items():
+            # deep copy: Optimizer.load_state_dict keeps tensors that already match (shared state)
+            o.load_state_dict(copy.deepcopy(state["optimizers"][k]))
+
+
+class PairedGANBase(TranslatorBase):
+    """A generator ``G`` and a discriminator ``D`` with Adam optimisers ``opt_G`` / ``opt_D`` and
+    networks in [-1, 1] (pix2pix, pix2pixHD): modules, optimisers and inference in one place."""
+
+    def modules(self) -> dict[str, nn.Module]:
+        return {"G": self.G, "D": self.D}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"G": self.opt_G, "D": self.opt_D}
+
+    def forward_image(self, binary: Tensor) -> Tensor:
+        """(B, 3, H', W') padded binary in [0, 1] -> (B, 3, H', W') sRGB in [0, 1]."""
+        return from_signed(self.G(to_signed(binary.to(self.device))))

@@ -1,0 +1,133 @@
+"""CycleGAN (Zhu et al., 2017) for binary -> sRGB, trained on unpaired batches.
+
+Domain A is the binary image, domain B sRGB. Two ResNet generators, ``G``: A -> B (used at test
+time) and ``F``: B -> A, and two PatchGANs, ``D_B`` judging sRGB images and ``D_A`` binary ones
+(unconditional: the data is unpaired). Objective, as the reference implementation:
+
+    G, F:  LSGAN(D_B(G(a)), real) + LSGAN(D_A(F(b)), real)
+           + lambda_A * |F(G(a)) - a|_1 + lambda_B * |G(F(b)) - b|_1                 (cycle)
+           + lambda_identity * (lambda_B * |G(b) - b|_1 + lambda_A * |F(a) - a|_1)  (identity)
+    D_A:   0.5 * (LSGAN(D_A(a), real) + LSGAN(D_A(pool_A(F(b))), fake)), D_B likewise
+
+One Adam optimiser steps both generators, one both discriminators (as the reference).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .base import TranslatorBase, from_signed, to_signed
+from .networks import (
+    GANLoss,
+    ImagePool,
+    NLayerDiscriminator,
+    ResnetGenerator,
+    check_multiple,
+    init_weights,
+    set_requires_grad,
+)
+
+
+@dataclass(frozen=True)
+class Config:
+    ngf: int = 16  # generator width of the first conv; paper 64
+    n_downsampling: int = 2  # stride-2 convs in each generator; inputs padded to multiples of 2**n; paper 2
+    n_blocks: int = 2  # ResNet blocks per generator; paper 9 (resnet_9blocks)
+    ndf: int = 16  # discriminator width of the first conv; paper 64
+    n_layers_D: int = 3  # PatchGAN stride-2 layers (70x70 receptive field); paper 3
+    norm: str = "instance"  # instance / batch / none, in G and D; paper instance
+    gan_mode: str = "lsgan"  # lsgan (MSE) or vanilla (BCE with logits); paper lsgan
+    lambda_A: float = 10.0  # weight of the A -> B -> A cycle loss; paper 10
+    lambda_B: float = 10.0  # weight of the B -> A -> B cycle loss; paper 10
+    lambda_identity: float = 0.5  # identity loss, relative to lambda_A / lambda_B; paper 0.5
+    pool_size: int = 50  # generated-image history per discriminator (0 = off); paper 50
+    lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
+    beta1: float = 0.5  # Adam beta1; paper 0.5
+    beta2: float = 0.999  # Adam beta2; paper 0.999
+
+
+# Published sizes: resnet_9blocks generators (ngf 64), 70x70 PatchGANs (ndf 64).
+PAPER: dict = {"ngf": 64, "n_downsampling": 2, "n_blocks": 9, "ndf": 64, "n_layers_D": 3, "norm": "instance",
+                "gan_mode": "lsgan", "lambda_A": 10.0, "lambda_B": 10.0, "lambda_identity": 0.5, "pool_size": 50,
+                "lr": 2e-4, "beta1": 0.5}
+
+
+def _generator(cfg: Config) -> ResnetGenerator:
+    """A ResNet generator (3 -> 3 channels, no dropout), N(0, 0.02)-initialised."""
+    return init_weights(ResnetGenerator(3, 3, cfg.ngf, cfg.n_downsampling, cfg.n_blocks, cfg.norm))
+
+
+def _discriminator(cfg: Config) -> NLayerDiscriminator:
+    """An unconditional PatchGAN on 3-channel images, N(0, 0.02)-initialised."""
+    return init_weights(NLayerDiscriminator(3, cfg.ndf, cfg.n_layers_D, cfg.norm))
+
+
+class Translator(TranslatorBase):
+    """CycleGAN as a stage-1 model; ``train_step`` takes unpaired binary / sRGB batches."""
+
+    paired = False
+
+    def __init__(self, cfg: Config, device: torch.device, vgg_weights: dict | None = None):
+        del vgg_weights  # CycleGAN has no perceptual loss
+        self.cfg = cfg
+        self.device = torch.device(device)
+        self.multiple = 2**cfg.n_downsampling
+        self.G, self.F = _generator(cfg).to(self.device), _generator(cfg).to(self.device)
+        self.D_A, self.D_B = _discriminator(cfg).to(self.device), _discriminator(cfg).to(self.device)
+        self.gan = GANLoss(cfg.gan_mode)
+        self.pool_A, self.pool_B = ImagePool(cfg.pool_size), ImagePool(cfg.pool_size)
+        betas = (cfg.beta1, cfg.beta2)
+        self.opt_G = torch.optim.Adam([*self.G.parameters(), *self.F.parameters()], lr=cfg.lr, betas=betas)
+        self.opt_D = torch.optim.Adam([*self.D_A.parameters(), *self.D_B.parameters()], lr=cfg.lr, betas=betas)
+
+    def modules(self) -> dict[str, nn.Module]:
+        return {"G": self.G, "F": self.F, "D_A": self.D_A, "D_B": self.D_B}
+
+    def optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        return {"G": self.opt_G, "D": self.opt_D}
+
+    def forward_image(self, binary: Tensor) -> Tensor:
+        """(B, 3, H', W') padded binary in [0, 1] -> (B, 3, H', W') sRGB in [0, 1] through ``G``."""
+        return from_signed(self.G(to_signed(binary.to(self.device))))
+
+    def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
+        """One generator step then one discriminator step; ``binary`` and ``rgb``: (B, 3, h, w) in
+        [0, 1], unrelated batches, h, w multiples of ``multiple``. ``loss`` is the G objective."""
+        self.train(True)
+        check_multiple(binary, self.multiple, "cyclegan")
+        check_multiple(rgb, self.multiple, "cyclegan")
+        a, b = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
+        fake_b, fake_a = self.G(a), self.F(b)  # (B, 3, h, w) each
+        terms = self._generator_terms(a, b, fake_a, fake_b)
+        loss_g = sum(terms.values())
+        self.opt_G.zero_grad(set_to_none=True)
+        loss_g.backward()
+        self.opt_G.step()
+        d_terms = self._step_D(a, b, fake_a.detach(), fake_b.detach())
+        return {"loss": float(loss_g.detach()), **{k: float(v.detach()) for k, v in terms.items()}, **d_terms}
+
+    def _generator_terms(self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor) -> dict[str, Tensor]:
+        """Adversarial, cycle and identity terms of the joint generator objective (D frozen)."""
+        cfg = self.cfg
+        set_requires_grad([self.D_A, self.D_B], False)
+        terms = {"G_GAN": self.gan(self.D_B(fake_b), True), "F_GAN": self.gan(self.D_A(fake_a), True),
+                 "cycle_A": cfg.lambda_A * F.l1_loss(self.F(fake_b), a),
+                 "cycle_B": cfg.lambda_B * F.l1_loss(self.G(fake_a), b)}
+        if cfg.lambda_identity > 0:
+            terms["idt_G"] = cfg.lambda_identity * cfg.lambda_B * F.l1_loss(self.G(b), b)
+            terms["idt_F"] = cfg.lambda_identity * cfg.lambda_A * F.l1_loss(self.F(a), a)
+        set_requires_grad([self.D_A, self.D_B], True)
+        return terms
+
+    def _step_D(self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor) -> dict[str, float]:
+        """Update D_A and D_B on real images and pooled generated ones; returns their losses."""
+        loss_a = 0.5 * (self.gan(self.D_A(a), True) + self.gan(self.D_A(self.pool_A.query(fake_a)), False))
+        loss_b = 0.5 * (self.gan(self.D_B(b), True) + self.gan(self.D_B(self.pool_B.query(fake_b)), False))
+        self.opt_D.zero_grad(set_to_none=True)
+        (loss_a + loss_b).backward()
+        self.opt_D.step()
+        return {"D_A": float(loss_a.detach()), "D_B": float(loss_b.detach())}

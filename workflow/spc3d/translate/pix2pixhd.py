@@ -1,0 +1,177 @@
+"""Pix2PixHD (Wang et al., 2018) for binary -> sRGB, with label_nc 0 and no instance maps.
+
+Generator: the global ResNet generator (``n_downsample_global`` halvings, ``n_blocks_global``
+blocks), optionally wrapped by ``n_local_enhancers`` local enhancers that each work at twice the
+resolution of the network inside them. Discriminator: ``num_D`` conditional PatchGANs on an image
+pyramid, judging concat(binary, image). Objective, as the reference implementation:
+
+    D:  0.5 * (LSGAN(D(x, G(x)), fake) + LSGAN(D(x, y), real))             summed over scales
+    G:  LSGAN(D(x, G(x)), real)
+        + lambda_feat * 4/(n_layers_D+1) * 1/num_D * sum_scales sum_layers L1(D_l(x, G(x)), D_l(x, y))
+        + lambda_feat * VGG(G(x), y)       (layer weights 1/32 .. 1; only with ``vgg_loss``)
+
+The VGG loss uses VGG16 (the LPIPS backbone) instead of the reference's VGG19; see
+``networks.VGGFeatures``. The reference's schedule of training the global generator alone first
+(``niter_fix_global``) is not reproduced: all generator parts train together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .base import PairedGANBase, to_signed
+from .networks import (
+    GANLoss,
+    ImagePool,
+    MultiscaleDiscriminator,
+    ResnetBlock,
+    ResnetGenerator,
+    VGGLoss,
+    check_multiple,
+    conditional_d_step,
+    init_weights,
+    norm_layer,
+    set_requires_grad,
+)
+
+
+@dataclass(frozen=True)
+class Config:
+    ngf: int = 32  # global generator width; local enhancer k has ngf / 2**k (reference --ngf: the outermost); paper 64
+    n_downsample_global: int = 3  # halvings in the global generator; paper 4
+    n_blocks_global: int = 4  # ResNet blocks at the global bottleneck; paper 9
+    n_local_enhancers: int = 0  # local enhancers around the global generator (x2 resolution each); paper 1
+    n_blocks_local: int = 3  # ResNet blocks per local enhancer; paper 3
+    ndf: int = 32  # discriminator width of the first conv; paper 64
+    n_layers_D: int = 3  # stride-2 layers per PatchGAN; paper 3
+    num_D: int = 2  # discriminator scales; paper 2
+    norm: str = "instance"  # instance / batch / none, in G and D; paper instance
+    feat_match: bool = True  # discriminator feature-matching loss; paper True
+    vgg_loss: bool = True  # VGG perceptual loss (needs vgg_weights; ~+0.3 s per CPU step at 64x64), as the paper
+    lambda_feat: float = 10.0  # weight of feature matching and of the VGG loss; paper 10
+    pool_size: int = 0  # image history shown to D (0 = current batch only); paper 0
+    lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
+    beta1: float = 0.5  # Adam beta1; paper 0.5
+    beta2: float = 0.999  # Adam beta2; paper 0.999
+
+    def __post_init__(self):
+        if self.ngf % 2**self.n_local_enhancers:
+            raise ValueError(f"pix2pixhd: ngf={self.ngf} must be divisible by 2**n_local_enhancers="
+                             f"{2**self.n_local_enhancers} (each local enhancer halves the width)")
+
+
+# Published sizes: global generator 64 / 4 / 9 wrapped in one local enhancer of width 32 (the
+# reference's 1024p recipe, --netG local --ngf 32), 2 x 3-layer D, feature matching + VGG loss.
+PAPER: dict = {"ngf": 64, "n_downsample_global": 4, "n_blocks_global": 9, "n_local_enhancers": 1,
+                "n_blocks_local": 3, "ndf": 64, "n_layers_D": 3, "num_D": 2, "norm": "instance",
+                "feat_match": True, "vgg_loss": True, "lambda_feat": 10.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5}
+
+
+class LocalEnhancer(nn.Module):
+    """One pix2pixHD local enhancer around ``inner`` (a global generator body or another enhancer).
+
+    ``inner`` sees the input average-pooled to half resolution and returns 2 * ``ngf`` feature
+    channels at that half resolution; the enhancer adds them to its own stride-2 features of
+    the full-resolution input, refines with ResNet blocks and upsamples back to ``ngf`` channels
+    (``Generator.head`` turns the outermost enhancer's features into an image).
+    """
+
+    def __init__(self, inner: nn.Module, in_ch: int, ngf: int, n_blocks: int, norm: str):
+        super().__init__()
+        make_norm = norm_layer(norm)
+        self.inner = inner
+        self.down = nn.Sequential(nn.ReflectionPad2d(3), nn.Conv2d(in_ch, ngf, 7), make_norm(ngf), nn.ReLU(True),
+                                  nn.Conv2d(ngf, 2 * ngf, 3, stride=2, padding=1), make_norm(2 * ngf), nn.ReLU(True))
+        self.up = nn.Sequential(*[ResnetBlock(2 * ngf, norm) for _ in range(n_blocks)],
+                                nn.ConvTranspose2d(2 * ngf, ngf, 3, stride=2, padding=1, output_padding=1),
+                                make_norm(ngf), nn.ReLU(True))
+
+    def forward(self, x: Tensor) -> Tensor:
+        half = F.avg_pool2d(x, 3, stride=2, padding=1, count_include_pad=False)  # (B, C, H/2, W/2)
+        return self.up(self.down(x) + self.inner(half))  # (B, ngf, H, W)
+
+
+class Generator(nn.Module):
+    """Global generator, wrapped in ``n_local_enhancers`` local enhancers when > 0."""
+
+    def __init__(self, cfg: Config, in_ch: int = 3, out_ch: int = 3):
+        super().__init__()
+        glob = ResnetGenerator(in_ch, out_ch, cfg.ngf, cfg.n_downsample_global, cfg.n_blocks_global, cfg.norm)
+        if cfg.n_local_enhancers == 0:
+            self.body, self.head = glob.body, glob.head
+            return
+        body = glob.body  # (B, ngf, h, w) features; the global image head is dropped
+        for k in range(1, cfg.n_local_enhancers + 1):  # the k-th enhancer (from the inside) has ngf / 2**k
+            body = LocalEnhancer(body, in_ch, cfg.ngf // 2**k, cfg.n_blocks_local, cfg.norm)
+        self.body = body
+        width = cfg.ngf // 2**cfg.n_local_enhancers
+        self.head = nn.Sequential(nn.ReflectionPad2d(3), nn.Conv2d(width, out_ch, 7), nn.Tanh())
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.head(self.body(x))  # (B, 3, H, W) in [-1, 1] -> same shape in [-1, 1]
+
+
+class Translator(PairedGANBase):
+    """Pix2PixHD as a stage-1 model; ``G`` binary -> sRGB, ``D`` multiscale conditional PatchGAN.
+
+    ``vgg_weights``: ``spc3d.lpips_net.lpips_weights("vgg")``, required when ``cfg.vgg_loss``.
+    """
+
+    paired = True
+
+    def __init__(self, cfg: Config, device: torch.device, vgg_weights: dict | None = None):
+        self.cfg = cfg
+        self.device = torch.device(device)
+        self.multiple = 2 ** (cfg.n_downsample_global + cfg.n_local_enhancers)
+        self.G = init_weights(Generator(cfg)).to(self.device)
+        self.D = init_weights(MultiscaleDiscriminator(6, cfg.ndf, cfg.n_layers_D, cfg.norm, cfg.num_D,
+                                                      padding=2)).to(self.device)
+        self.vgg = self._vgg_loss(cfg, vgg_weights)
+        self.gan = GANLoss("lsgan")
+        self.pool = ImagePool(cfg.pool_size)
+        betas = (cfg.beta1, cfg.beta2)
+        self.opt_G = torch.optim.Adam(self.G.parameters(), lr=cfg.lr, betas=betas)
+        self.opt_D = torch.optim.Adam(self.D.parameters(), lr=cfg.lr, betas=betas)
+
+    def _vgg_loss(self, cfg: Config, vgg_weights: dict | None) -> VGGLoss | None:
+        if not cfg.vgg_loss:
+            return None
+        if vgg_weights is None:
+            raise ValueError("pix2pixhd: vgg_loss is True but no vgg_weights were given; pass the VGG16 "
+                             "weights from spc3d.lpips_net.lpips_weights('vgg') or set vgg_loss: false")
+        return VGGLoss(vgg_weights).to(self.device)
+
+    def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
+        """One G step then one D step on a paired batch (reference order); binary, rgb:
+        (B, 3, h, w) in [0, 1], h, w multiples of ``multiple``. ``loss`` is the G objective."""
+        self.train(True)
+        check_multiple(binary, self.multiple, "pix2pixhd")
+        x, y = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
+        fake = self.G(x)  # (B, 3, h, w) in [-1, 1]
+        terms = self._generator_terms(x, y, fake)
+        loss_g = sum(terms.values())
+        self.opt_G.zero_grad(set_to_none=True)
+        loss_g.backward()
+        self.opt_G.step()
+        d_terms = conditional_d_step(self.D, self.opt_D, self.gan, self.pool, x, y, fake)
+        return {"loss": float(loss_g.detach()), **{k: float(v.detach()) for k, v in terms.items()}, **d_terms}
+
+    def _generator_terms(self, x: Tensor, y: Tensor, fake: Tensor) -> dict[str, Tensor]:
+        """GAN, feature-matching and VGG terms of the generator objective (D frozen)."""
+        set_requires_grad([self.D], False)
+        pred_fake = self.D(torch.cat([x, fake], 1), features=True)  # num_D lists of n_layers+2 maps
+        terms = {"G_GAN": self.gan(pred_fake, True)}
+        if self.cfg.feat_match:
+            with torch.no_grad():
+                pred_real = self.D(torch.cat([x, y], 1), features=True)
+            weight = self.cfg.lambda_feat * 4.0 / (self.cfg.n_layers_D + 1) / self.cfg.num_D
+            terms["G_feat"] = weight * sum(F.l1_loss(f, r) for pf, pr in zip(pred_fake, pred_real)
+                                           for f, r in zip(pf[:-1], pr[:-1]))
+        if self.vgg is not None:
+            terms["G_VGG"] = self.cfg.lambda_feat * self.vgg(fake, y)
+        set_requires_grad([self.D], True)
+        return terms
