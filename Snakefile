@@ -9,6 +9,10 @@ min_version("8.0")
 configfile: f"{workflow.basedir}/config.yaml"
 
 
+# `snakemake --report results/report.html`: one self-contained page (captions in workflow/report/).
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/scenes.smk"
 include: "workflow/rules/spc.smk"

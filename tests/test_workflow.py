@@ -143,3 +143,14 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     assert meta["source"] == "llff" and meta["width"] == 128 and meta["height"] == 96
     pose = io.read_json(tmp_path / "results" / "colmap" / "fern" / "rgb" / "pose_error.json")
     assert pose["registered"] >= 18  # real photos register from their RGB views
+
+
+@pytest.mark.parametrize("preset,reconstructs", [("smoke", 7), ("llff-cpu", 14), ("paper", 42)])
+def test_presets_validate_and_plan(tmp_path, preset, reconstructs):
+    """Every preset passes the schema and plans its DAG (the paper preset: 14 combinations x 3 seeds)."""
+    path = REPO / "workflow" / "presets" / f"{preset}.yaml"
+    if "../shared/data/llff" in path.read_text() and not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
+        pytest.skip("the preset reads the LLFF scenes of ../shared")
+    proc = snakemake(tmp_path, "-n", "--quiet", "rules", "--configfile", str(path), timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert re.search(rf"^reconstruct\s+{reconstructs}$", proc.stdout + proc.stderr, re.M), proc.stdout[-2000:]

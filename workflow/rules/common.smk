@@ -13,7 +13,8 @@ from spc3d.scenes import LAYOUTS
 from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, resolve_combinations, scene_specs,
                              stage1_sources, translator_settings)
 
-ENV = "../../envs/spc3d.yaml"
+# Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
+ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
 LPIPS_WEIGHTS = {net: f"results/cache/lpips/lpips_v0.1_{net}.npz" for net in ("alex", "vgg")}
 SCENE_SPECS = scene_specs(config, sorted(LAYOUTS), workflow.basedir)
 TRAIN_SCENES = list(config["scenes"]["train"])
@@ -23,6 +24,8 @@ COLMAP_INPUTS = list(config["colmap"]["inputs"])
 STAGE2_MODELS = ["3dgs", "nerf", "nerf-grid"]
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
+# Stage-2 repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}".
+SEEDS = [config["seed"] + k for k in range(config["stage2"]["seeds"])]
 # Sources scored before 3D (stage1_evaluate): the translators in use and the training-free images.
 STAGE1_SCORED = STAGE1_USED + ["mle", "none"]
 
@@ -33,6 +36,7 @@ wildcard_constraints:
     source="[a-z0-9]+",
     model="|".join(STAGE2_MODELS),
     method="|".join(STAGE1_METHODS),
+    rep="(-seed[0-9]+)?",
 
 
 def get_final_output():
@@ -46,7 +50,8 @@ def get_final_output():
 
 
 def get_table_outputs():
-    return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1"], ext=["csv", "md", "tex"])
+    return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1"],
+                  ext=["csv", "md", "tex", "html"])
 
 
 def get_stage1_outputs():
@@ -54,9 +59,20 @@ def get_stage1_outputs():
     return expand("results/stage1/{scene}/{source}.json", scene=EVAL_SCENES, source=STAGE1_SCORED)
 
 
+def seed_tag(seed):
+    """'' for the base seed (config `seed`), '-seed{N}' for the repeats."""
+    return "" if seed == config["seed"] else f"-seed{seed}"
+
+
 def get_eval_outputs():
-    """metrics.json of every configured combination on every evaluation scene."""
-    return expand("results/eval/{scene}/{combo}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS)
+    """metrics.json of every configured combination on every evaluation scene, for every seed."""
+    return expand("results/eval/{scene}/{combo}{rep}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS,
+                  rep=[seed_tag(s) for s in SEEDS])
+
+
+def get_seed(wildcards):
+    """The seed of a stage-2 run from its tag ('' = config `seed`)."""
+    return int(wildcards.rep.removeprefix("-seed")) if wildcards.rep else config["seed"]
 
 
 def get_reconstruct_inputs(wildcards):
@@ -78,7 +94,7 @@ def get_model_settings(wildcards):
 
 def get_checkpoint_path(wildcards):
     """Outside the rule's output folder, so Snakemake's clean-up of a failed job keeps it."""
-    return f"results/checkpoints/{wildcards.scene}/{wildcards.source}+{wildcards.model}/checkpoint.pt"
+    return f"results/checkpoints/{wildcards.scene}/{wildcards.source}+{wildcards.model}{wildcards.rep}/checkpoint.pt"
 
 
 def get_scene_spec(wildcards):
@@ -146,3 +162,8 @@ def get_qualitative_inputs(wildcards):
     """The scene, its SPC folder and the reconstruction of every configured combination."""
     return {"scene": f"results/scenes/{wildcards.scene}", "spc": f"results/spc/{wildcards.scene}",
             "recons": expand("results/recon/{scene}/{combo}", scene=wildcards.scene, combo=COMBINATIONS)}
+
+
+def get_stage2_gpus(wildcards):
+    """GPUs a stage-2 job can use: 3DGS runs on CPU threads here, the NeRFs use CUDA when present."""
+    return 0 if wildcards.model == "3dgs" else 1

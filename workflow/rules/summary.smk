@@ -7,7 +7,12 @@ rule data_summary:
     output:
         csv="results/summary/data_summary.csv",
         md="results/summary/data_summary.md",
-        png="results/summary/data_summary.png",
+        png=report(
+            "results/summary/data_summary.png",
+            caption="../report/data_summary.rst",
+            category="3. Data",
+            labels={"figure": "data summary"},
+        ),
     params:
         roles=get_summary_roles(),
     log:

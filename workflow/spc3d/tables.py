@@ -52,6 +52,19 @@ TWO_STAGE = [
 ]
 
 
+# A standalone page per table (the HTML report shows it in its main panel).
+HTML_PAGE = """<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>{caption}</title><style>
+body {{ font-family: sans-serif; font-size: 13px; margin: 12px; }}
+table {{ border-collapse: collapse; }} th, td {{ border: 1px solid #ccc; padding: 3px 6px; text-align: right; }}
+td:first-child, th:first-child {{ text-align: left; }} th {{ background: #f0f0f0; }}
+</style></head><body><h3>{caption}</h3>
+{table}
+<p>Best in bold, second in italics (from the numbers; oracle rows are not ranked). Mean ± std over scenes and seeds.</p>
+</body></html>
+"""
+
+
 def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
     """One row per metrics.json: scene, combination, seed and the mean metrics."""
     rows = []
@@ -112,7 +125,7 @@ def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
 
 
 def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None:
-    """``stem``.csv (numbers), .md and .tex (formatted) atomically."""
+    """``stem``.csv (numbers), .md, .tex and .html (formatted) atomically."""
     stem = Path(stem)
     io.write_text(stem.with_suffix(".csv"), df.to_csv(index=False, float_format="%.6g"))
     md = formatted(df, lambda s: f"**{s}**", lambda s: f"*{s}*")
@@ -121,6 +134,8 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None
     tex = tex.map(lambda s: s.replace("±", "$\\pm$").replace("↑", "$\\uparrow$").replace("↓", "$\\downarrow$")
                   .replace("–", "--") if isinstance(s, str) else s)
     io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=caption, escape=False))
+    html = formatted(df, lambda s: f"<b>{s}</b>", lambda s: f"<i>{s}</i>").to_html(index=False, escape=False)
+    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html))
 
 
 def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:

@@ -202,7 +202,8 @@ class GridNeRF(nn.Module):
         sel = weights.detach().view(-1)[ids] > self.cfg.weight_thres
         ids_c = ids[sel]
         feat = weighted_gather(self.features, idx[sel], w[sel]) * weights.view(-1)[ids_c, None]  # (K, C)
-        ray_feat = torch.zeros(weights.shape[0], feat.shape[1], dtype=feat.dtype).index_add(0, ids_c // n_s, feat)
+        ray_feat = torch.zeros(weights.shape[0], feat.shape[1], dtype=feat.dtype, device=feat.device).index_add(
+            0, ids_c // n_s, feat)
         acc = weights.sum(-1)
         colour = self.head(ray_feat / acc.detach().clamp(min=1e-6)[:, None], vd)  # clamp: empty rays have acc 0
         rgb = acc[:, None] * colour + (1.0 - acc)[:, None] * bg

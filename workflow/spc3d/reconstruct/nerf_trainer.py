@@ -5,6 +5,9 @@ every training pixel becomes one NDC ray, and each step fits a random batch of r
 cameras are mapped by the same similarity. The MLP NeRF is supervised on its coarse and fine
 outputs (as the original); the grid adds its total-variation term, grows its resolution on the
 configured schedule and refreshes its occupancy mask (empty-space skipping) periodically.
+
+The model, the rays and the targets live on CUDA when it is available (else the CPU); renders are
+returned on the CPU. A checkpoint holds tensors on the device it was written on.
 """
 
 from __future__ import annotations
@@ -34,16 +37,23 @@ def all_rays(cams: Cameras, idx) -> tuple[Tensor, Tensor, Tensor]:
     return torch.cat(o_all), torch.cat(d_all), torch.cat(v_all)
 
 
-class RayTrainer:
-    """Fits a NeRF (``kind`` "nerf") or GridNeRF (``kind`` "nerf-grid") to ``views``."""
+def default_device() -> torch.device:
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
-    def __init__(self, views: Views, objective, kind: str, cfg, seed: int = 0):
+
+class RayTrainer:
+    """Fits a NeRF (``kind`` "nerf") or GridNeRF (``kind`` "nerf-grid") to ``views`` on ``device``
+    (default: CUDA if available, else CPU)."""
+
+    def __init__(self, views: Views, objective, kind: str, cfg, seed: int = 0,
+                 device: str | torch.device | None = None):
         torch.manual_seed(seed)
         self.kind, self.cfg, self.objective = kind, cfg, objective
+        self.device = torch.device(device) if device is not None else default_device()
         self.cams, self.similarity = recenter(views.cameras)
-        self.rays = all_rays(self.cams, range(len(self.cams)))
-        self.targets = views.targets.reshape(-1, views.targets.shape[-1])
-        self.model = nerf.NeRF(cfg) if kind == "nerf" else nerf_grid.GridNeRF(cfg)
+        self.rays = tuple(r.to(self.device) for r in all_rays(self.cams, range(len(self.cams))))
+        self.targets = views.targets.reshape(-1, views.targets.shape[-1]).to(self.device)
+        self.model = (nerf.NeRF(cfg) if kind == "nerf" else nerf_grid.GridNeRF(cfg)).to(self.device)
         self.lib = nerf if kind == "nerf" else nerf_grid
         self.opt = self.lib.make_optimizer(self.model, cfg)
         self.rng = np.random.default_rng(seed)
@@ -52,7 +62,7 @@ class RayTrainer:
         if self.kind == "nerf-grid":
             self._grid_schedule(it)
         _set_lr(self.opt, self.lib.lr_at(it, self.cfg))
-        sel = torch.as_tensor(self.rng.integers(self.targets.shape[0], size=self.cfg.batch_rays))
+        sel = torch.as_tensor(self.rng.integers(self.targets.shape[0], size=self.cfg.batch_rays), device=self.device)
         out = self.model(self.rays[0][sel], self.rays[1][sel], train=True, viewdirs=self.rays[2][sel])
         target = self.targets[sel]
         loss = self.objective.loss(out["rgb"], target)
@@ -78,9 +88,9 @@ class RayTrainer:
     @torch.no_grad()
     def render(self, cams: Cameras, i: int) -> Tensor:
         view = transform_cameras(cams.subset([i]), *self.similarity)
-        o, d, v = all_rays(view, [0])
+        o, d, v = (r.to(self.device) for r in all_rays(view, [0]))
         out = render_chunked(self.model, o, d, v, chunk=self.cfg.chunk)
-        return self.objective.to_srgb(out["rgb"]).reshape(cams.height, cams.width, -1)
+        return self.objective.to_srgb(out["rgb"]).reshape(cams.height, cams.width, -1).cpu()
 
     def capacity(self) -> dict:
         if self.kind == "nerf-grid":
@@ -94,7 +104,7 @@ class RayTrainer:
     def load(self, state: dict) -> None:
         if self.kind == "nerf-grid" and state["res"] != self.model.res:
             self.model.upsample(state["res"])  # shapes first; values come from the state dict
-            self.model.occupancy = state["model"]["occupancy"].clone()
+            self.model.occupancy = state["model"]["occupancy"].to(self.device, copy=True)
         self.model.load_state_dict(state["model"])
         self.opt = self.lib.make_optimizer(self.model, self.cfg)
         self.opt.load_state_dict(state["opt"])

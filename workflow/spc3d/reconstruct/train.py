@@ -55,7 +55,7 @@ def load_checkpoint(path: str | os.PathLike, trainer) -> tuple[int, float]:
     """Resume ``trainer`` from ``path`` if it exists: (iterations done, training seconds so far)."""
     if not Path(path).is_file():
         return 0, 0.0
-    ckpt = torch.load(path, weights_only=False)  # our own file, written by save_checkpoint
+    ckpt = torch.load(path, weights_only=False, map_location="cpu")  # our own file (GPU-written too)
     trainer.load(ckpt["state"])
     torch.set_rng_state(ckpt["torch_rng"])
     return int(ckpt["iteration"]), float(ckpt["elapsed_s"])

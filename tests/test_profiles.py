@@ -1,0 +1,93 @@
+"""The SLURM profile (workflow/profiles/slurm): a dry run through snakemake-executor-plugin-slurm
+submits nothing and shows what every job would ask SLURM for."""
+import os
+import re
+import subprocess
+import sys
+
+import yaml
+
+from conftest import REPO
+
+PROFILE = REPO / "workflow" / "profiles" / "slurm"
+
+# The profile deploys per-rule conda environments; a dry run only asks `conda info --json`,
+# `conda --version` and `conda config --get channel_priority --json`, so a stand-in answers where
+# conda is not installed (nothing is created).
+FAKE_CONDA = """#!/bin/sh
+case "$*" in
+  --version) echo "conda 25.1.1" ;;
+  *) echo '{"conda_prefix": "%s", "platform": "linux-64", "get": {"channel_priority": "strict"}}' ;;
+esac
+"""
+
+
+def snakemake(workdir, *args, path_prefix=None, timeout=300):
+    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process."""
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    if path_prefix:
+        env["PATH"] = f"{path_prefix}{os.pathsep}{env.get('PATH', '')}"
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def conda_stand_in(folder):
+    """Write the stand-in ``folder``/bin/conda; returns the bin folder."""
+    bin_dir = folder / "bin"
+    bin_dir.mkdir()
+    conda = bin_dir / "conda"
+    conda.write_text(FAKE_CONDA % (folder / "conda"))
+    conda.chmod(0o755)
+    return bin_dir
+
+
+def job_blocks(text: str) -> dict[str, list[str]]:
+    """Dry-run output -> rule name -> the text block of each of its jobs."""
+    blocks: dict[str, list[str]] = {}
+    for block in re.split(r"\n(?=\[[^\]]+\]\n(?:local)?rule )", text):
+        match = re.search(r"^(?:local)?rule (\w+):", block, re.M)
+        if match:
+            blocks.setdefault(match.group(1), []).append(block)
+    return blocks
+
+
+def resources(block: str) -> dict[str, str]:
+    line = re.search(r"^\s+resources: (.*)$", block, re.M).group(1)
+    return dict(item.split("=", 1) for item in line.split(", "))
+
+
+def test_profile_is_valid_yaml_with_the_slurm_executor():
+    profile = yaml.safe_load((PROFILE / "config.yaml").read_text())
+    assert profile["executor"] == "slurm" and profile["jobs"] > 0 and profile["retries"] >= 1
+    assert {"train_translator", "reconstruct", "evaluate"} <= set(profile["set-resources"])
+    assert "slurm_partition" in profile["default-resources"] and "runtime" in profile["default-resources"]
+
+
+def test_slurm_profile_dry_run(tmp_path):
+    bin_dir = None if _has_conda() else conda_stand_in(tmp_path)
+    proc = snakemake(tmp_path, "--profile", str(PROFILE), "-n", path_prefix=bin_dir)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    assert "This was a dry-run" in out and "envs/spc3d-gpu.yaml" in out  # the profile's conda_env=gpu
+    jobs = job_blocks(out)
+    assert len(jobs["train_translator"]) == 5 and len(jobs["evaluate"]) >= 14
+    for rule in ("train_translator", "reconstruct"):  # GPU jobs: --gpus=1 on the GPU partition, more memory
+        for block in jobs[rule]:
+            res = resources(block)
+            gpus = "0" if "model=3dgs" in block else "1"  # 3DGS rasterizes on CPU threads
+            assert res["gpu"] == gpus and res["slurm_partition"] == "EDIT-gpu-partition", (rule, res)
+            assert int(res["mem_mb"]) == 32000 and int(res["runtime"]) >= 720, (rule, res)
+    res = resources(jobs["evaluate"][0])
+    assert "gpu" not in res and int(res["mem_mb"]) == 8000 and int(res["runtime"]) == 30
+    res = resources(jobs["scene_prepare"][0])  # the defaults
+    assert res["slurm_partition"] == "EDIT-cpu-partition" and int(res["mem_mb"]) == 4000 and int(res["runtime"]) == 60
+    # A dry run counts as 1 core (threads are capped by --cores); with more, set-threads shows.
+    threads = snakemake(tmp_path, "--profile", str(PROFILE), "-n", "--cores", "8", path_prefix=bin_dir)
+    assert threads.returncode == 0, threads.stderr[-3000:]
+    blocks = job_blocks(threads.stdout + threads.stderr)
+    assert all(re.search(r"^\s+threads: 4$", b, re.M) for b in blocks["train_translator"] + blocks["reconstruct"])
+    assert not any(re.search(r"^\s+threads:", b, re.M) for b in blocks["evaluate"])  # 1 thread is not printed
+
+
+def _has_conda() -> bool:
+    return subprocess.run(["sh", "-c", "command -v conda"], capture_output=True).returncode == 0

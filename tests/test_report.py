@@ -1,0 +1,109 @@
+"""The HTML report: `snakemake --report` on a smoke run is one self-contained page with the tables,
+figures, captions and run times, and (where Chromium is installed) it renders in a real browser."""
+import base64
+import importlib.util
+import json
+import os
+import re
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+import yaml
+from matplotlib.image import imread
+
+from conftest import REPO
+
+SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
+TOOL = REPO / "workflow" / "tools" / "report_screenshot.py"
+
+
+def snakemake(workdir, *args, timeout=900):
+    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process."""
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def load_tool():
+    spec = importlib.util.spec_from_file_location("report_screenshot", TOOL)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def embedded_json(html: str, name: str) -> dict:
+    """The ``var name = {...};`` object the report embeds for its scripts."""
+    match = re.search(rf"var {name} = (\{{.*?\}});\n", html, re.S)
+    assert match, f"no `var {name}` in the report"
+    return json.loads(match.group(1))
+
+
+def test_screenshot_tool_names_the_missing_browser(monkeypatch, tmp_path):
+    tool = load_tool()
+    monkeypatch.delenv("CHROMIUM", raising=False)
+    monkeypatch.setenv("PATH", str(tmp_path))  # no browser on PATH
+    with pytest.raises(tool.BrowserMissing, match=r"apt-get install chromium"):
+        tool.find_browser()
+    page = tmp_path / "report.html"
+    page.write_text("<html><body>x</body></html>")
+    assert tool.main([str(page)]) == 2  # a clear error, not a traceback
+
+
+@pytest.mark.slow
+def test_report_of_a_smoke_run(tmp_path, lpips_cache):
+    """One smoke run, then the report: every table, figure and caption embedded; a browser renders it."""
+    local = tmp_path / "local.yaml"  # the LPIPS weights the test session already fetched
+    local.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
+    configs = ["--configfile", str(SMOKE), str(local)]
+    run = snakemake(tmp_path, "--cores", "2", *configs)
+    assert run.returncode == 0, run.stderr[-4000:]
+    report = tmp_path / "report.html"
+    proc = snakemake(tmp_path, "--report", str(report), *configs, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+
+    html = report.read_text(encoding="utf-8")
+    assert report.stat().st_size > 500_000  # libraries and figures inline
+    assert not re.search(r"<script[^>]+src=|<link[^>]+href=\"https?:", html)  # nothing fetched from the web
+    results = embedded_json(html, "results")
+    expected = {"results/tables/two_stage.html": "1. Paper tables", "results/tables/single_stage.html": "1. Paper tables",
+                "results/tables/stage1.html": "1. Paper tables",
+                "results/figures/qualitative_courtyard.png": "2. Qualitative",
+                "results/summary/data_summary.png": "3. Data",
+                **{f"results/models/{m}/curve.png": "4. Stage 1 training" for m in ("pix2pixhd", "restormer", "diffusion")}}
+    assert set(expected) <= set(results), sorted(results)
+    categories = embedded_json(html, "categories")
+    for path, category in expected.items():
+        assert any(path in files for files in categories[category].values()), (path, category)
+    # Captions rendered from workflow/report/*.rst, with the run's own values filled in.
+    captions = {path: " ".join(results[path]["caption"].split()) for path in expected}
+    assert "Table 1 layout" in captions["results/tables/two_stage.html"]
+    assert "Table 2 layout" in captions["results/tables/single_stage.html"]
+    assert all("Wang et al." in captions[p] for p in expected if p.startswith("results/tables/"))
+    assert "nerf-grid" in captions["results/figures/qualitative_courtyard.png"]
+    assert "K = 4 stored frames" in captions["results/summary/data_summary.png"]  # smoke: spc.frames 4
+    assert "DiffBIR stand-in" in captions["results/models/diffusion/curve.png"]
+    assert results["results/models/restormer/curve.png"]["labels"] == {"translator": "restormer", "figure": "training curve"}
+    assert "LPIPS v0.1" in html and "spc3d: binary SPC frames to colour novel views" in html  # workflow.rst
+    # Files are embedded as data URIs: the figure decodes to the PNG on disk.
+    uri = results["results/figures/qualitative_courtyard.png"]["data_uri"]
+    assert base64.b64decode(uri.split(",", 1)[1]) == (tmp_path / "results" / "figures" / "qualitative_courtyard.png").read_bytes()
+    runtimes = embedded_json(html, "runtimes_spec")["data"]["values"]
+    assert {"train_translator", "reconstruct", "evaluate"} <= {r["rule"] for r in runtimes}
+
+    tool = load_tool()
+    try:
+        tool.find_browser()
+    except tool.BrowserMissing as exc:  # the report is checked; only the browser part is left out
+        warnings.warn(f"report not rendered in a browser: {exc}")
+        return
+    for name, show in (("landing", None), ("qualitative", "results/figures/qualitative_courtyard.png"),
+                       ("two_stage", "results/tables/two_stage.html")):
+        png = tool.screenshot(report, tmp_path / f"report_{name}.png", show=show)
+        img = imread(png)[..., :3]  # (1000, 1400, 3) in [0, 1]
+        assert img.shape[:2] == (1000, 1400)
+        assert img.std() > 0.05, f"{name}: the screenshot is blank"  # a page that failed to render is one colour
+        _, counts = np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0, return_counts=True)
+        assert counts.max() / counts.sum() < 0.9 and len(counts) > 500, f"{name}: hardly anything drawn"
