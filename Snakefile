@@ -21,6 +21,7 @@ include: "workflow/rules/colmap.smk"
 include: "workflow/rules/summary.smk"
 include: "workflow/rules/stage1.smk"
 include: "workflow/rules/stage2.smk"
+include: "workflow/rules/tradeoff.smk"
 
 
 rule all:

@@ -1,4 +1,7 @@
 """Shared fixtures: paths to the repository and to the real LLFF scenes (skipped when absent)."""
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -44,3 +47,13 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+def run_snakemake(workdir, *args, timeout=600, path_prefix=None):
+    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process.
+    ``path_prefix``: a folder put first on PATH (e.g. a stand-in ``conda``)."""
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    if path_prefix:
+        env["PATH"] = f"{path_prefix}{os.pathsep}{env.get('PATH', '')}"
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)

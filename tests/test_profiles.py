@@ -1,13 +1,11 @@
 """The SLURM profile (workflow/profiles/slurm): a dry run through snakemake-executor-plugin-slurm
 submits nothing and shows what every job would ask SLURM for."""
-import os
 import re
 import subprocess
-import sys
 
 import yaml
 
-from conftest import REPO
+from conftest import REPO, run_snakemake
 
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
 
@@ -22,13 +20,8 @@ esac
 """
 
 
-def snakemake(workdir, *args, path_prefix=None, timeout=300):
-    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process."""
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    if path_prefix:
-        env["PATH"] = f"{path_prefix}{os.pathsep}{env.get('PATH', '')}"
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+def snakemake(workdir, *args, timeout=300, **kw):
+    return run_snakemake(workdir, *args, timeout=timeout, **kw)
 
 
 def conda_stand_in(folder):

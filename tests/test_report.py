@@ -3,10 +3,7 @@ figures, captions and run times, and (where Chromium is installed) it renders in
 import base64
 import importlib.util
 import json
-import os
 import re
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -14,17 +11,14 @@ import pytest
 import yaml
 from matplotlib.image import imread
 
-from conftest import REPO
+from conftest import REPO, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
 TOOL = REPO / "workflow" / "tools" / "report_screenshot.py"
 
 
-def snakemake(workdir, *args, timeout=900):
-    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process."""
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+def snakemake(workdir, *args, timeout=900, **kw):
+    return run_snakemake(workdir, *args, timeout=timeout, **kw)
 
 
 def load_tool():

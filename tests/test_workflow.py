@@ -1,8 +1,5 @@
 """The Snakemake workflow: config checks with clear errors, dry runs, and a tiny end-to-end run."""
-import os
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pandas as pd
@@ -12,16 +9,13 @@ import yaml
 from spc3d import io, spc
 from spc3d.scenes import LAYOUTS
 from spc3d.workflow import ConfigError, scene_specs
-from conftest import LLFF_ROOT, REPO
+from conftest import LLFF_ROOT, REPO, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
 
 
-def snakemake(workdir, *args, timeout=600):
-    """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process."""
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+def snakemake(workdir, *args, timeout=600, **kw):
+    return run_snakemake(workdir, *args, timeout=timeout, **kw)
 
 
 def base_config():

@@ -1,0 +1,156 @@
+"""One sweep point: the whole pipeline of one combination at one budget, in one folder.
+
+``run_point`` calls the stage functions the workflow's rules call (the same arguments), in order:
+
+    prepare      spc3d.prepare.prepare_scene        the evaluation scene (+ training scenes)
+    simulate     spc3d.simulate.simulate_scene      SPC frames (not for gt)
+    augment      spc3d.augment.augment_scene        training pairs       } stage-1
+    train        spc3d.translate.train.train_translator                  } sources
+    translate    spc3d.translate.apply.translate_scene                   } only
+    reconstruct  spc3d.stage2.reconstruct           stage 2, renders of the held-out views
+    evaluate     spc3d.evaluate.evaluate            PSNR / SSIM / LPIPS (+ the source images before 3D)
+
+Output folder::
+
+    metrics.json   combination, setting, used knobs, seed, wall time of every stage and in total,
+                   CPU time, peak memory, mean and per-view scores, stage-1 scores of the source
+                   images, capacity, resolved settings of every stage
+    recon/         the reconstruction's renders and train.json
+    work/          scenes, SPC data, pairs, model, translations: deleted at the end unless keep_work
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import resource
+import shutil
+import time
+from pathlib import Path
+
+import torch
+
+from .. import io
+from ..augment import AugmentSettings, augment_scene
+from ..evaluate import evaluate
+from ..prepare import prepare_scene
+from ..reconstruct.train import peak_rss_mb
+from ..simulate import simulate_scene
+from ..spc import SPCParams
+from ..stage2 import reconstruct
+from .budget import resolve_point
+
+log = logging.getLogger(__name__)
+STAGES = ("prepare", "simulate", "augment", "train", "translate", "reconstruct", "evaluate")
+STAGE1_IMAGES = {"mle": ("spc", "mle_srgb"), "none": ("spc", "binary")}  # sources scored before 3D
+TRANSLATOR_KEYS = ("parameters", "train_s", "settings", "train", "pairs", "peak_rss_mb")  # kept from train.json
+
+
+@contextlib.contextmanager
+def timed(times: dict, stage: str):
+    """Add the wall time of the block to ``times[stage]`` (seconds)."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        times[stage] = times.get(stage, 0.0) + time.perf_counter() - t0
+
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process so far."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def run_point(out_dir: str | os.PathLike, combo: str, setting: dict, base: dict, lpips_dir: str | os.PathLike,
+              threads: int = 1, keep_work: bool = False) -> dict:
+    """Run ``combo`` at ``setting`` (see :mod:`.budget` for ``base``); write and return metrics.json."""
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
+    torch.set_num_threads(threads)
+    plan = resolve_point(base, setting, combo)
+    out, times = Path(out_dir), {}
+    work = out / "work"
+    shutil.rmtree(work, ignore_errors=True)
+    log.info("%s at %s", combo, plan["setting"])
+    scene_dir, spc_dir = prepare_and_simulate(plan, work, times)
+    model_record, image_dir = run_stage1(plan, work, lpips_dir, threads, times) if plan["translator"] else (None, None)
+    with timed(times, "reconstruct"):
+        reconstruct(scene_dir, out / "recon", plan["source"], plan["model"], plan["stage2"], plan["seed"],
+                    spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"] or 1, threads=threads)
+    with timed(times, "evaluate"):
+        scores = evaluate(out / "recon", scene_dir, work / "eval.json", lpips_dir=lpips_dir)
+        stage1 = score_source(plan, work, image_dir, lpips_dir)
+    record = point_record(plan, scores, stage1, times, time.perf_counter() - t0, cpu_seconds() - cpu0)
+    record["translator"] = model_record and {k: model_record[k] for k in TRANSLATOR_KEYS}
+    record["spc_record"] = io.read_json(spc_dir / "spc.json") if spc_dir else None
+    io.write_json(out / "metrics.json", record)
+    if not keep_work:
+        shutil.rmtree(work, ignore_errors=True)
+    log.info("%s: %.2f dB in %.1f s", combo, record["mean"]["psnr"], record["wall_s"])
+    return record
+
+
+def prepare_and_simulate(plan: dict, work: Path, times: dict) -> tuple[Path, Path | None]:
+    """Scene folders (evaluation + training) and their SPC folders; returns (scene_dir, spc_dir)."""
+    names = [plan["scene_name"], *plan["train_scenes"]]
+    specs = dict(zip(names, [plan["scene"], *plan["train_scenes"].values()]))
+    with timed(times, "prepare"):
+        for name, spec in specs.items():
+            prepare_scene(spec, work / "scenes" / name)
+    if plan["source"] == "gt":
+        return work / "scenes" / names[0], None
+    s = plan["spc"]
+    with timed(times, "simulate"):
+        for name in names:
+            simulate_scene(work / "scenes" / name, work / "spc" / name, SPCParams(**s["physics"]),
+                           s["flux_scale"], s["target_detection"], s["seed"])
+    return work / "scenes" / names[0], work / "spc" / names[0]
+
+
+def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict) -> tuple[dict, Path]:
+    """Augment the training scenes, train the translator, translate the evaluation scene."""
+    from ..lpips_net import cache_file, load_npz
+    from ..translate.apply import translate_scene
+    from ..translate.train import train_translator
+
+    aug, tr = plan["augment"], plan["translator"]
+    with timed(times, "augment"):
+        settings = AugmentSettings(**{k: tuple(v) if k == "zoom" else v for k, v in aug["settings"].items()})
+        for name, count in aug["counts"].items():
+            augment_scene(work / "scenes" / name, work / "spc" / name, work / "augment" / name, count, settings,
+                          plan["seed"])
+    with timed(times, "train"):
+        record = train_translator(tr["method"], [str(work / "augment" / n) for n in aug["counts"]], work / "model",
+                                  tr["settings"], tr["train"], seed=plan["seed"], frames=plan["frames"],
+                                  vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"), threads=threads)
+    eval_name = plan["scene_name"]
+    with timed(times, "translate"):
+        translate_scene(work / "model", work / "spc" / eval_name, work / "scenes" / eval_name, work / "translate",
+                        frames=plan["frames"], threads=threads)
+    return record, work / "translate" / "images"
+
+
+def score_source(plan: dict, work: Path, image_dir: Path | None, lpips_dir) -> dict | None:
+    """Scores of the source's held-out images before 3D (translators, MLE, binary frame); None for gt/bernoulli."""
+    from ..translate.apply import score_images
+
+    source, name = plan["source"], plan["scene_name"]
+    if image_dir is None and source not in STAGE1_IMAGES:
+        return None
+    folder = image_dir or work / STAGE1_IMAGES[source][0] / name / STAGE1_IMAGES[source][1]
+    return score_images(folder, work / "scenes" / name, work / "stage1.json", source, lpips_dir=lpips_dir)["mean"]
+
+
+def point_record(plan: dict, scores: dict, stage1: dict | None, times: dict, wall_s: float, cpu_s: float) -> dict:
+    """metrics.json of a point (see the module docstring)."""
+    return {"combination": plan["combination"], "source": plan["source"], "model": plan["model"],
+            "scene": scores["scene"], "seed": plan["seed"], "setting": plan["setting"],
+            "used_knobs": [k for k in plan["used_knobs"] if k in plan["setting"]],
+            "times_s": {stage: round(times.get(stage, 0.0), 3) for stage in STAGES},
+            "wall_s": wall_s, "cpu_s": cpu_s, "peak_rss_mb": peak_rss_mb(),
+            "mean": scores["mean"], "per_view": scores["per_view"], "stage1": stage1,
+            "iterations": scores["iterations"], "capacity": scores["capacity"],
+            "frames": plan["frames"],
+            "resolved": {k: plan[k] for k in ("scene", "train_scenes", "spc", "augment", "translator", "stage2")},
+            "conventions": scores["conventions"]}

@@ -1,0 +1,230 @@
+"""Tables and figures of the sweeps; the Pareto front of quality against time (no torch).
+
+``tradeoff_report``: ``tradeoff.csv`` (one row per point: combination, setting number, every knob,
+wall time, peak memory, PSNR, SSIM, LPIPS-alex/vgg, CPU time, stage-1 PSNR, whether the point is on
+its combination's PSNR-time Pareto front, a label of the knobs that vary) and the figure: PSNR and
+LPIPS-alex against wall (or CPU) time, one colour per combination, points numbered by setting (the
+settings are listed under the panels), each front as a step line (the best quality reachable
+within a time budget).
+
+``photon_report``: ``photon_level.csv`` and the figure: PSNR and LPIPS-alex against the mean
+detection probability (logit axis), one line per (combination, K), and in grey the PSNR of the MLE
+image itself before 3D.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pandas as pd
+
+from .. import io
+from .knobs import KNOBS, label
+
+SCORES = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
+K_STYLES = ("-", "--", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)))
+K_MARKERS = ("o", "s", "^", "D", "v", "P")
+
+
+def pareto_mask(time, quality) -> np.ndarray:
+    """Per point: True when no other point is at least as fast and at least as good, and better in one.
+
+    ``time`` and ``quality`` are (N,) (higher quality is better: pass -LPIPS for LPIPS). Exact
+    ties are all kept; points with NaN time or quality are never on the front.
+    """
+    t, q = np.asarray(time, float), np.asarray(quality, float)
+    ok = ~np.isnan(t) & ~np.isnan(q)
+    no_worse = (t[None, :] <= t[:, None]) & (q[None, :] >= q[:, None])  # [i, j]: j is no worse than i
+    better = (t[None, :] < t[:, None]) | (q[None, :] > q[:, None])
+    dominated = (no_worse & better & ok[None, :]).any(axis=1)
+    return ok & ~dominated
+
+
+def front_steps(time, quality) -> tuple[np.ndarray, np.ndarray]:
+    """The front's points sorted by time: the step line of the best quality within a time budget."""
+    t, q = np.asarray(time, float), np.asarray(quality, float)
+    on = pareto_mask(t, q)
+    order = np.lexsort((q[on], t[on]))
+    return t[on][order], q[on][order]
+
+
+def collect_points(paths: list[str | os.PathLike]) -> pd.DataFrame:
+    """One row per metrics.json of a point: combination, knobs, times, memory, scores."""
+    rows = []
+    for path in paths:
+        rec = io.read_json(path)
+        spc = rec.get("spc_record") or {}
+        rows.append({"combination": rec["combination"], **rec["setting"],
+                     "wall_time_s": rec["wall_s"], "peak_memory_mb": rec["peak_rss_mb"],
+                     **{k: rec["mean"][k] for k in SCORES}, "cpu_time_s": rec["cpu_s"],
+                     "stage1_psnr": (rec.get("stage1") or {}).get("psnr", np.nan),
+                     "measured_detection": spc.get("mean_detection_rate", np.nan),
+                     "used": tuple(rec["used_knobs"]), "path": str(path)})
+    if not rows:
+        raise ValueError("no sweep points to summarise")
+    return pd.DataFrame(rows)
+
+
+def tradeoff_table(paths: list[str | os.PathLike], combos: list[str], clock: str = "wall") -> pd.DataFrame:
+    """The trade-off table, combinations in ``combos`` order, each sorted by time.
+
+    ``clock``: the time the Pareto front is computed against: ``wall`` (elapsed) or ``cpu`` (user +
+    system CPU seconds, which other load on a shared machine barely changes). ``label`` names the
+    knobs that the combination uses and that vary among its points.
+    """
+    time_key = clock_column(clock)
+    df = collect_points(paths)
+    knobs = [k for k in KNOBS if k in df.columns]
+    keys = [tuple(r) for r in df[knobs].astype(str).itertuples(index=False)]  # settings numbered in input order
+    df["setting"] = [list(dict.fromkeys(keys)).index(k) + 1 for k in keys]
+    df["pareto"], df["label"] = False, ""
+    for _, group in df.groupby("combination"):
+        df.loc[group.index, "pareto"] = pareto_mask(group[time_key], group["psnr"])
+        varying = [k for k in group["used"].iloc[0] if k in group and group[k].nunique() > 1]
+        for i, row in group.iterrows():
+            df.loc[i, "label"] = label(row.to_dict(), varying or list(row["used"]))
+    df["order"] = df["combination"].map({c: i for i, c in enumerate(combos)})
+    df = df.sort_values(["order", time_key]).reset_index(drop=True)
+    return df[["combination", "setting", *knobs, "wall_time_s", "peak_memory_mb", *SCORES, "cpu_time_s", "stage1_psnr",
+               "pareto", "label"]]
+
+
+def clock_column(clock: str) -> str:
+    """The table column of a clock name (``wall`` or ``cpu``)."""
+    if clock not in ("wall", "cpu"):
+        raise ValueError(f"tradeoff.clock={clock!r}: use 'wall' (elapsed seconds) or 'cpu' (CPU seconds)")
+    return f"{clock}_time_s"
+
+
+def photon_table(paths: list[str | os.PathLike], combos: list[str]) -> pd.DataFrame:
+    """The photon-level table, by combination (``combos`` order), K and detection level."""
+    df = collect_points(paths)
+    df["order"] = df["combination"].map({c: i for i, c in enumerate(combos)})
+    df = df.sort_values(["order", "K", "detection"]).reset_index(drop=True)
+    return df[["combination", "K", "detection", "measured_detection", *SCORES, "stage1_psnr", "wall_time_s",
+               "peak_memory_mb"]]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, plt, out_png) -> None:
+    with io.atomic_path(out_png) as tmp:
+        fig.savefig(tmp, dpi=130, format="png")
+    plt.close(fig)
+
+
+def tradeoff_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[str, str] | None = None,
+                    clock: str = "wall") -> None:
+    """PSNR and LPIPS-alex against time (log), fronts as step lines, points labelled by setting."""
+    plt = _plt()
+    time_key = clock_column(clock)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.6))
+    colours = plt.get_cmap("tab10").colors
+    panels = (("psnr", "PSNR (dB) ↑", 1.0), ("lpips_alex", "LPIPS-alex ↓", -1.0))
+    for ax, (key, ylabel, sign) in zip(axes, panels):
+        for i, (combo, group) in enumerate(table.groupby("combination", sort=False)):
+            c = colours[i % len(colours)]
+            ax.scatter(group[time_key], group[key], color=c, s=30, zorder=3, label=_combo_label(combo, labels))
+            t, q = front_steps(group[time_key], sign * group[key])
+            ax.step(np.append(t, t[-1] * 1.15), sign * np.append(q, q[-1]), where="post", color=c, lw=1.3, alpha=0.8)
+            for _, row in group.iterrows():
+                ax.annotate(str(row["setting"]), (row[time_key], row[key]), fontsize=8, color=c,
+                            textcoords="offset points", xytext=(4, 4), fontweight="bold")
+        _log_seconds(ax)
+        ax.set_xlabel(f"{'wall' if clock == 'wall' else 'CPU'} time of the whole point (s, log scale; 1 thread)")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=8, title="combination (line: Pareto front)", title_fontsize=8)
+    fig.suptitle("Speed–accuracy trade-off: held-out view quality against the time of the whole pipeline",
+                 fontsize=11)
+    fig.text(0.01, 0.01, setting_legend(table), fontsize=7.5, family="monospace", va="bottom")
+    fig.tight_layout(rect=(0, 0.03 + 0.028 * table["setting"].nunique(), 1, 1))
+    _save(fig, plt, out_png)
+
+
+def setting_legend(table: pd.DataFrame) -> str:
+    """One line per numbered setting with every knob that varies in the table."""
+    knobs = [k for k in KNOBS if k in table.columns and table[k].nunique() > 1]
+    first = table.drop_duplicates("setting").sort_values("setting")
+    lines = [f"{row['setting']:>2}: {label(row.to_dict(), knobs)}" for _, row in first.iterrows()]
+    return "settings (a combination ignores the knobs it does not use):\n" + "\n".join(lines)
+
+
+def _log_seconds(ax) -> None:
+    """Log x axis with plain-number tick labels (no overlapping minor labels)."""
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+    ax.set_xscale("log")
+    ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(ScalarFormatter())
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.margins(x=0.12)
+
+
+def photon_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[str, str] | None = None) -> None:
+    """PSNR and LPIPS-alex against mean detection probability (logit axis), a line per (combination, K)."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.0))
+    colours = plt.get_cmap("tab10").colors
+    ks = sorted(table["K"].unique())
+    for ax, (key, ylabel) in zip(axes, (("psnr", "PSNR (dB) ↑"), ("lpips_alex", "LPIPS-alex ↓"))):
+        for i, (combo, group) in enumerate(table.groupby("combination", sort=False)):
+            for k, line in group.groupby("K"):
+                style = dict(color=colours[i % len(colours)], ls=K_STYLES[ks.index(k) % len(K_STYLES)],
+                             marker=K_MARKERS[ks.index(k) % len(K_MARKERS)], ms=4, lw=1.4)
+                ax.plot(line["detection"], line[key], label=f"{_combo_label(combo, labels)}, K={k}", **style)
+                if key == "psnr" and combo.startswith("mle+") and line["stage1_psnr"].notna().any():
+                    ax.plot(line["detection"], line["stage1_psnr"], color="0.35", ls=style["ls"], lw=1.0,
+                            marker=style["marker"], ms=3, mfc="none", label=f"MLE image alone (no 3D), K={k}")
+        _logit_levels(ax, sorted(table["detection"].unique()))
+        ax.set_ylabel(ylabel)
+    handles, names = axes[0].get_legend_handles_labels()
+    rows = -(-len(names) // 3)
+    fig.legend(handles, names, loc="lower center", ncol=3, fontsize=7.5, frameon=False)
+    fig.suptitle("Quality against photon level (exposure) and number of binary frames K", fontsize=11)
+    fig.tight_layout(rect=(0, 0.035 * rows + 0.01, 1, 1))
+    _save(fig, plt, out_png)
+
+
+def _logit_levels(ax, levels: list[float]) -> None:
+    """Logit x axis ticked at the swept detection levels, labelled as plain numbers."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+
+    ax.set_xscale("logit")
+    ax.xaxis.set_major_locator(FixedLocator(levels))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_locator(NullLocator())
+    ax.set_xlabel("mean detection probability per binary frame (logit scale)")
+    ax.grid(alpha=0.3)
+
+
+def _combo_label(combo: str, labels: dict[str, str] | None) -> str:
+    source, _, model = combo.partition("+")
+    return f"{(labels or {}).get(source, source)} + {model}"
+
+
+def tradeoff_report(paths: list[str | os.PathLike], combos: list[str], out_csv: str | os.PathLike,
+                    out_png: str | os.PathLike, labels: dict[str, str] | None = None,
+                    clock: str = "wall") -> pd.DataFrame:
+    """Write the trade-off table and figure (Pareto front against ``clock``); return the table."""
+    table = tradeoff_table(paths, combos, clock)
+    io.write_text(out_csv, table.to_csv(index=False, float_format="%.4g"))
+    tradeoff_figure(table, out_png, labels, clock)
+    return table
+
+
+def photon_report(paths: list[str | os.PathLike], combos: list[str], out_csv: str | os.PathLike,
+                  out_png: str | os.PathLike, labels: dict[str, str] | None = None) -> pd.DataFrame:
+    """Write the photon-level table and figure; return the table."""
+    table = photon_table(paths, combos)
+    io.write_text(out_csv, table.to_csv(index=False, float_format="%.4g"))
+    photon_figure(table, out_png, labels)
+    return table
