@@ -30,6 +30,7 @@ when their networks work in [-1, 1] (pix2pix convention) internally.
 
 from __future__ import annotations
 
+import abc
 import copy
 
 import torch
@@ -57,7 +58,7 @@ def from_signed(x: Tensor) -> Tensor:
     return (x + 1.0) * 0.5
 
 
-class TranslatorBase:
+class TranslatorBase(abc.ABC):
     """Shared behaviour of the stage-1 models (see the module docstring for the contract)."""
 
     paired: bool = True
@@ -68,17 +69,21 @@ class TranslatorBase:
         raise ValueError(f"{type(self).__module__}: loading published weights ({path}) is not supported "
                          "for this method; remove its 'checkpoint' setting")
 
+    @abc.abstractmethod
     def modules(self) -> dict[str, nn.Module]:
-        raise NotImplementedError
+        """Every network of the model by name (generators, discriminators)."""
 
+    @abc.abstractmethod
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        raise NotImplementedError
+        """Every optimiser by name (saved in checkpoints)."""
 
+    @abc.abstractmethod
     def forward_image(self, binary: Tensor) -> Tensor:
-        raise NotImplementedError
+        """(B, 3, H', W') padded binary image in [0, 1] -> (B, 3, H', W') sRGB in [0, 1]."""
 
+    @abc.abstractmethod
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
-        raise NotImplementedError
+        """One optimisation step on a batch; returns named losses (at least "loss")."""
 
     def set_lr_scale(self, scale: float) -> None:
         for opt in self.optimizers().values():
