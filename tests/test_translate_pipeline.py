@@ -83,6 +83,7 @@ def test_registry_matches_the_workflow_names():
 def test_pairs_are_aligned_and_averaged(world):
     b1, rgb = data.load_pairs([world / "augment" / "orchard"], frames=1)
     b4, _ = data.load_pairs([world / "augment" / "orchard"], frames=4)
+    b1, rgb, b4 = torch.stack(b1), torch.stack(rgb), torch.stack(b4)
     assert b1.shape == rgb.shape == (6, 3, 32, 40)
     assert set(torch.unique(b1).tolist()) <= {0.0, 1.0}
     assert set(torch.unique(b4 * 4).tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
@@ -105,8 +106,18 @@ def test_sampler_crops_the_same_pixels_and_is_reproducible():
     unpaired = data.PairSampler(binary, binary + 0.5, 64, 6, seed=1, paired=False)
     b, r = unpaired()
     assert not torch.equal(r, b + 0.5)
-    with pytest.raises(ValueError, match="crop=11 exceeds"):
+    with pytest.raises(ValueError, match="crop=11 exceeds the smallest"):
         data.PairSampler(binary, binary, 1, 11, seed=0)
+
+
+def test_sampler_takes_scenes_of_different_sizes():
+    """LLFF captures keep their aspect ratio: 123- and 126-pixel-high pairs train side by side."""
+    binary = [torch.rand(3, 123, 168), torch.rand(3, 126, 168), torch.rand(3, 124, 170)]
+    rgb = [b + 1 for b in binary]
+    b, r = data.PairSampler(binary, rgb, 8, 64, seed=0)()
+    assert b.shape == r.shape == (8, 3, 64, 64) and torch.equal(r, b + 1)
+    with pytest.raises(ValueError, match="crop=124 exceeds the smallest training image side \\(123 px\\)"):
+        data.PairSampler(binary, rgb, 1, 124, seed=0)
 
 
 def test_lr_schedule_is_constant_then_linear_to_zero():

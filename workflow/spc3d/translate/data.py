@@ -29,44 +29,55 @@ def binary_input(frames_npz: str | os.PathLike, frames: int) -> np.ndarray:
     return bits[:frames].mean(0, dtype=np.float32)
 
 
-def load_pairs(augment_dirs: list[str | os.PathLike], frames: int) -> tuple[Tensor, Tensor]:
-    """All pairs of the given augment folders: binary (N, 3, H, W), rgb (N, 3, H, W), float32."""
+def load_pairs(augment_dirs: list[str | os.PathLike], frames: int) -> tuple[list[Tensor], list[Tensor]]:
+    """All pairs of the given augment folders: binary and rgb lists of (3, H, W) float32 tensors.
+
+    Scenes may differ in size (LLFF captures keep their aspect ratio): training crops a fixed
+    square from every pair, so only the crop must fit.
+    """
     binary, rgb = [], []
     for folder in map(Path, augment_dirs):
         names = sorted(p.stem for p in (folder / "frames").glob("*.npz"))
         if not names:
             raise FileNotFoundError(f"{folder}/frames holds no .npz pairs: run the augment rule first")
         for name in names:
-            binary.append(binary_input(folder / "frames" / f"{name}.npz", frames))
-            rgb.append(io.read_rgb(folder / "rgb" / f"{name}.png"))
-    shapes = {b.shape for b in binary} | {r.shape for r in rgb}
-    if len(shapes) != 1:
-        raise ValueError(f"augmented pairs in {list(map(str, augment_dirs))} differ in size {sorted(shapes)}; "
-                         "every training scene must share resolution.width/height")
-    return _nchw(binary), _nchw(rgb)
+            b = binary_input(folder / "frames" / f"{name}.npz", frames)
+            r = io.read_rgb(folder / "rgb" / f"{name}.png")
+            if b.shape != r.shape:
+                raise ValueError(f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; rerun the augment rule")
+            binary.append(_chw(b))
+            rgb.append(_chw(r))
+    return binary, rgb
 
 
-def _nchw(images: list[np.ndarray]) -> Tensor:
-    """(H, W, 3) arrays -> one (N, 3, H, W) tensor."""
-    return torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).contiguous()
+def _chw(image: np.ndarray) -> Tensor:
+    """(H, W, 3) array -> (3, H, W) tensor."""
+    return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).contiguous()
 
 
 class PairSampler:
     """Random crops of (binary, rgb) pairs; ``paired=False`` decouples the RGB draws."""
 
-    def __init__(self, binary: Tensor, rgb: Tensor, batch_size: int, crop: int, seed: int, paired: bool = True):
-        h, w = binary.shape[-2:]
-        if crop > min(h, w):
-            raise ValueError(f"stage1.train.crop={crop} exceeds the training images ({w}x{h}); use <= {min(h, w)}")
-        self.binary, self.rgb, self.batch, self.crop, self.paired = binary, rgb, batch_size, crop, paired
-        self.pairs = torch.cat([binary, rgb], dim=1) if paired else None  # (N, 6, H, W): one crop for both
+    def __init__(self, binary, rgb, batch_size: int, crop: int, seed: int, paired: bool = True):
+        """``binary``, ``rgb``: sequences of (3, H_i, W_i) tensors (or (N, 3, H, W) tensors)."""
+        self.binary, self.rgb = list(binary), list(rgb)
+        smallest = min(min(x.shape[-2:]) for x in self.binary + self.rgb)
+        if crop > smallest:
+            raise ValueError(f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); "
+                             f"use <= {smallest}")
+        self.batch, self.crop, self.paired = batch_size, crop, paired
+        self.pairs = [torch.cat(p, dim=0) for p in zip(self.binary, self.rgb)] if paired else None  # (6, H, W): one crop
         self.gen = torch.Generator().manual_seed(seed)
 
-    def _crops(self, images: Tensor, idx: Tensor) -> Tensor:
-        h, w = images.shape[-2:]
-        ys = torch.randint(0, h - self.crop + 1, (len(idx),), generator=self.gen)
-        xs = torch.randint(0, w - self.crop + 1, (len(idx),), generator=self.gen)
-        return torch.stack([images[i, :, y:y + self.crop, x:x + self.crop] for i, y, x in zip(idx, ys, xs)])
+    def _crops(self, images: list[Tensor], idx: Tensor) -> Tensor:
+        """(B, C, crop, crop): a uniformly placed window of each chosen image."""
+        out = []
+        for i in idx.tolist():
+            h, w = images[i].shape[-2:]
+            y = int(torch.randint(0, h - self.crop + 1, (1,), generator=self.gen))
+            x = int(torch.randint(0, w - self.crop + 1, (1,), generator=self.gen))
+            out.append(images[i][:, y:y + self.crop, x:x + self.crop])
+        return torch.stack(out)
 
     def _draw(self) -> tuple[Tensor, Tensor]:
         """Crops of the same pixels (paired) or of independent samples (unpaired)."""
