@@ -12,8 +12,9 @@ gradients w.r.t. means, scales, quaternions, opacities, colours and background, 
     native raster  project_gaussians (PyTorch)  + rasterize(backend="native")
     reference      project_gaussians (PyTorch)  + rasterize(backend="reference")  (exact pixel pairs)
 
-It prints the median iterations/s over repeats after a warm-up (the variants alternate step by
-step, so all see the same load from other jobs), the speed-up native / reference, and the numba
+It prints the median iterations/s (the variants take turns in runs of 4 consecutive steps, so all
+see the same load from other jobs; the first step after a switch is not timed), the speed-up
+native / reference, and the numba
 first-call compile time measured in fresh processes with an empty cache and with the cache filled.
 The last line, ``speedup_10k_128x96: <ratio>``, is machine-readable.
 """
@@ -76,18 +77,21 @@ def train_step(scene: dict, variant: str) -> None:
     (image - scene["target"]).abs().mean().backward()
 
 
-def iterations_per_s(scene: dict, backends: tuple[str, ...], repeats: int, min_seconds: float) -> dict:
-    """Median it/s per variant over at least ``repeats`` steps each (and ``min_seconds`` in all)
-    after a warm-up. The variants alternate step by step so that all see the same machine load."""
+def iterations_per_s(scene: dict, backends: tuple[str, ...], repeats: int, min_seconds: float, run: int = 4) -> dict:
+    """Median it/s per variant over at least ``repeats`` runs of ``run`` consecutive steps each
+    (and ``min_seconds`` in all). The variants take turns run by run, so that all see the same
+    machine load; the first step of each run is not timed: right after a switch it pays for the
+    other variant's cache and allocator churn (the reference moves ~100 MB per step), which a
+    training loop, running one variant step after step, never sees."""
     times = {b: [] for b in backends}
-    for b in backends:
-        train_step(scene, b)
     start = time.perf_counter()
-    while min(len(t) for t in times.values()) < repeats or time.perf_counter() - start < min_seconds:
+    while min(len(t) for t in times.values()) < repeats * run or time.perf_counter() - start < min_seconds:
         for b in backends:
-            t0 = time.perf_counter()
             train_step(scene, b)
-            times[b].append(time.perf_counter() - t0)
+            for _ in range(run):
+                t0 = time.perf_counter()
+                train_step(scene, b)
+                times[b].append(time.perf_counter() - t0)
     return {b: 1.0 / statistics.median(t) for b, t in times.items()}
 
 

@@ -69,14 +69,51 @@ def test_native_forward_matches_reference(n, height, width):
     assert (alpha_n - alpha_r).abs().max() < 1e-5
 
 
-def test_native_boxes_match_reference_boxes():
-    from spc3d.reconstruct.splat.native import _boxes
-    from spc3d.reconstruct.splat.reference import pixel_boxes
+def test_native_boxes_are_the_reference_boxes_tightened_to_visible_pixels():
+    """native_prep's boxes lie inside the 3-sigma squares of ``pixel_boxes`` and leave out only
+    pixels that no rasterizer composites (alpha < 1/255 or power > 0)."""
+    from spc3d.reconstruct.splat.native_prep import prepare_tiles
+    from spc3d.reconstruct.splat.reference import _pair_alpha, pixel_boxes
 
-    args = screen_scene(500, 24, 32, seed=8)
-    means2d, radii = args[0] * 1.5 - 8, args[5].clone()  # many partly or fully off-image
-    means2d[0], radii[1] = torch.tensor([1e12, -1e12]), 0
-    assert np.array_equal(_boxes(means2d, radii, 24, 32), pixel_boxes(means2d, radii, 24, 32).numpy())
+    means2d, conics, opacities, _, depths, radii, *_ = screen_scene(500, 24, 32, seed=8)
+    means2d, radii = means2d * 1.5 - 8, radii.clone()  # many partly or fully off-image
+    means2d[0], radii[1], opacities[2] = torch.tensor([1e12, -1e12]), 0, 0.001  # far off, culled, invisible
+    _, boxes, _, _ = prepare_tiles(means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(),
+                                   radii.numpy(), 24, 32, np.float32)
+    ref = pixel_boxes(means2d, radii, 24, 32).numpy()
+    empty = (boxes[:, 1] < boxes[:, 0]) | (boxes[:, 3] < boxes[:, 2])
+    assert empty[:3].all()
+    inside = (boxes[:, 0] >= ref[:, 0]) & (boxes[:, 1] <= ref[:, 1]) & (boxes[:, 2] >= ref[:, 2]) & (boxes[:, 3] <= ref[:, 3])
+    assert (inside | empty).all()
+    assert (boxes[~empty, 1] - boxes[~empty, 0]).sum() < 0.9 * (ref[~empty, 1] - ref[~empty, 0]).sum()
+    ys, xs = torch.meshgrid(torch.arange(24), torch.arange(32), indexing="ij")
+    px, py = xs.reshape(-1), ys.reshape(-1)
+    for g in range(500):
+        x0, x1, y0, y1 = ref[g]
+        in_ref = (px >= x0) & (px <= x1) & (py >= y0) & (py <= y1)
+        x0, x1, y0, y1 = boxes[g]
+        left_out = in_ref & ~((px >= x0) & (px <= x1) & (py >= y0) & (py <= y1))
+        gid = torch.full((int(left_out.sum()),), g)
+        _, keep = _pair_alpha(means2d, conics, opacities, gid, px[left_out], py[left_out])
+        assert not keep.any(), f"Gaussian {g}: a composited pixel lies outside its tight box"
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_native_depth_order_is_torchs_stable_argsort(dtype):
+    from spc3d.reconstruct.splat.native_prep import _sort_by_depth
+
+    rng = np.random.default_rng(3)
+    depths = (rng.standard_normal(3000) * 10.0 ** rng.integers(-3, 4, 3000)).astype(dtype)
+    depths[::7], depths[5], depths[6], depths[9] = depths[3], -0.0, 0.0, 1e30  # ties, signed zeros
+    boxes = np.zeros((3000, 4), np.int64)
+    boxes[::4, 1] = -1  # empty boxes are left out of the order
+    visible = np.nonzero(boxes[:, 1] >= 0)[0]
+    bits = depths.view(np.int32 if dtype == np.float32 else np.int64)
+    counts = np.zeros(2, np.int64)
+    order = _sort_by_depth(bits, boxes, bits.itemsize, 1, counts)
+    assert counts[1] == len(visible)  # one tile: every visible Gaussian listed in it
+    expected = visible[torch.argsort(torch.from_numpy(depths[visible]), stable=True).numpy()]
+    assert np.array_equal(order, expected)
 
 
 def test_reference_matches_dense():

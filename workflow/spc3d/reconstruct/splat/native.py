@@ -54,43 +54,11 @@ import torch
 from numba import njit
 from torch import Tensor
 
+from .native_prep import TILE, prepare_tiles
 from .native_simd import backward_tiles32, forward_tiles32
 from .native_threads import n_workers, run_parallel
-from .reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
+from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
-TILE = 16  # tile edge in pixels (3DGS uses 16)
-# Per-Gaussian float record ``gs[g]`` (8,): mean x, mean y, conic a, b, c, opacity, pmin (the
-# lowest exponent at which alpha can still reach 1/255: a cheap pre-test) and exp(-a) (row decay).
-
-
-@njit(cache=True)
-def _bin_tiles(boxes, order, tile, tiles_x, n_tiles):
-    """Per-tile Gaussian lists in depth order.
-
-    boxes: (N, 4) int64 inclusive pixel bounds x0, x1, y0, y1; order: (N,) Gaussians by depth.
-    Returns offsets (n_tiles + 1,) and ids (M,): tile t holds ids[offsets[t]:offsets[t + 1]].
-    """
-    counts = np.zeros(n_tiles + 1, np.int64)
-    for g in order:
-        x0, x1, y0, y1 = boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3]
-        if x1 < x0 or y1 < y0:
-            continue
-        for ty in range(y0 // tile, y1 // tile + 1):
-            for tx in range(x0 // tile, x1 // tile + 1):
-                counts[ty * tiles_x + tx + 1] += 1
-    offsets = np.cumsum(counts)
-    fill = offsets[:-1].copy()
-    ids = np.empty(offsets[-1], np.int64)
-    for g in order:
-        x0, x1, y0, y1 = boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3]
-        if x1 < x0 or y1 < y0:
-            continue
-        for ty in range(y0 // tile, y1 // tile + 1):
-            for tx in range(x0 // tile, x1 // tile + 1):
-                t = ty * tiles_x + tx
-                ids[fill[t]] = g
-                fill[t] += 1
-    return offsets, ids
 
 
 @njit(inline="always")
@@ -254,33 +222,6 @@ def _backward_tiles(gs, boxes, colors, offsets, ids, tiles, t_final, n_contrib, 
                        t_final, n_contrib, grad_image, g_tail, T, behind, dgs, dcol)
 
 
-def _records(means2d: Tensor, conics: Tensor, opacities: Tensor, dtype=np.float64) -> np.ndarray:
-    """(N, 8) per-Gaussian records for the kernels (numpy: tiny arrays, no torch threads)."""
-    op = opacities.detach().double().numpy()
-    con = conics.detach().double().numpy()
-    # lowest exponent with alpha >= 1/255: log(1 / (255 op)), minus a margin for rounding (the
-    # exact test follows in the kernel; float32: exp is a polynomial, so a wider margin);
-    # POWER_MIN as the reference's clamp; op <= 0: never (1 > 0)
-    margin = 1e-9 if dtype == np.float64 else 1e-4
-    with np.errstate(divide="ignore"):
-        pmin = np.where(op > 0, -np.log(np.maximum(op, 1e-300) / ALPHA_MIN) - margin, 1.0)  # max: log(0)
-    cols = [means2d.detach().double().numpy(), con, op[:, None], np.maximum(pmin, POWER_MIN)[:, None],
-            np.exp(-con[:, :1])]
-    return np.ascontiguousarray(np.concatenate(cols, 1), dtype=dtype)
-
-
-def _boxes(means2d: Tensor, radii: Tensor, height: int, width: int) -> np.ndarray:
-    """:func:`.reference.pixel_boxes` in numpy (same float64 arithmetic, so identical integers)."""
-    m, r = means2d.detach().double().numpy(), radii.numpy().astype(np.float64)
-    mx, my = np.clip(m[:, 0], -1e9, 1e9), np.clip(m[:, 1], -1e9, 1e9)  # clip: as pixel_boxes
-    x0 = np.clip(np.ceil(mx - r - 0.5), 0, width)
-    x1 = np.clip(np.floor(mx + r - 0.5), -1, width - 1)
-    y0 = np.clip(np.ceil(my - r - 0.5), 0, height)
-    y1 = np.clip(np.floor(my + r - 0.5), -1, height - 1)
-    x1 = np.where(r > 0, x1, x0 - 1)  # culled: empty
-    return np.ascontiguousarray(np.stack([x0, x1, y0, y1], -1).astype(np.int64))
-
-
 def _run_workers(kernel, n_tiles: int, args_for) -> None:
     """Run ``kernel(*args_for(worker, tiles))`` on tiles dealt round-robin to
     :func:`.native_threads.n_workers` workers (torch's OpenMP team; the kernels release the GIL)."""
@@ -347,11 +288,10 @@ class _RasterizeNative(torch.autograd.Function):
         # float32 RGB: the SIMD kernels of native_simd; anything else: the float64 kernels here
         f32 = colors.dtype == torch.float32 and colors.shape[1] == 3
         dt = np.float32 if f32 else np.float64
-        gs = _records(means2d, conics, opacities, dt)
-        boxes = _boxes(means2d, radii, height, width)
-        order = np.argsort(depths.detach().cpu().numpy(), kind="stable")
-        tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-        offsets, ids = _bin_tiles(boxes, order, TILE, tiles_x, tiles_x * tiles_y)
+        gs, boxes, offsets, ids = prepare_tiles(means2d.detach().numpy(), conics.detach().numpy(),
+                                                opacities.detach().numpy(), depths.detach().numpy(),
+                                                radii.numpy(), height, width, dt)
+        tiles_x = -(-width // TILE)
         cols, bg = _np(colors, dt), _np(background.reshape(-1), dt)
         ctx.sizes = (height, width, tiles_x)
         ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, colors.dtype, background.dtype)

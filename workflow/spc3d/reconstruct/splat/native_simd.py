@@ -49,7 +49,7 @@ def _exp(x):
     mf = F(m)
     r = (x + mf * _LN2_HI) + mf * _LN2_LO
     p = _ONE + r * (_C1 + r * (_C2 + r * (_C3 + r * (_C4 + r * (_C5 + r * _C6)))))
-    return p * F(np.int32(1) << (29 - m)) * _TWO_M29  # 2^-m without a division
+    return p * F(np.int32(1) << (np.int32(29) - m)) * _TWO_M29  # 2^-m: int32 lanes, no division
 
 
 @njit(inline="always")
@@ -71,58 +71,86 @@ def _local_span(boxes, g, tx0, ty0, w, h):
             max(boxes[g, 2] - ty0, 0), min(boxes[g, 3] - ty0, h - 1))
 
 
+# lane j of a 4x4 block: column j % 4, row j // 4 (as float32: all lane arithmetic stays in one
+# 16 x float32 vector; integer lane indices would take int64 vectors and conversions)
+_LANE_X = np.array([j & 3 for j in range(L)], np.float32)
+_LANE_Y = np.array([j >> 2 for j in range(L)], np.float32)
+
+
 @njit(inline="always")
-def _fwd_chunk(gs, colors, g, k, lo, x0, x1, px0, dy, r, T, last, img):
-    """One Gaussian over lanes lo..lo+7 of tile row r (one 8-wide vector): updates T, last
-    (16, 16) and img (3, 16, 16). Returns the number of pixels that finished here. Scalar
-    indexing only: array views in hot loops would cost atomic reference counts."""
-    mx, a, b, c, opacity, pmin = gs[g, 0], gs[g, 2], gs[g, 3], gs[g, 4], gs[g, 5], gs[g, 6]
-    c0, c1, c2 = colors[g, 0], colors[g, 1], colors[g, 2]
-    n_stop = 0
-    for i in range(lo, lo + H):
-        alpha, _, ok, _ = _lane_alpha(a, b, c, opacity, pmin, F(px0 + i) + _HALF - mx, dy)
-        t = T[r, i]
-        ok = ok & (i >= x0) & (i <= x1) & (t > _ZERO)
+def _block_origin(b, span, tx0, ty0, mx, my):
+    """Block b's corner (tile-local column, row) and its pixel-centre offsets from the mean, and
+    the span (x0, x1, y0, y1) as float32 for the lane masks."""
+    bx, by = (b & 3) << 2, (b >> 2) << 2
+    fx, fy = F(tx0 + bx) + _HALF, F(ty0 + by) + _HALF
+    x0, x1, y0, y1 = span
+    return F(bx), F(by), fx, fy, F(x0), F(x1), F(y0), F(y1)
+
+
+@njit(inline="always")
+def _record(gs, colors, g):
+    """Gaussian g's parameters as scalars, loaded once per tile record (loads inside the block
+    loops would be repeated: LLVM cannot prove the tile buffers do not alias gs)."""
+    return gs[g, 0], gs[g, 1], gs[g, 2], gs[g, 3], gs[g, 4], gs[g, 5], gs[g, 6], colors[g, 0], colors[g, 1], colors[g, 2]
+
+
+@njit(inline="always")
+def _fwd_block(rec, k, b, span, tx0, ty0, T, last, img):
+    """One Gaussian (``_record``) over the 16 lanes of block b: updates T, last (16, 16) and img
+    (3, 16, 16) [block, lane]. Returns the number of pixels that finished here. Scalar indexing
+    only: array views in hot loops would cost atomic reference counts."""
+    mx, my, a, bc, c, opacity, pmin, c0, c1, c2 = rec
+    bx, by, fx, fy, x0, x1, y0, y1 = _block_origin(b, span, tx0, ty0, mx, my)
+    k1 = np.int32(k + 1)
+    n_stop = np.int32(0)
+    for j in range(L):
+        lx, ly = bx + _LANE_X[j], by + _LANE_Y[j]  # exact: small integers
+        # pixel centre - mean with one rounding, as the reference (fx + lane is exact)
+        alpha, _, ok, _ = _lane_alpha(a, bc, c, opacity, pmin, (fx + _LANE_X[j]) - mx, (fy + _LANE_Y[j]) - my)
+        t = T[b, j]
+        ok = ok & (lx >= x0) & (lx <= x1) & (ly >= y0) & (ly <= y1) & (t > _ZERO)
         t_next = t * (_ONE - alpha)
         stop = ok & (t_next < _TMIN)
         use = ok & (t_next >= _TMIN)
         w = alpha * t if use else _ZERO
-        img[0, r, i] += c0 * w
-        img[1, r, i] += c1 * w
-        img[2, r, i] += c2 * w
-        T[r, i] = -t if stop else (t_next if use else t)
-        last[r, i] = k + 1 if use else last[r, i]
+        img[0, b, j] += c0 * w
+        img[1, b, j] += c1 * w
+        img[2, b, j] += c2 * w
+        T[b, j] = -t if stop else (t_next if use else t)
+        last[b, j] = k1 if use else last[b, j]
         n_stop += np.int32(stop)
     return n_stop
 
 
-@njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
+@njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, tiles_x, image, alpha_out,
                     t_final, n_contrib):
     """Front-to-back compositing of the listed tiles (one worker's share), float32.
 
-    gs (N, 8) float32 records (see native.py), boxes (N, 4) int64, colors (N, 3), bg (3,).
+    gs (N, 8) float32 records (see native_prep.py), boxes (N, 4) int64, colors (N, 3), bg (3,).
     Writes image (H, W, 3) with background, alpha_out (H, W), t_final (H, W) and n_contrib (H, W)
     (int32: tile-list position after the last contributor).
     """
     T, last, img = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((3, L, L), np.float32)
-    row_live = np.empty(L, np.int32)
+    live = np.empty(L, np.int32)  # unfinished pixels per block: finished blocks are skipped
     for t in tiles:
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
         T[:], last[:], img[:] = _ONE, 0, _ZERO
-        row_live[:] = w
+        for b in range(L):
+            live[b] = max(min(w - ((b & 3) << 2), 4), 0) * max(min(h - ((b >> 2) << 2), 4), 0)
         n_live = w * h
         for k in range(offsets[t], offsets[t + 1]):
             g = ids[k]
-            x0, x1, y0, y1 = _local_span(boxes, g, tx0, ty0, w, h)
-            for r in range(y0, y1 + 1):
-                if row_live[r] == 0:
-                    continue
-                dy = F(ty0 + r) + _HALF - gs[g, 1]
-                n_stop = _fwd_chunk(gs, colors, g, k, 0, x0, x1, tx0, dy, r, T, last, img)
-                row_live[r] -= n_stop
-                n_live -= n_stop
+            span, rec = _local_span(boxes, g, tx0, ty0, w, h), _record(gs, colors, g)
+            for by in range(span[2] >> 2, (span[3] >> 2) + 1):
+                for bx in range(span[0] >> 2, (span[1] >> 2) + 1):
+                    b = (by << 2) + bx
+                    if live[b] == 0:
+                        continue
+                    n_stop = _fwd_block(rec, k, b, span, tx0, ty0, T, last, img)
+                    live[b] -= n_stop
+                    n_live -= n_stop
             if n_live == 0:
                 break
         _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_contrib)
@@ -132,66 +160,70 @@ def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, t
 def _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_contrib):
     for r in range(h):
         for i in range(w):
-            tf = abs(T[r, i])
+            b, j = ((r >> 2) << 2) + (i >> 2), ((r & 3) << 2) + (i & 3)
+            tf = abs(T[b, j])
             t_final[ty0 + r, tx0 + i] = tf
             alpha_out[ty0 + r, tx0 + i] = _ONE - tf
-            n_contrib[ty0 + r, tx0 + i] = last[r, i]
+            n_contrib[ty0 + r, tx0 + i] = last[b, j]
             for ch in range(3):
-                image[ty0 + r, tx0 + i, ch] = img[ch, r, i] + tf * bg[ch]
+                image[ty0 + r, tx0 + i, ch] = img[ch, b, j] + tf * bg[ch]
 
 
 @njit(inline="always")
 def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg):
-    """Tile state for the backward pass; lanes outside the image get last = 0 (never used).
-    Adds the tile's dL/dbackground = Σ T_final · dL/dimage into dbg."""
+    """Tile state for the backward pass, [block, lane] as in the forward; lanes outside the image
+    get last = 0 (never used). Adds the tile's dL/dbackground = Σ T_final · dL/dimage into dbg."""
     T[:], last[:], gimg[:], gtail[:], behind[:] = _ONE, 0, _ZERO, _ZERO, _ZERO
     for r in range(h):
         for i in range(w):
+            b, j = ((r >> 2) << 2) + (i >> 2), ((r & 3) << 2) + (i & 3)
             tf = t_final[ty0 + r, tx0 + i]
-            T[r, i] = tf
-            last[r, i] = n_contrib[ty0 + r, tx0 + i]
+            T[b, j] = tf
+            last[b, j] = n_contrib[ty0 + r, tx0 + i]
             g_bg = _ZERO
             for ch in range(3):
                 gc = grad_image[ty0 + r, tx0 + i, ch]
-                gimg[ch, r, i] = gc
+                gimg[ch, b, j] = gc
                 g_bg += gc * bg[ch]
                 dbg[ch] += tf * gc
-            gtail[r, i] = tf * (grad_alpha[ty0 + r, tx0 + i] - g_bg)
+            gtail[b, j] = tf * (grad_alpha[ty0 + r, tx0 + i] - g_bg)
 
 
 @njit(inline="always")
-def _bwd_chunk(gs, colors, g, k, lo, x0, x1, px0, dy, r, T, last, gimg, gtail, behind, acc):
-    """One Gaussian over lanes lo..lo+7 of tile row r, back to front: recovers T, updates the
-    colour behind (3, 16, 16) and adds the pair's gradient terms per lane into acc (9, 16):
-    mean x, y, conic a, b, c, opacity, colour 0-2 (see native.py's ``_backward_tile``)."""
-    mx, a, b, c, opacity, pmin = gs[g, 0], gs[g, 2], gs[g, 3], gs[g, 4], gs[g, 5], gs[g, 6]
-    c0, c1, c2 = colors[g, 0], colors[g, 1], colors[g, 2]
-    for i in range(lo, lo + H):
-        dx = F(px0 + i) + _HALF - mx
-        alpha, G, ok, shape_ok = _lane_alpha(a, b, c, opacity, pmin, dx, dy)
-        use = ok & (i >= x0) & (i <= x1) & (k < last[r, i])
+def _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc):
+    """One Gaussian over the 16 lanes of block b, back to front: recovers T, updates the colour
+    behind (3, 16, 16) and adds the pair's gradient terms per lane into acc (9, 16): mean x, y,
+    conic a, b, c, opacity, colour 0-2 (see native.py's ``_backward_tile``)."""
+    mx, my, a, bc, c, opacity, pmin, c0, c1, c2 = rec
+    bx, by, fx, fy, x0, x1, y0, y1 = _block_origin(b, span, tx0, ty0, mx, my)
+    k32 = np.int32(k)
+    for j in range(L):
+        lx, ly = bx + _LANE_X[j], by + _LANE_Y[j]
+        dx, dy = (fx + _LANE_X[j]) - mx, (fy + _LANE_Y[j]) - my
+        alpha, G, ok, shape_ok = _lane_alpha(a, bc, c, opacity, pmin, dx, dy)
+        use = ok & (lx >= x0) & (lx <= x1) & (ly >= y0) & (ly <= y1) & (k32 < last[b, j])
         inv = _ONE / (_ONE - alpha)
-        t = T[r, i] * inv if use else T[r, i]  # now the transmittance in front of g
-        T[r, i] = t
+        t = T[b, j] * inv if use else T[b, j]  # now the transmittance in front of g
+        T[b, j] = t
         al = alpha if use else _ZERO
-        g0, g1, g2 = gimg[0, r, i], gimg[1, r, i], gimg[2, r, i]
-        b0, b1, b2 = behind[0, r, i], behind[1, r, i], behind[2, r, i]
+        g0, g1, g2 = gimg[0, b, j], gimg[1, b, j], gimg[2, b, j]
+        b0, b1, b2 = behind[0, b, j], behind[1, b, j], behind[2, b, j]
         w = al * t
-        acc[6, i] += w * g0
-        acc[7, i] += w * g1
-        acc[8, i] += w * g2
-        d_alpha = ((c0 - b0) * g0 + (c1 - b1) * g1 + (c2 - b2) * g2) * t + gtail[r, i] * inv
-        behind[0, r, i] = al * c0 + (_ONE - al) * b0
-        behind[1, r, i] = al * c1 + (_ONE - al) * b1
-        behind[2, r, i] = al * c2 + (_ONE - al) * b2
+        acc[6, j] += w * g0
+        acc[7, j] += w * g1
+        acc[8, j] += w * g2
+        d_alpha = ((c0 - b0) * g0 + (c1 - b1) * g1 + (c2 - b2) * g2) * t + gtail[b, j] * inv
+        behind[0, b, j] = al * c0 + (_ONE - al) * b0
+        behind[1, b, j] = al * c1 + (_ONE - al) * b1
+        behind[2, b, j] = al * c2 + (_ONE - al) * b2
         da = d_alpha if use & shape_ok else _ZERO  # clamped alpha: no gradient to opacity, shape
         d_power = da * alpha
-        acc[0, i] += d_power * (a * dx + b * dy)
-        acc[1, i] += d_power * (b * dx + c * dy)
-        acc[2, i] += -_HALF * d_power * dx * dx
-        acc[3, i] += -d_power * dx * dy
-        acc[4, i] += -_HALF * d_power * dy * dy
-        acc[5, i] += da * G
+        acc[0, j] += d_power * (a * dx + bc * dy)
+        acc[1, j] += d_power * (bc * dx + c * dy)
+        acc[2, j] += -_HALF * d_power * dx * dx
+        acc[3, j] += -d_power * dx * dy
+        acc[4, j] += -_HALF * d_power * dy * dy
+        acc[5, j] += da * G
 
 
 @njit(inline="always")
@@ -207,27 +239,29 @@ def _reduce_lanes(acc, g, dgs, dcol):
             dcol[g, j - 6] += s
 
 
-@njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
+@njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, tiles_x, t_final, n_contrib,
                      grad_image, grad_alpha, dgs, dcol, dbg):
     """Gradients of the listed tiles (one worker's share), added into that worker's dgs (N, 6)
     (mean x, y, conic a, b, c, opacity), dcol (N, 3) and dbg (3,)."""
     T, last, gtail = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((L, L), np.float32)
     gimg, behind = np.empty((3, L, L), np.float32), np.empty((3, L, L), np.float32)
-    acc, row_stop = np.empty((9, L), np.float32), np.empty(L, np.int32)
+    acc, block_stop = np.empty((9, L), np.float32), np.empty(L, np.int32)
     for t in tiles:
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
         _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg)
-        for r in range(L):
-            row_stop[r] = last[r].max()
-        for k in range(row_stop.max() - 1, offsets[t] - 1, -1):
+        for b in range(L):  # per block: list position after its last contributor
+            block_stop[b] = last[b].max()
+        for k in range(block_stop.max() - 1, offsets[t] - 1, -1):
             g = ids[k]
-            x0, x1, y0, y1 = _local_span(boxes, g, tx0, ty0, w, h)
-            acc[:] = _ZERO
-            for r in range(y0, y1 + 1):
-                if k >= row_stop[r]:
-                    continue
-                dy = F(ty0 + r) + _HALF - gs[g, 1]
-                _bwd_chunk(gs, colors, g, k, 0, x0, x1, tx0, dy, r, T, last, gimg, gtail, behind, acc)
+            span, rec = _local_span(boxes, g, tx0, ty0, w, h), _record(gs, colors, g)
+            for q in range(9):  # not acc[:] = 0: a slice is a view (atomic reference counts)
+                for j in range(L):
+                    acc[q, j] = _ZERO
+            for by in range(span[2] >> 2, (span[3] >> 2) + 1):
+                for bx in range(span[0] >> 2, (span[1] >> 2) + 1):
+                    b = (by << 2) + bx
+                    if k < block_stop[b]:
+                        _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc)
             _reduce_lanes(acc, g, dgs, dcol)

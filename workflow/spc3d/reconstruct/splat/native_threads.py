@@ -21,6 +21,7 @@ import os
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import torch
 
 _CALLBACK = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
@@ -72,6 +73,15 @@ def run_parallel(work, n: int) -> None:
         _POOL[0], _POOL[1] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="splat"), n
     for future in [_POOL[0].submit(work, w) for w in range(n)]:
         future.result()
+
+
+def in_shares(kernel, n: int, inputs: tuple, outputs: tuple, grain: int = 2048) -> None:
+    """``kernel(*inputs, lo, hi, *outputs)`` over contiguous shares [lo, hi) of n items, one per
+    worker (at most one per ``grain`` items: smaller shares are not worth a thread); each worker
+    writes only its own rows of the outputs."""
+    workers = n_workers(max(1, n // grain))
+    bounds = np.linspace(0, n, workers + 1).astype(np.int64)
+    run_parallel(lambda w: kernel(*inputs, bounds[w], bounds[w + 1], *outputs), workers)
 
 
 def _run_gomp(work, n: int) -> None:
