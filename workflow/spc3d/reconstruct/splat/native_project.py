@@ -32,199 +32,188 @@ from .project import MAX_RADIUS, Projected
 
 
 @njit(inline="always")
-def _core(m, s, q, W, cam, near, low_pass, R, M, jw, r):
-    """Forward of one Gaussian; fills scratch R, M (3, 3), jw, r (2, 3) and returns scalars
-    (x, y, z, zs, in_front, qn, u_free, v_free, a0, b, c0, det)."""
-    x = W[0, 0] * m[0] + W[0, 1] * m[1] + W[0, 2] * m[2] + W[0, 3]
-    y = W[1, 0] * m[0] + W[1, 1] * m[1] + W[1, 2] * m[2] + W[1, 3]
-    z = W[2, 0] * m[0] + W[2, 1] * m[1] + W[2, 2] * m[2] + W[2, 3]
-    in_front = z > near
-    zs = z if in_front else 1.0  # culled: harmless z = 1, as project.py
-    qn = math.sqrt(max(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3], 1e-24))  # clamp: zero quaternion
-    inv_qn = 1.0 / qn
-    w, qx, qy, qz = q[0] * inv_qn, q[1] * inv_qn, q[2] * inv_qn, q[3] * inv_qn
-    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - w * qz), 2 * (qx * qz + w * qy)
-    R[1, 0], R[1, 1], R[1, 2] = 2 * (qx * qy + w * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - w * qx)
-    R[2, 0], R[2, 1], R[2, 2] = 2 * (qx * qz - w * qy), 2 * (qy * qz + w * qx), 1 - 2 * (qx * qx + qy * qy)
-    inv_z = 1.0 / zs
-    u, v = x * inv_z, y * inv_z
-    u_free, v_free = cam[4] <= u <= cam[5], cam[6] <= v <= cam[7]
-    u, v = min(max(u, cam[4]), cam[5]), min(max(v, cam[6]), cam[7])
-    for k in range(3):
-        jw[0, k] = cam[0] * inv_z * (W[0, k] - u * W[2, k])
-        jw[1, k] = cam[1] * inv_z * (W[1, k] - v * W[2, k])
-        for j in range(3):
-            M[k, j] = R[k, j] * s[j]
-    for i in range(2):
-        for j in range(3):
-            r[i, j] = jw[i, 0] * M[0, j] + jw[i, 1] * M[1, j] + jw[i, 2] * M[2, j]
-    a0 = r[0, 0] * r[0, 0] + r[0, 1] * r[0, 1] + r[0, 2] * r[0, 2]
-    b = r[0, 0] * r[1, 0] + r[0, 1] * r[1, 1] + r[0, 2] * r[1, 2]
-    c0 = r[1, 0] * r[1, 0] + r[1, 1] * r[1, 1] + r[1, 2] * r[1, 2]
-    n0, n1, n2 = _cross(r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2])
-    det = n0 * n0 + n1 * n1 + n2 * n2 + low_pass * (a0 + c0) + low_pass * low_pass
-    return x, y, z, zs, in_front, qn, u_free, v_free, a0, b, c0, det
+def _cross(a, b):
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
 
 
 @njit(inline="always")
-def _cross(a0, a1, a2, b0, b1, b2):
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(inline="always")
+def _axpy(alpha, x, y):
+    """alpha x + y for 3-tuples."""
+    return alpha * x[0] + y[0], alpha * x[1] + y[1], alpha * x[2] + y[2]
+
+
+@njit(inline="always")
+def _load(means, scales, quats, i):
+    """Gaussian i's parameters as float64 tuples (any input dtype)."""
+    m = (np.float64(means[i, 0]), np.float64(means[i, 1]), np.float64(means[i, 2]))
+    s = (np.float64(scales[i, 0]), np.float64(scales[i, 1]), np.float64(scales[i, 2]))
+    q = (np.float64(quats[i, 0]), np.float64(quats[i, 1]), np.float64(quats[i, 2]), np.float64(quats[i, 3]))
+    return m, s, q
+
+
+@njit(inline="always")
+def _rotation(q):
+    """(|q| clamped, q / |q|, rows of R(q / |q|)); the clamp keeps a zero quaternion finite."""
+    qn = math.sqrt(max(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3], 1e-24))
+    inv = 1.0 / qn
+    w, x, y, z = q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv
+    R0 = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y))
+    R1 = (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+    R2 = (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+    return qn, (w, x, y, z), (R0, R1, R2)
+
+
+@njit(inline="always")
+def _core(m, s, q, W, cam, near, low_pass):
+    """Forward of one Gaussian, scalars and tuples only (no scratch arrays, no branches: LLVM
+    vectorises the loops over Gaussians). W: rows (3 x 4-tuples) of w2c; cam: see _camera_vector.
+    Returns (x, y, z, zs, in_front), (qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
+    (a0, b, c0, det)."""
+    x = W[0][0] * m[0] + W[0][1] * m[1] + W[0][2] * m[2] + W[0][3]
+    y = W[1][0] * m[0] + W[1][1] * m[1] + W[1][2] * m[2] + W[1][3]
+    z = W[2][0] * m[0] + W[2][1] * m[1] + W[2][2] * m[2] + W[2][3]
+    in_front = z > near
+    zs = z if in_front else 1.0  # culled: harmless z = 1, as project.py
+    qn, qhat, R = _rotation(q)
+    inv_z = 1.0 / zs
+    u, v = x * inv_z, y * inv_z
+    u_free, v_free = (cam[4] <= u) & (u <= cam[5]), (cam[6] <= v) & (v <= cam[7])
+    u, v = min(max(u, cam[4]), cam[5]), min(max(v, cam[6]), cam[7])
+    fz, gz = cam[0] * inv_z, cam[1] * inv_z
+    J0 = (fz * (W[0][0] - u * W[2][0]), fz * (W[0][1] - u * W[2][1]), fz * (W[0][2] - u * W[2][2]))
+    J1 = (gz * (W[1][0] - v * W[2][0]), gz * (W[1][1] - v * W[2][1]), gz * (W[1][2] - v * W[2][2]))
+    M = ((R[0][0] * s[0], R[0][1] * s[1], R[0][2] * s[2]), (R[1][0] * s[0], R[1][1] * s[1], R[1][2] * s[2]),
+         (R[2][0] * s[0], R[2][1] * s[1], R[2][2] * s[2]))
+    r0 = (J0[0] * M[0][0] + J0[1] * M[1][0] + J0[2] * M[2][0], J0[0] * M[0][1] + J0[1] * M[1][1] + J0[2] * M[2][1],
+          J0[0] * M[0][2] + J0[1] * M[1][2] + J0[2] * M[2][2])
+    r1 = (J1[0] * M[0][0] + J1[1] * M[1][0] + J1[2] * M[2][0], J1[0] * M[0][1] + J1[1] * M[1][1] + J1[2] * M[2][1],
+          J1[0] * M[0][2] + J1[1] * M[1][2] + J1[2] * M[2][2])
+    a0, b, c0 = _dot(r0, r0), _dot(r0, r1), _dot(r1, r1)
+    n = _cross(r0, r1)
+    det = _dot(n, n) + low_pass * (a0 + c0) + low_pass * low_pass
+    return (x, y, z, zs, in_front), (qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1), (a0, b, c0, det)
 
 
 @njit(inline="always")
 def _radius(a, c, det, mx, my, height, width):
-    """3-sigma radius in pixels from the largest eigenvalue, 0 when the footprint is off-image
-    (project.py's ``_radii``)."""
+    """3-sigma radius in pixels (float) from the largest eigenvalue, 0 when the footprint is
+    off-image (project.py's ``_radii``); branch-free."""
     mid = 0.5 * (a + c)
     r = math.ceil(3.0 * math.sqrt(mid + math.sqrt(max(mid * mid - det, 0.1))))  # max: rounding
-    if not (math.isfinite(r) and mx + r > 0 and mx - r < width and my + r > 0 and my - r < height):
-        return 0
-    return int(min(r, MAX_RADIUS))  # min: int32 range
+    keep = (abs(r) < np.inf) & (mx + r > 0) & (mx - r < width) & (my + r > 0) & (my - r < height)
+    return min(r, MAX_RADIUS) if keep else 0.0  # min: int32 range
 
 
 @njit(inline="always")
-def _load(means, scales, quats, i, m, sc, q):
-    """Gaussian i's parameters into float64 scratch m (3,), sc (3,), q (4,) (no array views in
-    the loops: each view costs atomic reference counts; any input dtype)."""
-    for k in range(3):
-        m[k], sc[k] = means[i, k], scales[i, k]
-    for k in range(4):
-        q[k] = quats[i, k]
+def _camera(W_arr, cam_arr):
+    """w2c rows and the camera vector as tuples (loaded once, outside the loops)."""
+    W = ((W_arr[0, 0], W_arr[0, 1], W_arr[0, 2], W_arr[0, 3]), (W_arr[1, 0], W_arr[1, 1], W_arr[1, 2], W_arr[1, 3]),
+         (W_arr[2, 0], W_arr[2, 1], W_arr[2, 2], W_arr[2, 3]))
+    cam = (cam_arr[0], cam_arr[1], cam_arr[2], cam_arr[3], cam_arr[4], cam_arr[5], cam_arr[6], cam_arr[7])
+    return W, cam
 
 
 @njit(cache=True, nogil=True, error_model="numpy")  # numpy: no zero test before each division
-def _project_forward(means, scales, quats, W, cam, near, low_pass, height, width, lo, hi, means2d, conics, depths,
-                     cov2d, radii):
+def _project_forward(means, scales, quats, W_arr, cam_arr, near, low_pass, height, width, lo, hi, means2d, conics,
+                     depths, cov2d, radii):
     """Gaussians lo..hi-1 into means2d (N, 2), conics (N, 3), depths (N,), cov2d (N, 3) (separate
     contiguous arrays: the rasterizer reads them; any float dtype, computed in float64) and
     radii (N,) int32."""
-    R, M, jw, r = np.empty((3, 3)), np.empty((3, 3)), np.empty((2, 3)), np.empty((2, 3))
-    m, sc, q = np.empty(3), np.empty(3), np.empty(4)
-    for i in range(lo, hi):
-        _load(means, scales, quats, i, m, sc, q)
-        x, y, z, zs, in_front, _, _, _, a0, b, c0, det = _core(m, sc, q, W, cam, near, low_pass, R, M, jw, r)
-        ok = in_front and math.isfinite(det) and det > 0.0
+    W, cam = _camera(W_arr, cam_arr)
+    for ii in range(lo, hi):
+        i = np.uint64(ii)  # unsigned: no negative-index wraparound, so LLVM can vectorise the loop
+        m, s, q = _load(means, scales, quats, i)
+        (x, y, z, zs, in_front), _, _, _, _, _, (a0, b, c0, det) = _core(m, s, q, W, cam, near, low_pass)
+        ok = in_front & (det > 0.0) & (det < np.inf)
         inv_ds = 1.0 / det if ok else 1.0
         a, c = a0 + low_pass, c0 + low_pass
         mx, my = cam[0] * x / zs + cam[2], cam[1] * y / zs + cam[3]
         means2d[i, 0], means2d[i, 1] = mx, my
         conics[i, 0], conics[i, 1], conics[i, 2], depths[i] = c * inv_ds, -b * inv_ds, a * inv_ds, z
         cov2d[i, 0], cov2d[i, 1], cov2d[i, 2] = a, b, c
-        radii[i] = _radius(a, c, det, mx, my, height, width) if ok else 0
+        radii[i] = np.int32(_radius(a, c, det, mx, my, height, width) if ok else 0.0)
 
 
 @njit(inline="always")
-def _quat_backward(q, qn, gM, s, gq):
-    """gq (4,) = dL/dq from gM (3, 3) = dL/dM, M = R(q / |q|) diag(s) (clamped norm: see _core).
-    gM is overwritten with dL/dR."""
-    for k in range(3):
-        for j in range(3):
-            gM[k, j] *= s[j]
-    G = gM
-    inv = 1.0 / qn  # one division: ~15 cycles each, and this loop is division-bound
-    w, x, y, z = q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv
-    gw = 2 * (-z * G[0, 1] + y * G[0, 2] + z * G[1, 0] - x * G[1, 2] - y * G[2, 0] + x * G[2, 1])
-    gx = 2 * (y * G[0, 1] + z * G[0, 2] + y * G[1, 0] - 2 * x * G[1, 1] - w * G[1, 2] + z * G[2, 0]
-              + w * G[2, 1] - 2 * x * G[2, 2])
-    gy = 2 * (-2 * y * G[0, 0] + x * G[0, 1] + w * G[0, 2] + x * G[1, 0] + z * G[1, 2] - w * G[2, 0]
-              + z * G[2, 1] - 2 * y * G[2, 2])
-    gz = 2 * (-2 * z * G[0, 0] - w * G[0, 1] + x * G[0, 2] + w * G[1, 0] - 2 * z * G[1, 1] + y * G[1, 2]
-              + x * G[2, 0] + y * G[2, 1])
-    dot = w * gw + x * gx + y * gy + z * gz
-    clamped = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] < 1e-24  # norm constant there
-    if clamped:
-        dot = 0.0
-    gq[0], gq[1], gq[2], gq[3] = (gw - w * dot) * inv, (gx - x * dot) * inv, (gy - y * dot) * inv, (gz - z * dot) * inv
+def _quat_backward(qhat, inv_qn, clamped, G):
+    """dL/dq (4-tuple) from G = dL/dR (rows), R = R(q / |q|) (clamped norm: see _rotation)."""
+    w, x, y, z = qhat
+    gw = 2 * (-z * G[0][1] + y * G[0][2] + z * G[1][0] - x * G[1][2] - y * G[2][0] + x * G[2][1])
+    gx = 2 * (y * G[0][1] + z * G[0][2] + y * G[1][0] - 2 * x * G[1][1] - w * G[1][2] + z * G[2][0]
+              + w * G[2][1] - 2 * x * G[2][2])
+    gy = 2 * (-2 * y * G[0][0] + x * G[0][1] + w * G[0][2] + x * G[1][0] + z * G[1][2] - w * G[2][0]
+              + z * G[2][1] - 2 * y * G[2][2])
+    gz = 2 * (-2 * z * G[0][0] - w * G[0][1] + x * G[0][2] + w * G[1][0] - 2 * z * G[1][1] + y * G[1][2]
+              + x * G[2][0] + y * G[2][1])
+    dot = 0.0 if clamped else w * gw + x * gx + y * gy + z * gz  # clamped: the norm is constant there
+    return (gw - w * dot) * inv_qn, (gx - x * dot) * inv_qn, (gy - y * dot) * inv_qn, (gz - z * dot) * inv_qn
 
 
 @njit(inline="always")
-def _row_grads(g_r0, g_r1, g_a0, g_b, g_c0, g_det, r):
-    """dL/d rows r0, r1 (3,) each from dL/d(a0, b, c0, det) (det through |r0 x r1|²)."""
-    n0, n1, n2 = _cross(r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2])
-    p0, p1, p2 = _cross(r[1, 0], r[1, 1], r[1, 2], n0, n1, n2)  # d|n|²/dr0 = 2 r1 x n
-    q0, q1, q2 = _cross(n0, n1, n2, r[0, 0], r[0, 1], r[0, 2])  # d|n|²/dr1 = 2 n x r0
-    g_r0[0] = 2 * g_a0 * r[0, 0] + g_b * r[1, 0] + 2 * g_det * p0
-    g_r0[1] = 2 * g_a0 * r[0, 1] + g_b * r[1, 1] + 2 * g_det * p1
-    g_r0[2] = 2 * g_a0 * r[0, 2] + g_b * r[1, 2] + 2 * g_det * p2
-    g_r1[0] = 2 * g_c0 * r[1, 0] + g_b * r[0, 0] + 2 * g_det * q0
-    g_r1[1] = 2 * g_c0 * r[1, 1] + g_b * r[0, 1] + 2 * g_det * q1
-    g_r1[2] = 2 * g_c0 * r[1, 2] + g_b * r[0, 2] + 2 * g_det * q2
-
-
-@njit(inline="always")
-def _grad_in(g_m2d, g_con, g_depth, g_cov, i, g):
-    """dL/d(means2d x, y, conic a, b, c, depth, cov2d a, b, c) of Gaussian i into g (9,);
-    outputs without a gradient arrive as empty arrays (zero)."""
-    for k in range(9):  # a loop, not g[:] = 0: a slice is a view (atomic reference counts)
-        g[k] = 0.0
-    if len(g_m2d):
-        g[0], g[1] = g_m2d[i, 0], g_m2d[i, 1]
-    if len(g_con):
-        g[2], g[3], g[4] = g_con[i, 0], g_con[i, 1], g_con[i, 2]
-    if len(g_depth):
-        g[5] = g_depth[i]
-    if len(g_cov):
-        g[6], g[7], g[8] = g_cov[i, 0], g_cov[i, 1], g_cov[i, 2]
+def _jacobian_backward(x, y, zs, u_free, v_free, inv_z, W, cam, gJ0, gJ1, g_mx, g_my):
+    """dL/d(x, y, zs) through the J W rows and the projected centre."""
+    fx, fy = cam[0], cam[1]
+    inv_z2 = inv_z * inv_z
+    u, v = min(max(x * inv_z, cam[4]), cam[5]), min(max(y * inv_z, cam[6]), cam[7])
+    g_A0 = gJ0[0] * (W[0][0] - u * W[2][0]) + gJ0[1] * (W[0][1] - u * W[2][1]) + gJ0[2] * (W[0][2] - u * W[2][2])
+    g_A1 = gJ1[0] * (W[1][0] - v * W[2][0]) + gJ1[1] * (W[1][1] - v * W[2][1]) + gJ1[2] * (W[1][2] - v * W[2][2])
+    g_u = -fx * inv_z * (gJ0[0] * W[2][0] + gJ0[1] * W[2][1] + gJ0[2] * W[2][2])
+    g_v = -fy * inv_z * (gJ1[0] * W[2][0] + gJ1[1] * W[2][1] + gJ1[2] * W[2][2])
+    g_u, g_v = (g_u if u_free else 0.0), (g_v if v_free else 0.0)  # clamped: no gradient
+    g_x = g_mx * fx * inv_z + g_u * inv_z
+    g_y = g_my * fy * inv_z + g_v * inv_z
+    g_zs = (-(g_A0 * fx + g_A1 * fy) - (g_mx * fx * x + g_my * fy * y) - g_u * x - g_v * y) * inv_z2
+    return g_x, g_y, g_zs
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _project_backward(means, scales, quats, W, cam, near, low_pass, g_m2d, g_con, g_depth, g_cov, lo, hi,
+def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2d, g_con, g_depth, g_cov, lo, hi,
                       g_means, g_scales, g_quats):
     """Gaussians lo..hi-1: dL/dmeans (N, 3), dL/dscales (N, 3), dL/dquats (N, 4) (written, any
-    float dtype) from the output gradients (see ``_grad_in``)."""
-    R, M, jw, r = np.empty((3, 3)), np.empty((3, 3)), np.empty((2, 3)), np.empty((2, 3))
-    g_r0, g_r1, g_jw, gM = np.empty(3), np.empty(3), np.empty((2, 3)), np.empty((3, 3))
-    m, sc, q, g, gq = np.empty(3), np.empty(3), np.empty(4), np.empty(9), np.empty(4)
-    for i in range(lo, hi):
-        _load(means, scales, quats, i, m, sc, q)
-        _grad_in(g_m2d, g_con, g_depth, g_cov, i, g)
-        x, y, z, zs, in_front, qn, u_free, v_free, a0, b, c0, det = _core(m, sc, q, W, cam, near, low_pass,
-                                                                          R, M, jw, r)
-        ok = in_front and math.isfinite(det) and det > 0.0
+    float dtype) from dL/d(means2d, conics, depths, cov2d) (zeros where an output had none)."""
+    W, cam = _camera(W_arr, cam_arr)
+    for ii in range(lo, hi):
+        i = np.uint64(ii)
+        m, s, q = _load(means, scales, quats, i)
+        ((x, y, z, zs, in_front), (qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
+         (a0, b, c0, det)) = _core(m, s, q, W, cam, near, low_pass)
+        g0, g1, g2, g3, g4 = g_m2d[i, 0], g_m2d[i, 1], g_con[i, 0], g_con[i, 1], g_con[i, 2]
+        g6, g7, g8 = g_cov[i, 0], g_cov[i, 1], g_cov[i, 2]
+        ok = in_front & (det > 0.0) & (det < np.inf)
         inv_ds = 1.0 / det if ok else 1.0
         a, c = a0 + low_pass, c0 + low_pass
-        g_det = -(g[2] * c - g[3] * b + g[4] * a) * (inv_ds * inv_ds) if ok else 0.0
-        g_a0 = g[6] + g[4] * inv_ds + g_det * low_pass
-        g_c0 = g[8] + g[2] * inv_ds + g_det * low_pass
-        _row_grads(g_r0, g_r1, g_a0, g[7] - g[3] * inv_ds, g_c0, g_det, r)
-        for k in range(3):
-            g_jw[0, k] = g_r0[0] * M[k, 0] + g_r0[1] * M[k, 1] + g_r0[2] * M[k, 2]
-            g_jw[1, k] = g_r1[0] * M[k, 0] + g_r1[1] * M[k, 1] + g_r1[2] * M[k, 2]
-            for j in range(3):
-                gM[k, j] = jw[0, k] * g_r0[j] + jw[1, k] * g_r1[j]
+        g_det = -(g2 * c - g3 * b + g4 * a) * (inv_ds * inv_ds) if ok else 0.0
+        g_a0 = g6 + g4 * inv_ds + g_det * low_pass
+        g_c0 = g8 + g2 * inv_ds + g_det * low_pass
+        g_b = g7 - g3 * inv_ds
+        # rows r0, r1: a0 = |r0|², b = r0·r1, c0 = |r1|², det through |n|², n = r0 x r1
+        n = _cross(r0, r1)
+        gr0 = _axpy(2 * g_a0, r0, _axpy(g_b, r1, _axpy(2 * g_det, _cross(r1, n), (0.0, 0.0, 0.0))))
+        gr1 = _axpy(2 * g_c0, r1, _axpy(g_b, r0, _axpy(2 * g_det, _cross(n, r0), (0.0, 0.0, 0.0))))
+        # r_i[j] = Σ_k J_i[k] M[k][j]
+        gJ0 = (_dot(gr0, M[0]), _dot(gr0, M[1]), _dot(gr0, M[2]))
+        gJ1 = (_dot(gr1, M[0]), _dot(gr1, M[1]), _dot(gr1, M[2]))
+        gM0 = (J0[0] * gr0[0] + J1[0] * gr1[0], J0[0] * gr0[1] + J1[0] * gr1[1], J0[0] * gr0[2] + J1[0] * gr1[2])
+        gM1 = (J0[1] * gr0[0] + J1[1] * gr1[0], J0[1] * gr0[1] + J1[1] * gr1[1], J0[1] * gr0[2] + J1[1] * gr1[2])
+        gM2 = (J0[2] * gr0[0] + J1[2] * gr1[0], J0[2] * gr0[1] + J1[2] * gr1[1], J0[2] * gr0[2] + J1[2] * gr1[2])
+        # M[k][j] = R[k][j] s[j]
         for j in range(3):
-            g_scales[i, j] = gM[0, j] * R[0, j] + gM[1, j] * R[1, j] + gM[2, j] * R[2, j]
-        _quat_backward(q, qn, gM, sc, gq)
+            g_scales[i, j] = gM0[j] * R[0][j] + gM1[j] * R[1][j] + gM2[j] * R[2][j]
+        gR = ((gM0[0] * s[0], gM0[1] * s[1], gM0[2] * s[2]), (gM1[0] * s[0], gM1[1] * s[1], gM1[2] * s[2]),
+              (gM2[0] * s[0], gM2[1] * s[1], gM2[2] * s[2]))
+        clamped = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] < 1e-24
+        gq = _quat_backward(qhat, 1.0 / qn, clamped, gR)
         for k in range(4):
             g_quats[i, k] = gq[k]
-        g_x, g_y, g_zs = _jacobian_backward(x, y, zs, u_free, v_free, W, cam, g_jw, g[0], g[1])
-        g_z = g[5] + (g_zs if in_front else 0.0)
+        g_x, g_y, g_zs = _jacobian_backward(x, y, zs, u_free, v_free, inv_z, W, cam, gJ0, gJ1, g0, g1)
+        g_z = g_depth[i] + (g_zs if in_front else 0.0)
         for k in range(3):
-            g_means[i, k] = W[0, k] * g_x + W[1, k] * g_y + W[2, k] * g_z
-
-
-@njit(inline="always")
-def _jacobian_backward(x, y, zs, u_free, v_free, W, cam, g_jw, g_mx, g_my):
-    """dL/d(x, y, zs) through the J W rows and the projected centre."""
-    fx, fy = cam[0], cam[1]
-    inv_z = 1.0 / zs
-    inv_z2 = inv_z * inv_z
-    u, v = min(max(x * inv_z, cam[4]), cam[5]), min(max(y * inv_z, cam[6]), cam[7])
-    g_A0 = g_u = g_A1 = g_v = 0.0
-    for k in range(3):
-        g_A0 += g_jw[0, k] * (W[0, k] - u * W[2, k])
-        g_u -= fx * inv_z * g_jw[0, k] * W[2, k]
-        g_A1 += g_jw[1, k] * (W[1, k] - v * W[2, k])
-        g_v -= fy * inv_z * g_jw[1, k] * W[2, k]
-    g_x, g_y = g_mx * fx * inv_z, g_my * fy * inv_z
-    g_zs = -(g_A0 * fx + g_A1 * fy) * inv_z2 - (g_mx * fx * x + g_my * fy * y) * inv_z2
-    if u_free:
-        g_x += g_u * inv_z
-        g_zs -= g_u * x * inv_z2
-    if v_free:
-        g_y += g_v * inv_z
-        g_zs -= g_v * y * inv_z2
-    return g_x, g_y, g_zs
+            g_means[i, k] = W[0][k] * g_x + W[1][k] * g_y + W[2][k] * g_z
 
 
 def _camera_vector(fx, fy, cx, cy, height, width) -> np.ndarray:
@@ -234,9 +223,9 @@ def _camera_vector(fx, fy, cx, cy, height, width) -> np.ndarray:
                      -cy / fy - 0.3 * half_y, (height - cy) / fy + 0.3 * half_y], dtype=np.float64)
 
 
-def _array(t: Tensor | None, shape: tuple) -> np.ndarray:
-    """A gradient as a numpy view (no copy); None (no gradient) as an empty array."""
-    return np.empty((0, *shape)) if t is None else t.detach().cpu().numpy()
+def _array(t: Tensor | None, shape: tuple, dtype) -> np.ndarray:
+    """A gradient as a numpy view (no copy); None (no gradient) as zeros (a branch-free kernel)."""
+    return np.zeros(shape, dtype) if t is None else t.detach().cpu().numpy()
 
 
 class _ProjectNative(torch.autograd.Function):
@@ -254,7 +243,9 @@ class _ProjectNative(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_m2d, g_con, g_depth, g_cov, _g_radii):
         arrays, cam, near, low_pass = ctx.saved
-        grads = (_array(g_m2d, (2,)), _array(g_con, (3,)), _array(g_depth, ()), _array(g_cov, (3,)))
+        n, dt = len(arrays[0]), arrays[0].dtype
+        grads = (_array(g_m2d, (n, 2), dt), _array(g_con, (n, 3), dt), _array(g_depth, (n,), dt),
+                 _array(g_cov, (n, 3), dt))
         out = tuple(np.empty(a.shape, a.dtype) for a in arrays[:3])  # dL/d(means, scales, quats)
         in_shares(_project_backward, len(arrays[0]), (*arrays, cam, near, low_pass, *grads), out)
         return (*(torch.from_numpy(o) for o in out), None, None, None, None, None, None)

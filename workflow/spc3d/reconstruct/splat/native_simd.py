@@ -132,25 +132,22 @@ def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, t
     (int32: tile-list position after the last contributor).
     """
     T, last, img = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((3, L, L), np.float32)
-    live = np.empty(L, np.int32)  # unfinished pixels per block: finished blocks are skipped
     for t in tiles:
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
         T[:], last[:], img[:] = _ONE, 0, _ZERO
-        for b in range(L):
-            live[b] = max(min(w - ((b & 3) << 2), 4), 0) * max(min(h - ((b >> 2) << 2), 4), 0)
         n_live = w * h
         for k in range(offsets[t], offsets[t + 1]):
             g = ids[k]
             span, rec = _local_span(boxes, g, tx0, ty0, w, h), _record(gs, colors, g)
-            for by in range(span[2] >> 2, (span[3] >> 2) + 1):
-                for bx in range(span[0] >> 2, (span[1] >> 2) + 1):
-                    b = (by << 2) + bx
-                    if live[b] == 0:
-                        continue
-                    n_stop = _fwd_block(rec, k, b, span, tx0, ty0, T, last, img)
-                    live[b] -= n_stop
-                    n_live -= n_stop
+            bx0, by0 = span[0] >> 2, span[2] >> 2
+            nbx = (span[1] >> 2) - bx0 + 1
+            nb = nbx * ((span[3] >> 2) - by0 + 1)
+            for q in range(nb):  # one loop over the blocks: one loop exit to predict, not one per row
+                by, bx = divmod(q, nbx)
+                b = ((by0 + by) << 2) + bx0 + bx
+                n_stop = _fwd_block(rec, k, b, span, tx0, ty0, T, last, img)
+                n_live -= n_stop
             if n_live == 0:
                 break
         _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_contrib)
@@ -246,22 +243,22 @@ def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, 
     (mean x, y, conic a, b, c, opacity), dcol (N, 3) and dbg (3,)."""
     T, last, gtail = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((L, L), np.float32)
     gimg, behind = np.empty((3, L, L), np.float32), np.empty((3, L, L), np.float32)
-    acc, block_stop = np.empty((9, L), np.float32), np.empty(L, np.int32)
+    acc = np.empty((9, L), np.float32)
     for t in tiles:
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
         _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg)
-        for b in range(L):  # per block: list position after its last contributor
-            block_stop[b] = last[b].max()
-        for k in range(block_stop.max() - 1, offsets[t] - 1, -1):
+        for k in range(last.max() - 1, offsets[t] - 1, -1):  # from the tile's last contributor
             g = ids[k]
             span, rec = _local_span(boxes, g, tx0, ty0, w, h), _record(gs, colors, g)
             for q in range(9):  # not acc[:] = 0: a slice is a view (atomic reference counts)
                 for j in range(L):
                     acc[q, j] = _ZERO
-            for by in range(span[2] >> 2, (span[3] >> 2) + 1):
-                for bx in range(span[0] >> 2, (span[1] >> 2) + 1):
-                    b = (by << 2) + bx
-                    if k < block_stop[b]:
-                        _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc)
+            bx0, by0 = span[0] >> 2, span[2] >> 2
+            nbx = (span[1] >> 2) - bx0 + 1
+            nb = nbx * ((span[3] >> 2) - by0 + 1)
+            for q in range(nb):
+                by, bx = divmod(q, nbx)
+                b = ((by0 + by) << 2) + bx0 + bx
+                _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc)
             _reduce_lanes(acc, g, dgs, dcol)
