@@ -27,6 +27,7 @@ import torch
 from numba import njit
 from torch import Tensor
 
+from .native_prep import CHUNK, gather_columns
 from .native_threads import in_shares
 from .project import MAX_RADIUS, Projected
 
@@ -45,21 +46,6 @@ def _dot(a, b):
 def _axpy(alpha, x, y):
     """alpha x + y for 3-tuples."""
     return alpha * x[0] + y[0], alpha * x[1] + y[1], alpha * x[2] + y[2]
-
-
-CHUNK = 256  # Gaussians per vectorised block (see _gather)
-
-
-@njit(inline="always")
-def _gather(a, c0, n, buf, row):
-    """Rows c0..c0+n-1 of a (N, k) array into rows row..row+k-1, columns 0..n-1, of buf; returns
-    row + k. The kernels compute on such local column buffers: LLVM vectorises a loop only when it
-    can tell its loads and stores apart, which it cannot for strided rows of argument arrays
-    (measured: forward 3x faster)."""
-    for k in range(a.shape[1]):
-        for j in range(n):
-            buf[row + k, j] = a[c0 + j, k]
-    return row + a.shape[1]
 
 
 @njit(inline="always")
@@ -134,7 +120,7 @@ def _project_forward(means, scales, quats, W_arr, cam_arr, near, low_pass, heigh
     inp, out = np.empty((10, CHUNK)), np.empty((10, CHUNK))
     for c0 in range(lo, hi, CHUNK):
         n = min(CHUNK, hi - c0)
-        _gather(quats, c0, n, inp, _gather(scales, c0, n, inp, _gather(means, c0, n, inp, 0)))
+        gather_columns(quats, c0, n, inp, gather_columns(scales, c0, n, inp, gather_columns(means, c0, n, inp, 0)))
         for j in range(CHUNK):  # the vectorised loop (a full chunk: stale columns are ignored)
             m, s, q = (inp[0, j], inp[1, j], inp[2, j]), (inp[3, j], inp[4, j], inp[5, j]), (inp[6, j], inp[7, j],
                                                                                              inp[8, j], inp[9, j])
@@ -195,8 +181,8 @@ def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2
     inp, out = np.empty((19, CHUNK)), np.empty((10, CHUNK))
     for c0 in range(lo, hi, CHUNK):
         n = min(CHUNK, hi - c0)
-        row = _gather(quats, c0, n, inp, _gather(scales, c0, n, inp, _gather(means, c0, n, inp, 0)))
-        _gather(g_cov, c0, n, inp, _gather(g_depth, c0, n, inp, _gather(g_con, c0, n, inp, _gather(g_m2d, c0, n, inp, row))))
+        row = gather_columns(quats, c0, n, inp, gather_columns(scales, c0, n, inp, gather_columns(means, c0, n, inp, 0)))
+        gather_columns(g_cov, c0, n, inp, gather_columns(g_depth, c0, n, inp, gather_columns(g_con, c0, n, inp, gather_columns(g_m2d, c0, n, inp, row))))
         for j in range(CHUNK):  # the vectorised loop: arrays only indexed here (passing one to a
             # function would add reference counting calls, which stop vectorisation)
             grads = (inp[10, j], inp[11, j], inp[12, j], inp[13, j], inp[14, j], inp[15, j], inp[16, j],
