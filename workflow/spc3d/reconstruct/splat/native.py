@@ -8,18 +8,22 @@ returns the dtype of ``colors``. Both follow the algorithm below.
 
 Algorithm (the 3DGS CUDA rasterizer, mapped to CPU threads):
 
-1. ``_bin_tiles``: Gaussians, visited in ascending depth, are appended to every TILE x TILE tile
-   their 3-sigma pixel box (:func:`.reference.pixel_boxes`) touches: per-tile lists in depth order.
-2. forward (``_forward_tile``): the tile's list is walked front to back, Gaussian-major: each
-   Gaussian updates the still-unfinished pixels of its box inside the tile (its parameters stay
-   in registers; no pixel tests Gaussians whose box misses it). Pairs with alpha < 1/255 are
-   skipped; a pixel stops before its transmittance would drop below 1e-4. Per pixel it stores
-   the final transmittance and the list position after its last contributor.
-3. backward (``_backward_tile``): the list is walked back to front from the last contributor,
-   recovering ``T_k = T_{k+1} / (1 - alpha_k)`` (alpha <= 0.99 keeps this stable) and the colour
-   composited behind, accumulating dL/d(means2d, conics, opacities, colors) per Gaussian in
-   scalars, then once into the worker's buffer; dL/dbackground = Σ T_final · dL/dimage.
-4. exp(power) is evaluated by a per-row recurrence (``_row_step``): exp dominated the kernels.
+1. set-up (:func:`.native_prep.prepare_tiles`, one numba pass): per-Gaussian records, pixel boxes
+   (the 3-sigma square of :func:`.reference.pixel_boxes` tightened to the ellipse outside which
+   alpha < 1/255, so no composited pair is lost), a radix sort by depth and per-tile lists:
+   every TILE x TILE tile lists the Gaussians whose box touches it, in depth order.
+2. forward (float64: ``_forward_tile``; float32: 4x4-pixel SIMD blocks, :mod:`.native_simd`):
+   the tile's list is walked front to back, Gaussian-major: each Gaussian updates the
+   still-unfinished pixels of its box inside the tile (its parameters stay in registers; no
+   pixel tests Gaussians whose box misses it). Pairs with alpha < 1/255 are skipped; a pixel
+   stops before its transmittance would drop below 1e-4. Per pixel it stores the final
+   transmittance and the list position after its last contributor.
+3. backward (``_backward_tile`` / :mod:`.native_simd`): the list is walked back to front from the
+   last contributor, recovering ``T_k = T_{k+1} / (1 - alpha_k)`` (alpha <= 0.99 keeps this
+   stable) and the colour composited behind, accumulating dL/d(means2d, conics, opacities,
+   colors) per Gaussian, then once into the worker's buffer; dL/dbackground = Σ T_final · dL/dimage.
+4. float64 kernels evaluate exp(power) by a per-row recurrence (``_row_step``); the float32
+   kernels use a polynomial exp2 on exponents in log2 units.
 
 Threads: tiles are dealt round-robin to ``torch.get_num_threads()`` workers, each adding into its
 own gradient buffers, summed at the end (no races, deterministic for a given thread count). The
@@ -28,11 +32,13 @@ competed with torch's spin-waiting OpenMP workers for the cores. ``parallel=True
 is avoided on purpose: numba's OpenMP layer made every parallel region wait ~30 ms next to
 torch's pool here, and forcing numba's process-global threading layer would change other users.
 
-Measured (``benchmarks/rasterizer.py``, 10k Gaussians at 128x96, one training step; this 2-core
-machine shared with other jobs, so ±30 %): native 22-27 ms -> ~11-15 ms per step; float32
-kernels forward 4.5 ms and backward 6.5 ms vs 7.2 / 10.5 ms for the float64 kernels (one
-thread); the pure-PyTorch reference takes 110-140 ms. What remains per step (1 thread):
-kernels ~11 ms, binning and records ~1.5 ms, projection ~2 ms, autograd and loss ~1 ms.
+Measured (10k Gaussians at 128x96, one training step of ``benchmarks/rasterizer.py``; this 2-core
+machine's speed drifts by ±15 % between runs, so ratios are taken within one run): native
+projection + rasterizer ~4.6-5.6 ms on 2 threads (~7.2-8.3 ms on 1) against ~90-105 ms
+(~150-180 ms) for the pure-PyTorch reference: 17-20x (19-20x on 1 thread). One thread, per
+step: forward kernel ~2.0 ms, backward ~3.3 ms, set-up ~0.5 ms, projection forward + backward
+~0.7 ms, loss and autograd ~0.5 ms. History: 22-27 ms per step with scalar float64 kernels,
+11-15 ms with 16-lane row kernels.
 
 Densification: the view-space positional gradient of 3DGS is ``means2d.grad`` (in pixels; call
 ``means2d.retain_grad()`` before ``backward``); nothing extra is returned.
@@ -41,9 +47,10 @@ Why numba rather than a C++/OpenMP torch extension: nothing to compile at instal
 compiler or matching torch headers on the user's machine), plain Python files, portable across
 platforms and torch versions, and ``cache=True`` stores the machine code next to the source.
 The costs: numba as a dependency and a first-call JIT compile, measured on this (loaded) 2-core
-machine at ~7 s for all splat kernels with an empty cache and ~0.5 s when loaded from the cache
-(``benchmarks/rasterizer.py`` measures both in fresh processes). Kernels use
-``fastmath=False`` so they follow IEEE semantics like the reference.
+machine at ~10 s for all splat kernels with an empty cache and ~0.4 s when loaded from the cache
+(``benchmarks/rasterizer.py`` measures both in fresh processes). Kernels use no fast-math
+except ``contract`` (fused multiply-add) in the float32 kernels: IEEE semantics otherwise, so
+NaN / inf and the clamps behave as in the reference.
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
-"""Per-step set-up of the native rasterizer in one numba pass: records, tight boxes, depth order,
-tile lists.
+"""Per-step set-up of the native rasterizer in numba: records, tight boxes, depth order, tile lists.
 
 ``prepare_tiles`` replaces ~20 small numpy calls and a numpy stable argsort (together ~1.5 ms per
 10k-Gaussian step, as much as the forward kernel on two threads) by three loops over the
-Gaussians:
+Gaussians (~0.5 ms on one thread: records 0.19, sort 0.17, binning 0.13):
 
-1. record + box per Gaussian (vectorised, on torch's threads). The box is the 3-sigma square of :func:`.reference.pixel_boxes`
-   intersected with the bounding box of the ellipse outside which ``alpha < 1/255`` for sure:
+1. record + box per Gaussian (vectorised over local column chunks, on torch's threads). The box
+   is the 3-sigma square of :func:`.reference.pixel_boxes` intersected with the bounding box of the ellipse outside which ``alpha < 1/255`` for sure:
    ``power >= pmin`` <=> ``dᵀ Q d <= -2 pmin`` (Q = conic), whose half-extents are
    ``sqrt(-2 pmin · Q⁻¹_xx)`` and ``sqrt(-2 pmin · Q⁻¹_yy)``. Inflated by 0.1 % + 1e-3 px so
    float32 rounding in the kernels can never put a composited pair outside it. On the

@@ -2,25 +2,33 @@
 
 The float64 kernels of :mod:`.native` walk each pixel row with data-dependent branches and a
 sequential exp recurrence: ~25 cycles per Gaussian-pixel pair, mostly mispredicted branches.
-Here a Gaussian updates a whole 16-pixel tile row at once: every lane computes its pair
-branch-free (the tests become masks and selects), exp is a short polynomial instead of a libm
-call, and all loops run over the 16 lanes of fixed-size per-tile buffers, so each row is a few
-dozen vector instructions (AVX2 / AVX-512). Lanes outside the Gaussian's box are masked off, so
-the semantics are exactly those of :mod:`.reference` (same tests, same order, float32 like it).
+Here a Gaussian updates 4x4-pixel blocks of the tile, 16 lanes at once: every lane computes its
+pair branch-free (the tests become masks and selects), exp is a short polynomial instead of a
+libm call, and all loops run over the 16 lanes of fixed-size per-tile buffers, so each block is
+a few dozen vector instructions (AVX2 / AVX-512). Lanes outside the Gaussian's box are masked
+off, so the semantics are exactly those of :mod:`.reference` (same tests, same order, float32).
 
-Per-tile state (transmittance, colour behind, last contributor, dL/dimage) is copied into
-contiguous (16, 16) buffers at the start of a tile and back at its end. Per-Gaussian gradient
-sums are kept per lane (``acc``) and reduced once per Gaussian and tile. RGB only (3 channels
-written out, so that one loop carries everything): other channel counts use native.py's kernels.
+Why 4x4 blocks: the boxes are small (radii 2-10 px) and tightened to the visible ellipse
+(:mod:`.native_prep`); 16-pixel tile rows used 42 % of their lanes on the benchmark scene and
+needed 128k row visits per forward, 4x4 blocks 62k visits (2x2 blocks of 8-pixel half rows
+would take 68k). Per-tile state (transmittance, colour behind, last contributor, dL/dimage) is
+copied into contiguous [block, lane] buffers at the start of a tile and back at its end.
+Per-Gaussian gradient sums are kept per lane (``acc``) and reduced once per Gaussian and tile.
+RGB only (3 channels written out, so that one loop carries everything): other channel counts
+use native.py's kernels.
 
-What it takes for LLVM to vectorise (each measured; without it the code ran 2-5x *slower*
-than the scalar float64 kernels): ``error_model="numpy"`` (the default "python" model tests
-every float division for zero and raises), no array views in the hot loops (``T[r]`` costs
-atomic reference counts; index ``T[r, i]``), one loop holding the channels (a separate
-per-channel loop was fully unrolled and left scalar: it could not prove img and weights
-distinct), and a constant trip count of 16 (LLVM does not vectorise loops of fewer than 16
-iterations: an 8-lane half-row variant fell back to scalar code). Measured, 10k Gaussians at
-128x96, one thread: forward 4.5 ms, backward 6.5 ms (float64 kernels: 7.2 / 10.5 ms).
+What it takes for LLVM to vectorise (each measured; without it the code ran 2-10x *slower*):
+``error_model="numpy"`` (the default "python" model tests every float division for zero and
+raises), no array views in the hot loops (``T[r]`` or ``acc[:] = 0`` cost atomic reference
+counts; index ``T[b, j]``), one loop holding the channels, lane indices that LLVM can prove
+non-negative (numba's wraparound of negative indices otherwise makes every address
+data-dependent), and a constant trip count of 16. What makes it fast (A/B, one process): record
+parameters loaded once per record (LLVM cannot hoist them past stores to the tile buffers),
+fused multiply-adds (``fastmath={"contract"}`` only: 10-20 %), exponents in log2 units (exp2
+needs no Cody-Waite reduction: 7 % of the forward), one flat loop over a record's blocks (one
+loop exit to predict instead of one per block row: 3-8 %). Measured, 10k Gaussians at 128x96,
+one thread: forward ~2.0 ms, backward ~3.3 ms (16-lane row kernels: 4.5 / 6.5 ms; scalar
+float64 kernels: 7.2 / 10.5 ms).
 """
 
 from __future__ import annotations
@@ -32,8 +40,7 @@ from numba import njit
 
 from .reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
 
-L = 16  # tile edge
-H = 16
+L = 16  # tile edge, and lanes per 4x4 block
 F = np.float32
 _LOG2E = F(1.4426950408889634)
 _C1, _C2, _C3, _C4, _C5, _C6 = (F(math.log(2.0) ** k / math.factorial(k)) for k in range(1, 7))
