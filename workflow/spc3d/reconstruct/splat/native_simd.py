@@ -206,9 +206,10 @@ def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T
 @njit(inline="always")
 def _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc):
     """One Gaussian over the 16 lanes of block b, back to front: recovers T, updates the colour
-    behind (3, 16, 16) and adds the pair's gradient terms per lane into acc (9, 16): mean x, y,
-    conic a, b, c, opacity, colour 0-2 (see native.py's ``_backward_tile``)."""
-    mx, my, a, bc, c, opacity, _, c0, c1, c2 = rec
+    behind (3, 16, 16) and adds the pair's gradient terms per lane into acc (9, 16): d_power
+    times dx, dy, dx², dx·dy, dy² (see ``_reduce_lanes``), dL/dopacity, dL/dcolour 0-2 (as
+    native.py's ``_backward_tile``)."""
+    mx, my, _, _, _, opacity, _, c0, c1, c2 = rec
     la, lb, lc, lpmin = _log2_units(rec)
     bx, by, fx, fy, x0, x1, y0, y1 = _block_origin(b, span, tx0, ty0, mx, my)
     k32 = np.int32(k)
@@ -233,25 +234,38 @@ def _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc):
         behind[2, b, j] = al * c2 + (_ONE - al) * b2
         da = d_alpha if use & shape_ok else _ZERO  # clamped alpha: no gradient to opacity, shape
         d_power = da * alpha
-        acc[0, j] += d_power * (a * dx + bc * dy)
-        acc[1, j] += d_power * (bc * dx + c * dy)
-        acc[2, j] += -_HALF * d_power * dx * dx
-        acc[3, j] += -d_power * dx * dy
-        acc[4, j] += -_HALF * d_power * dy * dy
+        px, py = d_power * dx, d_power * dy
+        acc[0, j] += px
+        acc[1, j] += py
+        acc[2, j] += px * dx
+        acc[3, j] += px * dy
+        acc[4, j] += py * dy
         acc[5, j] += da * G
 
 
 @njit(inline="always")
-def _reduce_lanes(acc, g, dgs, dcol):
-    """Adds the per-lane sums of acc (9, 16) into dgs[g] (6,) and dcol[g] (3,); a pairwise tree
-    (short dependency chains) over the 16 lanes."""
-    for j in range(9):
-        s = (((acc[j, 0] + acc[j, 8]) + (acc[j, 4] + acc[j, 12])) + ((acc[j, 2] + acc[j, 10]) + (acc[j, 6] + acc[j, 14]))
-             + (((acc[j, 1] + acc[j, 9]) + (acc[j, 5] + acc[j, 13])) + ((acc[j, 3] + acc[j, 11]) + (acc[j, 7] + acc[j, 15]))))
-        if j < 6:
-            dgs[g, j] += s
-        else:
-            dcol[g, j - 6] += s
+def _lane_sum(acc, j):
+    """Sum of acc[j] over the 16 lanes: a pairwise tree (short dependency chains)."""
+    return ((((acc[j, 0] + acc[j, 8]) + (acc[j, 4] + acc[j, 12])) + ((acc[j, 2] + acc[j, 10]) + (acc[j, 6] + acc[j, 14])))
+            + (((acc[j, 1] + acc[j, 9]) + (acc[j, 5] + acc[j, 13])) + ((acc[j, 3] + acc[j, 11]) + (acc[j, 7] + acc[j, 15]))))
+
+
+@njit(inline="always")
+def _reduce_lanes(acc, g, rec, dgs, dcol):
+    """Adds the lane sums of acc (9, 16) into dgs[g] (6,) and dcol[g] (3,). The lanes carry the
+    first and second moments of d_power = dL/dpower about the mean, Σ d_power·(dx, dy, dx², dx·dy,
+    dy²); the mean and conic gradients follow from them once per record: dL/dmean = Q Σ d_power·d
+    (Q = conic), dL/d(a, b, c) = -(½ Σ d_power·dx², Σ d_power·dx·dy, ½ Σ d_power·dy²)."""
+    s0, s1 = _lane_sum(acc, 0), _lane_sum(acc, 1)
+    a, bc, c = rec[2], rec[3], rec[4]
+    dgs[g, 0] += a * s0 + bc * s1
+    dgs[g, 1] += bc * s0 + c * s1
+    dgs[g, 2] += -_HALF * _lane_sum(acc, 2)
+    dgs[g, 3] += -_lane_sum(acc, 3)
+    dgs[g, 4] += -_HALF * _lane_sum(acc, 4)
+    dgs[g, 5] += _lane_sum(acc, 5)
+    for j in range(3):
+        dcol[g, j] += _lane_sum(acc, 6 + j)
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
@@ -279,4 +293,4 @@ def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, 
                 by, bx = divmod(q, nbx)
                 b = ((by0 + by) << 2) + bx0 + bx
                 _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc)
-            _reduce_lanes(acc, g, dgs, dcol)
+            _reduce_lanes(acc, g, rec, dgs, dcol)
