@@ -88,36 +88,47 @@ _LANE_Y = np.array([j >> 2 for j in range(L)], np.float32)
 
 
 @njit(inline="always")
-def _block_origin(b, span, tx0, ty0, mx, my):
-    """Block b's corner (tile-local column, row) and its pixel-centre offsets from the mean, and
-    the span (x0, x1, y0, y1) as float32 for the lane masks."""
+def _block_origin(b, tx0, ty0):
+    """Block b's corner as float32: tile-local column and row, and the image coordinates of its
+    first pixel centre."""
     bx, by = (b & 3) << 2, (b >> 2) << 2
-    fx, fy = F(tx0 + bx) + _HALF, F(ty0 + by) + _HALF
-    x0, x1, y0, y1 = span
-    return F(bx), F(by), fx, fy, F(x0), F(x1), F(y0), F(y1)
+    return F(bx), F(by), F(tx0 + bx) + _HALF, F(ty0 + by) + _HALF
 
 
 @njit(inline="always")
-def _record(gs, colors, g):
-    """Gaussian g's parameters as scalars, loaded once per tile record (loads inside the block
-    loops would be repeated: LLVM cannot prove the tile buffers do not alias gs)."""
-    return gs[g, 0], gs[g, 1], gs[g, 2], gs[g, 3], gs[g, 4], gs[g, 5], gs[g, 6], colors[g, 0], colors[g, 1], colors[g, 2]
+def _blocks(span):
+    """The 4x4 blocks a tile-local span covers: first block column and row, blocks per row, count."""
+    bx0, by0 = span[0] >> 2, span[2] >> 2
+    nbx = (span[1] >> 2) - bx0 + 1
+    return bx0, by0, nbx, nbx * ((span[3] >> 2) - by0 + 1)
 
 
 @njit(inline="always")
-def _log2_units(rec):
-    """Conic a, b, c and pmin of a record times log2(e), for ``_lane_alpha``."""
-    return rec[2] * _LOG2E, rec[3] * _LOG2E, rec[4] * _LOG2E, rec[6] * _LOG2E
+def _block(q, bx0, by0, nbx):
+    """Index of the q-th block (row-major) of a span's blocks."""
+    by, bx = divmod(q, nbx)
+    return ((by0 + by) << 2) + bx0 + bx
 
 
 @njit(inline="always")
-def _fwd_block(rec, k, b, span, tx0, ty0, T, last, img):
+def _record(gs, colors, boxes, g, tx0, ty0, w, h):
+    """Gaussian g's tile-local span (ints, for the block loop) and, loaded once per tile record
+    (loads inside the block loops would be repeated: LLVM cannot prove the tile buffers do not
+    alias gs), its parameters as float32 scalars: mean x, y, conic a, b, c and pmin in log2 units
+    (times log2 e, for ``_lane_alpha``), opacity, colour 0-2, and the span x0, x1, y0, y1."""
+    span = _local_span(boxes, g, tx0, ty0, w, h)
+    rec = (gs[g, 0], gs[g, 1], gs[g, 2] * _LOG2E, gs[g, 3] * _LOG2E, gs[g, 4] * _LOG2E, gs[g, 6] * _LOG2E, gs[g, 5],
+           colors[g, 0], colors[g, 1], colors[g, 2], F(span[0]), F(span[1]), F(span[2]), F(span[3]))
+    return span, rec
+
+
+@njit(inline="always")
+def _fwd_block(rec, k, b, tx0, ty0, T, last, img):
     """One Gaussian (``_record``) over the 16 lanes of block b: updates T, last (16, 16) and img
     (3, 16, 16) [block, lane]. Returns the number of pixels that finished here. Scalar indexing
     only: array views in hot loops would cost atomic reference counts."""
-    mx, my, _, _, _, opacity, _, c0, c1, c2 = rec
-    la, lb, lc, lpmin = _log2_units(rec)
-    bx, by, fx, fy, x0, x1, y0, y1 = _block_origin(b, span, tx0, ty0, mx, my)
+    mx, my, la, lb, lc, lpmin, opacity, c0, c1, c2, x0, x1, y0, y1 = rec
+    bx, by, fx, fy = _block_origin(b, tx0, ty0)
     k1 = np.int32(k + 1)
     n_stop = np.int32(0)
     for j in range(L):
@@ -156,15 +167,10 @@ def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, t
         n_live = w * h
         for k in range(offsets[t], offsets[t + 1]):
             g = ids[k]
-            span, rec = _local_span(boxes, g, tx0, ty0, w, h), _record(gs, colors, g)
-            bx0, by0 = span[0] >> 2, span[2] >> 2
-            nbx = (span[1] >> 2) - bx0 + 1
-            nb = nbx * ((span[3] >> 2) - by0 + 1)
+            span, rec = _record(gs, colors, boxes, g, tx0, ty0, w, h)
+            bx0, by0, nbx, nb = _blocks(span)
             for q in range(nb):  # one loop over the blocks: one loop exit to predict, not one per row
-                by, bx = divmod(q, nbx)
-                b = ((by0 + by) << 2) + bx0 + bx
-                n_stop = _fwd_block(rec, k, b, span, tx0, ty0, T, last, img)
-                n_live -= n_stop
+                n_live -= _fwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, img)
             if n_live == 0:
                 break
         _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_contrib)
@@ -204,14 +210,13 @@ def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T
 
 
 @njit(inline="always")
-def _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc):
+def _bwd_block(rec, k, b, tx0, ty0, T, last, gimg, gtail, behind, acc):
     """One Gaussian over the 16 lanes of block b, back to front: recovers T, updates the colour
     behind (3, 16, 16) and adds the pair's gradient terms per lane into acc (9, 16): d_power
     times dx, dy, dx², dx·dy, dy² (see ``_reduce_lanes``), dL/dopacity, dL/dcolour 0-2 (as
     native.py's ``_backward_tile``)."""
-    mx, my, _, _, _, opacity, _, c0, c1, c2 = rec
-    la, lb, lc, lpmin = _log2_units(rec)
-    bx, by, fx, fy, x0, x1, y0, y1 = _block_origin(b, span, tx0, ty0, mx, my)
+    mx, my, la, lb, lc, lpmin, opacity, c0, c1, c2, x0, x1, y0, y1 = rec
+    bx, by, fx, fy = _block_origin(b, tx0, ty0)
     k32 = np.int32(k)
     for j in range(L):
         lx, ly = bx + _LANE_X[j], by + _LANE_Y[j]
@@ -251,13 +256,13 @@ def _lane_sum(acc, j):
 
 
 @njit(inline="always")
-def _reduce_lanes(acc, g, rec, dgs, dcol):
+def _reduce_lanes(acc, g, gs, dgs, dcol):
     """Adds the lane sums of acc (9, 16) into dgs[g] (6,) and dcol[g] (3,). The lanes carry the
     first and second moments of d_power = dL/dpower about the mean, Σ d_power·(dx, dy, dx², dx·dy,
     dy²); the mean and conic gradients follow from them once per record: dL/dmean = Q Σ d_power·d
     (Q = conic), dL/d(a, b, c) = -(½ Σ d_power·dx², Σ d_power·dx·dy, ½ Σ d_power·dy²)."""
     s0, s1 = _lane_sum(acc, 0), _lane_sum(acc, 1)
-    a, bc, c = rec[2], rec[3], rec[4]
+    a, bc, c = gs[g, 2], gs[g, 3], gs[g, 4]  # the conic in natural units
     dgs[g, 0] += a * s0 + bc * s1
     dgs[g, 1] += bc * s0 + c * s1
     dgs[g, 2] += -_HALF * _lane_sum(acc, 2)
@@ -282,15 +287,11 @@ def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, 
         _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg)
         for k in range(last.max() - 1, offsets[t] - 1, -1):  # from the tile's last contributor
             g = ids[k]
-            span, rec = _local_span(boxes, g, tx0, ty0, w, h), _record(gs, colors, g)
+            span, rec = _record(gs, colors, boxes, g, tx0, ty0, w, h)
             for q in range(9):  # not acc[:] = 0: a slice is a view (atomic reference counts)
                 for j in range(L):
                     acc[q, j] = _ZERO
-            bx0, by0 = span[0] >> 2, span[2] >> 2
-            nbx = (span[1] >> 2) - bx0 + 1
-            nb = nbx * ((span[3] >> 2) - by0 + 1)
+            bx0, by0, nbx, nb = _blocks(span)
             for q in range(nb):
-                by, bx = divmod(q, nbx)
-                b = ((by0 + by) << 2) + bx0 + bx
-                _bwd_block(rec, k, b, span, tx0, ty0, T, last, gimg, gtail, behind, acc)
-            _reduce_lanes(acc, g, rec, dgs, dcol)
+                _bwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, gimg, gtail, behind, acc)
+            _reduce_lanes(acc, g, gs, dgs, dcol)
