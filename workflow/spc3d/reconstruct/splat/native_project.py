@@ -55,28 +55,29 @@ def _axpy(alpha, x, y):
 
 @njit(inline="always")
 def _rotation(q):
-    """(|q| clamped, q / |q|, rows of R(q / |q|)); the clamp keeps a zero quaternion finite."""
+    """(1 / |q| with the norm clamped, q / |q|, rows of R(q / |q|)); the clamp keeps a zero
+    quaternion finite."""
     qn = math.sqrt(max(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3], 1e-24))
     inv = 1.0 / qn
     w, x, y, z = q[0] * inv, q[1] * inv, q[2] * inv, q[3] * inv
     R0 = (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y))
     R1 = (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
     R2 = (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
-    return qn, (w, x, y, z), (R0, R1, R2)
+    return inv, (w, x, y, z), (R0, R1, R2)
 
 
 @njit(inline="always")
 def _core(m, s, q, W, cam, near, low_pass):
     """Forward of one Gaussian, scalars and tuples only (no scratch arrays, no branches: LLVM
     vectorises the loops over Gaussians). W: rows (3 x 4-tuples) of w2c; cam: see _camera_vector.
-    Returns (x, y, z, zs, in_front), (qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
+    Returns (x, y, z, zs, in_front), (1 / |q|, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
     (a0, b, c0, det)."""
     x = W[0][0] * m[0] + W[0][1] * m[1] + W[0][2] * m[2] + W[0][3]
     y = W[1][0] * m[0] + W[1][1] * m[1] + W[1][2] * m[2] + W[1][3]
     z = W[2][0] * m[0] + W[2][1] * m[1] + W[2][2] * m[2] + W[2][3]
     in_front = z > near
     zs = z if in_front else 1.0  # culled: harmless z = 1, as project.py
-    qn, qhat, R = _rotation(q)
+    inv_qn, qhat, R = _rotation(q)
     inv_z = 1.0 / zs
     u, v = x * inv_z, y * inv_z
     u_free, v_free = (cam[4] <= u) & (u <= cam[5]), (cam[6] <= v) & (v <= cam[7])
@@ -93,7 +94,7 @@ def _core(m, s, q, W, cam, near, low_pass):
     a0, b, c0 = _dot(r0, r0), _dot(r0, r1), _dot(r1, r1)
     n = _cross(r0, r1)
     det = _dot(n, n) + low_pass * (a0 + c0) + low_pass * low_pass
-    return (x, y, z, zs, in_front), (qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1), (a0, b, c0, det)
+    return (x, y, z, zs, in_front), (inv_qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1), (a0, b, c0, det)
 
 
 @njit(inline="always")
@@ -208,7 +209,7 @@ def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2
 def _backward_one(m, s, q, grads, W, cam, near, low_pass):
     """One Gaussian's dL/d(mean, scale, quaternion) (3-, 3-, 4-tuples) from its parameters and
     the output gradients ``grads`` (means2d x, y, conic a, b, c, depth, cov2d a, b, c)."""
-    ((x, y, z, zs, in_front), (qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
+    ((x, y, z, zs, in_front), (inv_qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
      (a0, b, c0, det)) = _core(m, s, q, W, cam, near, low_pass)
     g0, g1, g2, g3, g4, g5, g6, g7, g8 = grads
     ok = in_front & (det > 0.0) & (det < np.inf)
@@ -234,7 +235,7 @@ def _backward_one(m, s, q, grads, W, cam, near, low_pass):
     gR = ((gM0[0] * s[0], gM0[1] * s[1], gM0[2] * s[2]), (gM1[0] * s[0], gM1[1] * s[1], gM1[2] * s[2]),
           (gM2[0] * s[0], gM2[1] * s[1], gM2[2] * s[2]))
     clamped = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] < 1e-24
-    gq = _quat_backward(qhat, 1.0 / qn, clamped, gR)
+    gq = _quat_backward(qhat, inv_qn, clamped, gR)
     g_x, g_y, g_zs = _jacobian_backward(x, y, zs, u_free, v_free, inv_z, W, cam, gJ0, gJ1, g0, g1)
     g_z = g5 + (g_zs if in_front else 0.0)
     g_m = (W[0][0] * g_x + W[1][0] * g_y + W[2][0] * g_z, W[0][1] * g_x + W[1][1] * g_y + W[2][1] * g_z,
