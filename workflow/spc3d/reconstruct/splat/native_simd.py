@@ -36,29 +36,47 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core.extending import intrinsic
 
+from .native_threads import next_item
 from .reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
 
 L = 16  # tile edge, and lanes per 4x4 block
 F = np.float32
 _LOG2E = F(1.4426950408889634)
 _C1, _C2, _C3, _C4, _C5, _C6 = (F(math.log(2.0) ** k / math.factorial(k)) for k in range(1, 7))
-_HALF, _ONE, _ZERO, _TWO_M29 = F(0.5), F(1.0), F(0.0), F(2.0**-29)
+_HALF, _ONE, _ZERO = F(0.5), F(1.0), F(0.0)
 _AMAX, _AMIN, _TMIN, _PMIN2 = F(ALPHA_MAX), F(ALPHA_MIN), F(T_MIN), F(POWER_MIN * math.log2(math.e))
+
+
+@intrinsic
+def _pow2_neg(typingctx, m):
+    """2^-m as float32 for an int32 m in [-126, 126]: the IEEE bits (127 - m) << 23. An intrinsic
+    because numba widens int32 arithmetic to int64 (int64 vector shifts and conversions)."""
+    if m != types.int32:
+        return None
+
+    def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
+        bits = builder.shl(builder.sub(ir.Constant(i32, 127), args[0]), ir.Constant(i32, 23))
+        return builder.bitcast(bits, ir.FloatType())
+
+    return types.float32(types.int32), codegen
 
 
 @njit(inline="always")
 def _exp2(x):
     """2^x for x in [POWER_MIN log2(e), 0] (clamped), float32, relative error < 3e-7: x = r - m
     with m an integer (r in [-1/2, 1/2], exact), degree-6 Taylor of exp(r ln 2), times 2^-m
-    (m <= 29, exact). Exponents arrive in log2 units (the conic is scaled once per record), which
+    (m <= 29: exact, from its IEEE bits). Exponents arrive in log2 units (the conic is scaled once per record), which
     saves the range reduction and a multiply per lane over exp."""
     x = min(max(x, _PMIN2), _ZERO)
     m = np.int32(_HALF - x)
     r = x + F(m)
     p = _ONE + r * (_C1 + r * (_C2 + r * (_C3 + r * (_C4 + r * (_C5 + r * _C6)))))
-    return p * F(np.int32(1) << (np.int32(29) - m)) * _TWO_M29  # 2^-m: int32 lanes, no division
+    return p * _pow2_neg(m)
 
 
 @njit(inline="always")
@@ -151,16 +169,20 @@ def _fwd_block(rec, k, b, tx0, ty0, T, last, img):
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
-def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, tiles_x, image, alpha_out,
+def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height, width, tiles_x, image, alpha_out,
                     t_final, n_contrib):
-    """Front-to-back compositing of the listed tiles (one worker's share), float32.
+    """Front-to-back compositing, float32: one worker takes tiles[counter[0]++] until none are left.
 
     gs (N, 8) float32 records (see native_prep.py), boxes (N, 4) int64, colors (N, 3), bg (3,).
     Writes image (H, W, 3) with background, alpha_out (H, W), t_final (H, W) and n_contrib (H, W)
     (int32: tile-list position after the last contributor).
     """
     T, last, img = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((3, L, L), np.float32)
-    for t in tiles:
+    while True:
+        i = next_item(counter)
+        if i >= len(tiles):
+            break
+        t = tiles[i]
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
         T[:], last[:], img[:] = _ONE, 0, _ZERO
@@ -190,10 +212,12 @@ def _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_c
 
 
 @njit(inline="always")
-def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg):
+def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg, t):
     """Tile state for the backward pass, [block, lane] as in the forward; lanes outside the image
-    get last = 0 (never used). Adds the tile's dL/dbackground = Σ T_final · dL/dimage into dbg."""
+    get last = 0 (never used). Writes the tile's dL/dbackground = Σ T_final · dL/dimage to dbg[t]."""
     T[:], last[:], gimg[:], gtail[:], behind[:] = _ONE, 0, _ZERO, _ZERO, _ZERO
+    for ch in range(3):
+        dbg[t, ch] = _ZERO
     for r in range(h):
         for i in range(w):
             b, j = ((r >> 2) << 2) + (i >> 2), ((r & 3) << 2) + (i & 3)
@@ -205,7 +229,7 @@ def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T
                 gc = grad_image[ty0 + r, tx0 + i, ch]
                 gimg[ch, b, j] = gc
                 g_bg += gc * bg[ch]
-                dbg[ch] += tf * gc
+                dbg[t, ch] += tf * gc
             gtail[b, j] = tf * (grad_alpha[ty0 + r, tx0 + i] - g_bg)
 
 
@@ -256,36 +280,46 @@ def _lane_sum(acc, j):
 
 
 @njit(inline="always")
-def _reduce_lanes(acc, g, gs, dgs, dcol):
-    """Adds the lane sums of acc (9, 16) into dgs[g] (6,) and dcol[g] (3,). The lanes carry the
+def _reduce_lanes(acc, g, gs, drec, k):
+    """The gradient of tile record k (Gaussian g) from the lane sums of acc (9, 16) into drec[k]:
+    dL/d(mean x, y, conic a, b, c, opacity, colour 0-2). The lanes carry the
     first and second moments of d_power = dL/dpower about the mean, Σ d_power·(dx, dy, dx², dx·dy,
     dy²); the mean and conic gradients follow from them once per record: dL/dmean = Q Σ d_power·d
     (Q = conic), dL/d(a, b, c) = -(½ Σ d_power·dx², Σ d_power·dx·dy, ½ Σ d_power·dy²)."""
     s0, s1 = _lane_sum(acc, 0), _lane_sum(acc, 1)
     a, bc, c = gs[g, 2], gs[g, 3], gs[g, 4]  # the conic in natural units
-    dgs[g, 0] += a * s0 + bc * s1
-    dgs[g, 1] += bc * s0 + c * s1
-    dgs[g, 2] += -_HALF * _lane_sum(acc, 2)
-    dgs[g, 3] += -_lane_sum(acc, 3)
-    dgs[g, 4] += -_HALF * _lane_sum(acc, 4)
-    dgs[g, 5] += _lane_sum(acc, 5)
-    for j in range(3):
-        dcol[g, j] += _lane_sum(acc, 6 + j)
+    drec[k, 0] = a * s0 + bc * s1
+    drec[k, 1] = bc * s0 + c * s1
+    drec[k, 2] = -_HALF * _lane_sum(acc, 2)
+    drec[k, 3] = -_lane_sum(acc, 3)
+    drec[k, 4] = -_HALF * _lane_sum(acc, 4)
+    for j in range(5, 9):
+        drec[k, j] = _lane_sum(acc, j)
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
-def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, tiles_x, t_final, n_contrib,
-                     grad_image, grad_alpha, dgs, dcol, dbg):
-    """Gradients of the listed tiles (one worker's share), added into that worker's dgs (N, 6)
-    (mean x, y, conic a, b, c, opacity), dcol (N, 3) and dbg (3,)."""
+def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height, width, tiles_x, t_final, n_contrib,
+                     grad_image, grad_alpha, drec, dbg):
+    """Gradients per tile-list record, tiles taken as in ``forward_tiles32``: drec (M, 9) gets
+    record k's dL/d(mean x, y, conic a, b, c, opacity, colour 0-2) (zeros behind the tile's last
+    contributor), dbg (tiles, 3) tile t's dL/dbackground. Nothing is summed across tiles here,
+    so the result does not depend on which worker took which tile (see ``sum_records``)."""
     T, last, gtail = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((L, L), np.float32)
     gimg, behind = np.empty((3, L, L), np.float32), np.empty((3, L, L), np.float32)
     acc = np.empty((9, L), np.float32)
-    for t in tiles:
+    while True:
+        i = next_item(counter)
+        if i >= len(tiles):
+            break
+        t = tiles[i]
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
-        _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg)
-        for k in range(last.max() - 1, offsets[t] - 1, -1):  # from the tile's last contributor
+        _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T, last, gimg, gtail, behind, dbg, t)
+        stop = max(last.max(), offsets[t])
+        for k in range(stop, offsets[t + 1]):  # behind the last contributor: no gradient
+            for j in range(9):
+                drec[k, j] = _ZERO
+        for k in range(stop - 1, offsets[t] - 1, -1):
             g = ids[k]
             span, rec = _record(gs, colors, boxes, g, tx0, ty0, w, h)
             for q in range(9):  # not acc[:] = 0: a slice is a view (atomic reference counts)
@@ -294,4 +328,18 @@ def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, height, width, 
             bx0, by0, nbx, nb = _blocks(span)
             for q in range(nb):
                 _bwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, gimg, gtail, behind, acc)
-            _reduce_lanes(acc, g, gs, dgs, dcol)
+            _reduce_lanes(acc, g, gs, drec, k)
+
+
+@njit(nogil=True, cache=True, error_model="numpy")
+def sum_records(ids, drec, n):
+    """Per-Gaussian gradients from per-record ones: dgs (n, 6), dcol (n, 3), summed in list order
+    (one fixed order: the same bits for any number of threads)."""
+    dgs, dcol = np.zeros((n, 6), np.float32), np.zeros((n, 3), np.float32)
+    for k in range(len(ids)):
+        g = ids[k]
+        for j in range(6):
+            dgs[g, j] += drec[k, j]
+        for j in range(3):
+            dcol[g, j] += drec[k, 6 + j]
+    return dgs, dcol

@@ -12,6 +12,11 @@ How: ``GOMP_parallel(fn, data, n, 0)`` of the libgomp that torch loaded, called 
 (which releases the GIL); ``fn`` is a ctypes callback that takes the GIL for a moment, asks
 ``omp_get_thread_num()`` which share of tiles it owns and calls a ``nogil`` numba kernel. Where
 torch does not use libgomp (other platforms / builds) a ``ThreadPoolExecutor`` is used instead.
+
+Dynamic scheduling: ``next_item`` (an atomic fetch-and-add in numba) lets the workers of one
+region take tiles from a shared counter, so a worker that started late or runs slower takes
+fewer tiles; results must then not depend on which worker took what (the kernels write per
+tile or per tile-list record, never into per-worker sums).
 """
 
 from __future__ import annotations
@@ -23,6 +28,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
+from numba import types
+from numba.core import cgutils
+from numba.core.extending import intrinsic
 
 _CALLBACK = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
 
@@ -82,6 +90,22 @@ def in_shares(kernel, n: int, inputs: tuple, outputs: tuple, grain: int = 2048) 
     workers = n_workers(max(1, n // grain))
     bounds = np.linspace(0, n, workers + 1).astype(np.int64)
     run_parallel(lambda w: kernel(*inputs, bounds[w], bounds[w + 1], *outputs), workers)
+
+
+@intrinsic
+def next_item(typingctx, counter):
+    """Atomically ``counter[0] += 1`` (int64 array) and return the old value: the next work item
+    of a dynamically scheduled loop. Relaxed ordering: the counter only deals out indices; the
+    end of the parallel region orders everything the workers wrote."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+        return None
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return types.int64(counter), codegen
 
 
 def _run_gomp(work, n: int) -> None:
