@@ -38,11 +38,13 @@ torch's pool here, and forcing numba's process-global threading layer would chan
 
 Measured (10k Gaussians at 128x96, one training step of ``benchmarks/rasterizer.py``; this 2-core
 machine's speed drifts by ±15 % between runs, so ratios are taken within one run): native
-projection + rasterizer ~4.6-5.6 ms on 2 threads (~7.2-8.3 ms on 1) against ~90-105 ms
-(~150-180 ms) for the pure-PyTorch reference: 17-20x (19-20x on 1 thread). One thread, per
-step: forward kernel ~2.0 ms, backward ~3.3 ms, set-up ~0.5 ms, projection forward + backward
-~0.7 ms, loss and autograd ~0.5 ms. History: 22-27 ms per step with scalar float64 kernels,
-11-15 ms with 16-lane row kernels.
+projection + rasterizer ~4.2-5.0 ms on 2 threads (~7.2-8.0 ms on 1) against ~90-125 ms
+(~145-170 ms) for the pure-PyTorch reference: 20-22x (18-20x on 1 thread). One thread, per
+step: forward kernel ~1.9 ms, backward ~3.2 ms (of which ~0.6 ms the per-record lane sums),
+set-up ~0.4 ms, projection forward + backward ~0.6 ms, loss and autograd ~0.5 ms. Two
+threads: forward region ~1.07 ms, backward ~1.69 ms, each parallel region ~10-40 us of
+overhead. History: 22-27 ms per step with scalar float64 kernels, 11-15 ms with 16-lane row
+kernels.
 
 Densification: the view-space positional gradient of 3DGS is ``means2d.grad`` (in pixels; call
 ``means2d.retain_grad()`` before ``backward``); nothing extra is returned.
