@@ -5,7 +5,8 @@
 Gaussians (~0.5 ms on one thread: records 0.19, sort 0.17, binning 0.13):
 
 1. record + box per Gaussian (vectorised over local column chunks, on torch's threads). The box
-   is the 3-sigma square of :func:`.reference.pixel_boxes` intersected with the bounding box of the ellipse outside which ``alpha < 1/255`` for sure:
+   is the 3-sigma square of :func:`.reference.pixel_boxes` intersected with the bounding box of
+   the ellipse outside which ``alpha < 1/255`` for sure:
    ``power >= pmin`` <=> ``dᵀ Q d <= -2 pmin`` (Q = conic), whose half-extents are
    ``sqrt(-2 pmin · Q⁻¹_xx)`` and ``sqrt(-2 pmin · Q⁻¹_yy)``. Inflated by 0.1 % + 1e-3 px so
    float32 rounding in the kernels can never put a composited pair outside it. On the

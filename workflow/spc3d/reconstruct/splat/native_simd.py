@@ -70,8 +70,8 @@ def _pow2_neg(typingctx, m):
 def _exp2(x):
     """2^x for x in [POWER_MIN log2(e), 0] (clamped), float32, relative error < 3e-7: x = r - m
     with m an integer (r in [-1/2, 1/2], exact), degree-6 Taylor of exp(r ln 2), times 2^-m
-    (m <= 29: exact, from its IEEE bits). Exponents arrive in log2 units (the conic is scaled once per record), which
-    saves the range reduction and a multiply per lane over exp."""
+    (m <= 29: exact, from its IEEE bits). Exponents arrive in log2 units (the conic is scaled
+    once per record), which saves the range reduction and a multiply per lane over exp."""
     x = min(max(x, _PMIN2), _ZERO)
     m = np.int32(_HALF - x)
     r = x + F(m)
