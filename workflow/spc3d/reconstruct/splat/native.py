@@ -267,32 +267,34 @@ def _backward(gs, boxes, cols, bg, offsets, ids, t_final, n_contrib, g_img, g_al
     return dgs.sum(0), dcol.sum(0), np.einsum("hw,hwc->c", t_final, g_img)
 
 
-def _dynamic(kernel, head: tuple, tail: tuple, offsets) -> None:
-    """``kernel(*head, tiles, counter, *tail)`` on every worker, the tiles dealt out dynamically
-    from a shared counter, the longest tile lists first (so the last tiles taken are short)."""
-    n_tiles = len(offsets) - 1
-    tiles = np.argsort(offsets[:-1] - offsets[1:], kind="stable")
+def _dynamic(kernel, head: tuple, tail: tuple, tiles: np.ndarray) -> None:
+    """``kernel(*head, tiles, counter, *tail)`` on every worker: the tiles, in the order of
+    ``tiles``, are dealt out dynamically from a shared counter."""
     counter = np.zeros(1, np.int64)
-    run_parallel(lambda w: kernel(*head, tiles, counter, *tail), n_workers(n_tiles))
+    run_parallel(lambda w: kernel(*head, tiles, counter, *tail), n_workers(len(tiles)))
 
 
 def _forward32(gs, boxes, cols, bg, offsets, ids, height, width, tiles_x):
-    """float32 path (:mod:`.native_simd`): image (H, W, C) with background, alpha, t_final, n_contrib."""
+    """float32 path (:mod:`.native_simd`): image (H, W, C) with background, alpha, t_final,
+    n_contrib, and the tile order the backward reuses: longest tile lists first (so the last
+    tiles taken are short)."""
+    tiles = np.argsort(offsets[:-1] - offsets[1:], kind="stable")
     image = np.empty((height, width, cols.shape[1]), np.float32)
     alpha, t_final = np.empty((height, width), np.float32), np.empty((height, width), np.float32)
     n_contrib = np.empty((height, width), np.int32)
     _dynamic(forward_tiles32, (gs, boxes, cols, bg, offsets, ids),
-             (height, width, tiles_x, image, alpha, t_final, n_contrib), offsets)
-    return image, alpha, t_final, n_contrib
+             (height, width, tiles_x, image, alpha, t_final, n_contrib), tiles)
+    return image, alpha, t_final, n_contrib, tiles
 
 
-def _backward32(gs, boxes, cols, bg, offsets, ids, t_final, n_contrib, g_img, g_alpha, height, width, tiles_x):
+def _backward32(gs, boxes, cols, bg, offsets, ids, t_final, n_contrib, tiles, g_img, g_alpha, height, width,
+                tiles_x):
     """float32 path: dgs (N, 6), dcol (N, 3), dbg (3,): per tile-list record and per tile, then
     summed in one fixed order (bit-identical for any thread count)."""
     drec = np.empty((len(ids), 9), np.float32)
     dbg = np.empty((len(offsets) - 1, cols.shape[1]), np.float32)
     _dynamic(backward_tiles32, (gs, boxes, cols, bg, offsets, ids),
-             (height, width, tiles_x, t_final, n_contrib, g_img, g_alpha, drec, dbg), offsets)
+             (height, width, tiles_x, t_final, n_contrib, g_img, g_alpha, drec, dbg), tiles)
     dgs, dcol = sum_records(ids, drec, len(gs))
     return dgs, dcol, dbg.sum(0)
 
@@ -315,8 +317,9 @@ class _RasterizeNative(torch.autograd.Function):
         ctx.sizes = (height, width, tiles_x)
         ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, colors.dtype, background.dtype)
         if f32:
-            image, alpha, t_final, n_contrib = _forward32(gs, boxes, cols, bg, offsets, ids, height, width, tiles_x)
-            ctx.kernel_args = (gs, boxes, cols, bg, offsets, ids, t_final, n_contrib)
+            image, alpha, t_final, n_contrib, tiles = _forward32(gs, boxes, cols, bg, offsets, ids, height, width,
+                                                                 tiles_x)
+            ctx.kernel_args = (gs, boxes, cols, bg, offsets, ids, t_final, n_contrib, tiles)
             return torch.from_numpy(image), torch.from_numpy(alpha)
         image, t_final, n_contrib = _forward(gs, boxes, cols, bg, offsets, ids, height, width, tiles_x)
         ctx.kernel_args = (gs, boxes, cols, bg, offsets, ids, t_final, n_contrib)
