@@ -78,8 +78,8 @@ def test_native_boxes_are_the_reference_boxes_tightened_to_visible_pixels():
     means2d, conics, opacities, _, depths, radii, *_ = screen_scene(500, 24, 32, seed=8)
     means2d, radii = means2d * 1.5 - 8, radii.clone()  # many partly or fully off-image
     means2d[0], radii[1], opacities[2] = torch.tensor([1e12, -1e12]), 0, 0.001  # far off, culled, invisible
-    _, boxes, _, _ = prepare_tiles(means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(),
-                                   radii.numpy(), 24, 32, np.float32)
+    _, boxes, *_ = prepare_tiles(means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(),
+                                 radii.numpy(), 24, 32, np.float32)
     ref = pixel_boxes(means2d, radii, 24, 32).numpy()
     empty = (boxes[:, 1] < boxes[:, 0]) | (boxes[:, 3] < boxes[:, 2])
     assert empty[:3].all()

@@ -274,27 +274,29 @@ def _dynamic(kernel, head: tuple, tail: tuple, tiles: np.ndarray) -> None:
     run_parallel(lambda w: kernel(*head, tiles, counter, *tail), n_workers(len(tiles)))
 
 
-def _forward32(gs, boxes, cols, bg, offsets, ids, height, width, tiles_x):
-    """float32 path (:mod:`.native_simd`): image (H, W, C) with background, alpha, t_final,
-    n_contrib, and the tile order the backward reuses: longest tile lists first (so the last
-    tiles taken are short)."""
-    tiles = np.argsort(offsets[:-1] - offsets[1:], kind="stable")
+def _forward32(gs, boxes, cols, bg, lists, height, width, tiles_x):
+    """float32 path (:mod:`.native_simd`; lists = (offsets, ids, rel, bases) of ``prepare_tiles``):
+    image (H, W, C) with background, alpha, t_final, n_contrib, and for the backward the tile
+    order (most 4x4 blocks first, so the last tiles taken are short) and the pairs' G cache."""
+    offsets, ids, rel, bases = lists
+    tiles = np.argsort(bases[:-1] - bases[1:], kind="stable")
     image = np.empty((height, width, cols.shape[1]), np.float32)
     alpha, t_final = np.empty((height, width), np.float32), np.empty((height, width), np.float32)
     n_contrib = np.empty((height, width), np.int32)
+    gcache = np.empty((bases[-1], TILE), np.float32)
     _dynamic(forward_tiles32, (gs, boxes, cols, bg, offsets, ids),
-             (height, width, tiles_x, image, alpha, t_final, n_contrib), tiles)
-    return image, alpha, t_final, n_contrib, tiles
+             (height, width, tiles_x, image, alpha, t_final, n_contrib, bases, rel, gcache), tiles)
+    return image, alpha, t_final, n_contrib, tiles, gcache
 
 
-def _backward32(gs, boxes, cols, bg, offsets, ids, t_final, n_contrib, tiles, g_img, g_alpha, height, width,
-                tiles_x):
+def _backward32(gs, boxes, cols, bg, lists, t_final, n_contrib, tiles, gcache, g_img, g_alpha, height, width, tiles_x):
     """float32 path: dgs (N, 6), dcol (N, 3), dbg (3,): per tile-list record and per tile, then
     summed in one fixed order (bit-identical for any thread count)."""
+    offsets, ids, rel, bases = lists
     drec = np.empty((len(ids), 9), np.float32)
     dbg = np.empty((len(offsets) - 1, cols.shape[1]), np.float32)
     _dynamic(backward_tiles32, (gs, boxes, cols, bg, offsets, ids),
-             (height, width, tiles_x, t_final, n_contrib, g_img, g_alpha, drec, dbg), tiles)
+             (height, width, tiles_x, t_final, n_contrib, bases, rel, gcache, g_img, g_alpha, drec, dbg), tiles)
     dgs, dcol = sum_records(ids, drec, len(gs))
     return dgs, dcol, dbg.sum(0)
 
@@ -309,18 +311,18 @@ class _RasterizeNative(torch.autograd.Function):
         # float32 RGB: the SIMD kernels of native_simd; anything else: the float64 kernels here
         f32 = colors.dtype == torch.float32 and colors.shape[1] == 3
         dt = np.float32 if f32 else np.float64
-        gs, boxes, offsets, ids = prepare_tiles(means2d.detach().numpy(), conics.detach().numpy(),
-                                                opacities.detach().numpy(), depths.detach().numpy(),
-                                                radii.numpy(), height, width, dt)
+        gs, boxes, *lists = prepare_tiles(means2d.detach().numpy(), conics.detach().numpy(),
+                                          opacities.detach().numpy(), depths.detach().numpy(), radii.numpy(),
+                                          height, width, dt)
         tiles_x = -(-width // TILE)
         cols, bg = _np(colors, dt), _np(background.reshape(-1), dt)
         ctx.sizes = (height, width, tiles_x)
         ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, colors.dtype, background.dtype)
         if f32:
-            image, alpha, t_final, n_contrib, tiles = _forward32(gs, boxes, cols, bg, offsets, ids, height, width,
-                                                                 tiles_x)
-            ctx.kernel_args = (gs, boxes, cols, bg, offsets, ids, t_final, n_contrib, tiles)
+            image, alpha, t_final, n_contrib, *cache = _forward32(gs, boxes, cols, bg, lists, height, width, tiles_x)
+            ctx.kernel_args = (gs, boxes, cols, bg, lists, t_final, n_contrib, *cache)
             return torch.from_numpy(image), torch.from_numpy(alpha)
+        offsets, ids = lists[:2]
         image, t_final, n_contrib = _forward(gs, boxes, cols, bg, offsets, ids, height, width, tiles_x)
         ctx.kernel_args = (gs, boxes, cols, bg, offsets, ids, t_final, n_contrib)
         return torch.from_numpy(image).to(colors.dtype), torch.from_numpy(1.0 - t_final).to(colors.dtype)

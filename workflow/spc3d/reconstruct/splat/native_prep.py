@@ -14,7 +14,9 @@ Gaussians (~0.5 ms on one thread: records 0.19, sort 0.17, binning 0.13):
    pairs outside the tight box are exactly those both rasterizers skip, so outputs are unchanged.
 2. stable LSD radix sort of the visible Gaussians by depth (8-bit digits of the order-preserving
    integer image of the IEEE bits: ties keep the lower index first, as ``torch.argsort(stable)``).
-3. counting-sort binning into TILE x TILE tiles (counts from pass 2), depth order kept per tile.
+3. counting-sort binning into TILE x TILE tiles (counts from pass 2), depth order kept per tile,
+   with the row layout of the float32 kernels' per-block cache (one row per 4x4 block a record
+   touches).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from .reference import ALPHA_MIN, POWER_MIN
 
 TILE_SHIFT = 4
 TILE = 1 << TILE_SHIFT  # tile edge in pixels (3DGS uses 16)
+BLOCK_SHIFT = 2  # the float32 kernels walk a tile in 4x4-pixel blocks (native_simd)
 # Per-Gaussian float record ``gs[g]`` (8,): mean x, mean y, conic a, b, c, opacity, pmin (the
 # lowest exponent at which alpha can still reach 1/255: a cheap pre-test) and exp(-a) (row decay
 # of native.py's float64 kernels).
@@ -147,25 +150,42 @@ def _sort_by_depth(bits, boxes, nbytes, tiles_x, counts):
     return idx
 
 
+@njit(inline="always")
+def _tile_blocks(x0, x1, y0, y1, tx, ty):
+    """Number of BLOCK x BLOCK pixel blocks of tile (tx, ty) that the box x0..x1, y0..y1 (inclusive
+    image pixels, clipped to the image) touches: the blocks the float32 kernels walk."""
+    ox, oy = tx << TILE_SHIFT, ty << TILE_SHIFT
+    nbx = (min(x1 - ox, TILE - 1) >> BLOCK_SHIFT) - (max(x0 - ox, 0) >> BLOCK_SHIFT) + 1
+    return nbx * ((min(y1 - oy, TILE - 1) >> BLOCK_SHIFT) - (max(y0 - oy, 0) >> BLOCK_SHIFT) + 1)
+
+
 @njit(cache=True, nogil=True)
 def _bin_tiles(boxes, order, counts, tiles_x):
-    """Per-tile Gaussian lists in ``order`` (counting sort; counts from ``_records_and_boxes``):
-    offsets (tiles + 1,) and ids (M,) int32; tile t holds ids[offsets[t]:offsets[t + 1]]."""
+    """Per-tile Gaussian lists in ``order`` (counting sort; counts from ``_sort_by_depth``):
+    offsets (tiles + 1,) and ids (M,) int32, tile t holds ids[offsets[t]:offsets[t + 1]]; and the
+    block layout of the float32 kernels' G cache: record k owns the rows from
+    bases[t] + rel[k] on, one per block it touches (``_tile_blocks``), bases (tiles + 1,) int64."""
     offsets = np.cumsum(counts)
     fill = offsets[:-1].copy()
-    ids = np.empty(offsets[-1], np.int32)
+    ids, rel = np.empty(offsets[-1], np.int32), np.empty(offsets[-1], np.int32)
+    bases = np.zeros(len(offsets), np.int64)
     for g in order:
-        for ty in range(boxes[g, 2] >> TILE_SHIFT, (boxes[g, 3] >> TILE_SHIFT) + 1):
-            for tx in range(boxes[g, 0] >> TILE_SHIFT, (boxes[g, 1] >> TILE_SHIFT) + 1):
+        x0, x1, y0, y1 = boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3]
+        for ty in range(y0 >> TILE_SHIFT, (y1 >> TILE_SHIFT) + 1):
+            for tx in range(x0 >> TILE_SHIFT, (x1 >> TILE_SHIFT) + 1):
                 t = ty * tiles_x + tx
-                ids[fill[t]] = g
+                ids[fill[t]], rel[fill[t]] = g, bases[t + 1]
                 fill[t] += 1
-    return offsets, ids
+                bases[t + 1] += _tile_blocks(x0, x1, y0, y1, tx, ty)
+    for t in range(len(offsets) - 1):
+        bases[t + 1] += bases[t]
+    return offsets, ids, rel, bases
 
 
 def prepare_tiles(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray, depths: np.ndarray,
                   radii: np.ndarray, height: int, width: int, dtype) -> tuple:
-    """(gs (N, 8) ``dtype``, boxes (N, 4) int64, offsets (tiles + 1,), ids (M,) int32).
+    """(gs (N, 8) ``dtype``, boxes (N, 4) int64, offsets (tiles + 1,), ids (M,) int32, rel (M,)
+    int32, bases (tiles + 1,) int64): see ``_bin_tiles``.
 
     Any float dtype and memory layout of the inputs (no copies); depths may be float32 or float64.
     Pass 1 runs on torch's threads (contiguous shares), passes 2-3 on this one.
@@ -182,5 +202,4 @@ def prepare_tiles(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray
     bits = np.ascontiguousarray(depths).view(np.int32 if depths.dtype == np.float32 else np.int64)
     counts = np.zeros(tiles_x * tiles_y + 1, np.int64)
     order = _sort_by_depth(bits, boxes, bits.itemsize, tiles_x, counts)
-    offsets, ids = _bin_tiles(boxes, order, counts, tiles_x)
-    return gs, boxes, offsets, ids
+    return (gs, boxes, *_bin_tiles(boxes, order, counts, tiles_x))

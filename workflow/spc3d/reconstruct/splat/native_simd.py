@@ -141,20 +141,24 @@ def _record(gs, colors, boxes, g, tx0, ty0, w, h):
 
 
 @njit(inline="always")
-def _fwd_block(rec, k, b, tx0, ty0, T, last, img):
+def _fwd_block(rec, k, b, tx0, ty0, T, last, img, gcache, o):
     """One Gaussian (``_record``) over the 16 lanes of block b: updates T, last (16, 16) and img
-    (3, 16, 16) [block, lane]. Returns the number of pixels that finished here. Scalar indexing
-    only: array views in hot loops would cost atomic reference counts."""
+    (3, 16, 16) [block, lane], and stores the pairs' G = exp(power) in gcache[o] (0 where the pair
+    is skipped or outside the box) for the backward. Returns the number of pixels that finished
+    here. Scalar indexing only: array views in hot loops would cost atomic reference counts."""
     mx, my, la, lb, lc, lpmin, opacity, c0, c1, c2, x0, x1, y0, y1 = rec
     bx, by, fx, fy = _block_origin(b, tx0, ty0)
     k1 = np.int32(k + 1)
+    b, o = np.uint64(b) & np.uint64(L - 1), np.uint64(o)  # unsigned: no negative-index wraparound
     n_stop = np.int32(0)
     for j in range(L):
         lx, ly = bx + _LANE_X[j], by + _LANE_Y[j]  # exact: small integers
         # pixel centre - mean with one rounding, as the reference (fx + lane is exact)
-        alpha, _, ok, _ = _lane_alpha(la, lb, lc, opacity, lpmin, (fx + _LANE_X[j]) - mx, (fy + _LANE_Y[j]) - my)
+        alpha, G, ok, _ = _lane_alpha(la, lb, lc, opacity, lpmin, (fx + _LANE_X[j]) - mx, (fy + _LANE_Y[j]) - my)
+        ok = ok & (lx >= x0) & (lx <= x1) & (ly >= y0) & (ly <= y1)
+        gcache[o, j] = G if ok else _ZERO
         t = T[b, j]
-        ok = ok & (lx >= x0) & (lx <= x1) & (ly >= y0) & (ly <= y1) & (t > _ZERO)
+        ok = ok & (t > _ZERO)
         t_next = t * (_ONE - alpha)
         stop = ok & (t_next < _TMIN)
         use = ok & (t_next >= _TMIN)
@@ -170,14 +174,17 @@ def _fwd_block(rec, k, b, tx0, ty0, T, last, img):
 
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height, width, tiles_x, image, alpha_out,
-                    t_final, n_contrib):
+                    t_final, n_contrib, bases, rel, gcache):
     """Front-to-back compositing, float32: one worker takes tiles[counter[0]++] until none are left.
 
     gs (N, 8) float32 records (see native_prep.py), boxes (N, 4) int64, colors (N, 3), bg (3,).
     Writes image (H, W, 3) with background, alpha_out (H, W), t_final (H, W) and n_contrib (H, W)
-    (int32: tile-list position after the last contributor).
+    (int32: tile-list position after the last contributor), and for the backward the pairs' G:
+    record k of tile t in gcache rows bases[t] + rel[k] on, one per block (``native_prep._bin_tiles``;
+    records behind the last one a tile visits are left unwritten, the backward never reads them).
     """
-    T, last, img = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((3, L, L), np.float32)
+    last, tb = np.empty((L, L), np.int32), np.empty((4, L, L), np.float32)
+    T, img = tb[0], tb[1:4]  # one buffer: LLVM sees that its parts cannot overlap
     while True:
         i = next_item(counter)
         if i >= len(tiles):
@@ -191,8 +198,9 @@ def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height,
             g = ids[k]
             span, rec = _record(gs, colors, boxes, g, tx0, ty0, w, h)
             bx0, by0, nbx, nb = _blocks(span)
+            o = bases[t] + rel[k]
             for q in range(nb):  # one loop over the blocks: one loop exit to predict, not one per row
-                n_live -= _fwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, img)
+                n_live -= _fwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, img, gcache, o + q)
             if n_live == 0:
                 break
         _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_contrib)
@@ -234,19 +242,22 @@ def _load_tile(t_final, n_contrib, grad_image, grad_alpha, bg, tx0, ty0, w, h, T
 
 
 @njit(inline="always")
-def _bwd_block(rec, k, b, tx0, ty0, T, last, gimg, gtail, behind, acc):
+def _bwd_block(rec, k, b, tx0, ty0, T, last, gimg, gtail, behind, acc, gcache, o):
     """One Gaussian over the 16 lanes of block b, back to front: recovers T, updates the colour
     behind (3, 16, 16) and adds the pair's gradient terms per lane into acc (9, 16): d_power
     times dx, dy, dx², dx·dy, dy² (see ``_reduce_lanes``), dL/dopacity, dL/dcolour 0-2 (as
-    native.py's ``_backward_tile``)."""
+    native.py's ``_backward_tile``). G comes from the forward (gcache[o], 0: pair skipped), so
+    alpha and every test are those of the forward, bit for bit."""
     mx, my, la, lb, lc, lpmin, opacity, c0, c1, c2, x0, x1, y0, y1 = rec
     bx, by, fx, fy = _block_origin(b, tx0, ty0)
     k32 = np.int32(k)
+    b, o = np.uint64(b) & np.uint64(L - 1), np.uint64(o)  # unsigned: no negative-index wraparound
     for j in range(L):
-        lx, ly = bx + _LANE_X[j], by + _LANE_Y[j]
         dx, dy = (fx + _LANE_X[j]) - mx, (fy + _LANE_Y[j]) - my
-        alpha, G, ok, shape_ok = _lane_alpha(la, lb, lc, opacity, lpmin, dx, dy)
-        use = ok & (lx >= x0) & (lx <= x1) & (ly >= y0) & (ly <= y1) & (k32 < last[b, j])
+        G = gcache[o, j]
+        raw = opacity * G
+        alpha = min(_AMAX, raw)
+        use = (G > _ZERO) & (k32 < last[b, j])
         inv = _ONE / (_ONE - alpha)
         t = T[b, j] * inv if use else T[b, j]  # now the transmittance in front of g
         T[b, j] = t
@@ -261,7 +272,7 @@ def _bwd_block(rec, k, b, tx0, ty0, T, last, gimg, gtail, behind, acc):
         behind[0, b, j] = al * c0 + (_ONE - al) * b0
         behind[1, b, j] = al * c1 + (_ONE - al) * b1
         behind[2, b, j] = al * c2 + (_ONE - al) * b2
-        da = d_alpha if use & shape_ok else _ZERO  # clamped alpha: no gradient to opacity, shape
+        da = d_alpha if use & (raw <= _AMAX) else _ZERO  # clamped alpha: no gradient to opacity, shape
         d_power = da * alpha
         px, py = d_power * dx, d_power * dy
         acc[0, j] += px
@@ -299,14 +310,14 @@ def _reduce_lanes(acc, g, gs, drec, k):
 
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height, width, tiles_x, t_final, n_contrib,
-                     grad_image, grad_alpha, drec, dbg):
+                     bases, rel, gcache, grad_image, grad_alpha, drec, dbg):
     """Gradients per tile-list record, tiles taken as in ``forward_tiles32``: drec (M, 9) gets
     record k's dL/d(mean x, y, conic a, b, c, opacity, colour 0-2) (zeros behind the tile's last
     contributor), dbg (tiles, 3) tile t's dL/dbackground. Nothing is summed across tiles here,
     so the result does not depend on which worker took which tile (see ``sum_records``)."""
-    T, last, gtail = np.empty((L, L), np.float32), np.empty((L, L), np.int32), np.empty((L, L), np.float32)
-    gimg, behind = np.empty((3, L, L), np.float32), np.empty((3, L, L), np.float32)
-    acc = np.empty((9, L), np.float32)
+    last = np.empty((L, L), np.int32)
+    tb = np.empty((9, L, L), np.float32)  # one buffer: LLVM sees that its parts cannot overlap
+    T, gimg, gtail, behind, acc = tb[0], tb[1:4], tb[4], tb[5:8], tb[8, :9]
     while True:
         i = next_item(counter)
         if i >= len(tiles):
@@ -326,8 +337,9 @@ def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height
                 for j in range(L):
                     acc[q, j] = _ZERO
             bx0, by0, nbx, nb = _blocks(span)
+            o = bases[t] + rel[k]
             for q in range(nb):
-                _bwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, gimg, gtail, behind, acc)
+                _bwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, gimg, gtail, behind, acc, gcache, o + q)
             _reduce_lanes(acc, g, gs, drec, k)
 
 
