@@ -168,7 +168,7 @@ def _fwd_block(rec, k, b, tx0, ty0, T, last, img, gcache, o):
         img[2, b, j] += c2 * w
         T[b, j] = -t if stop else (t_next if use else t)
         last[b, j] = k1 if use else last[b, j]
-        n_stop += np.int32(stop)
+        n_stop = np.int32(n_stop + np.int32(stop))  # int32 lanes (numba would widen the sum to int64)
     return n_stop
 
 
