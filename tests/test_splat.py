@@ -100,20 +100,22 @@ def test_native_boxes_are_the_reference_boxes_tightened_to_visible_pixels():
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_native_depth_order_is_torchs_stable_argsort(dtype):
-    from spc3d.reconstruct.splat.native_prep import _sort_by_depth
+    """Each tile list (in index order) sorted by the depth keys is torch's stable argsort of its
+    depths: ties by index, -0.0 == 0.0, lists of 0, 1, 2 and many entries."""
+    from spc3d.reconstruct.splat.native_prep import _depth_key, sort_tiles
 
     rng = np.random.default_rng(3)
     depths = (rng.standard_normal(3000) * 10.0 ** rng.integers(-3, 4, 3000)).astype(dtype)
     depths[::7], depths[5], depths[6], depths[9] = depths[3], -0.0, 0.0, 1e30  # ties, signed zeros
-    boxes = np.zeros((3000, 4), np.int64)
-    boxes[::4, 1] = -1  # empty boxes are left out of the order
-    visible = np.nonzero(boxes[:, 1] >= 0)[0]
     bits = depths.view(np.int32 if dtype == np.float32 else np.int64)
-    counts = np.zeros(2, np.int64)
-    order = _sort_by_depth(bits, boxes, bits.itemsize, 1, counts)
-    assert counts[1] == len(visible)  # one tile: every visible Gaussian listed in it
-    expected = visible[torch.argsort(torch.from_numpy(depths[visible]), stable=True).numpy()]
-    assert np.array_equal(order, expected)
+    keys = np.array([_depth_key(b, bits.itemsize) for b in bits])
+    ids = np.arange(3000, dtype=np.int32)[::4].copy()  # the Gaussians listed, in index order
+    offsets = np.array([0, 0, 1, 3, 400, len(ids)])
+    sort_tiles(ids, keys, offsets, bits.itemsize)
+    for lo, hi in zip(offsets[:-1], offsets[1:]):
+        listed = np.arange(3000)[::4][lo:hi]
+        expected = listed[torch.argsort(torch.from_numpy(depths[listed]), stable=True).numpy()]
+        assert np.array_equal(ids[lo:hi], expected)
 
 
 def test_reference_matches_dense():

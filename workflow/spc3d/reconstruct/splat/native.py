@@ -68,7 +68,7 @@ from numba import njit
 from torch import Tensor
 
 from .native_prep import TILE, prepare_tiles
-from .native_simd import backward_tiles32, forward_tiles32, sum_records
+from .native_simd import backward_tiles32, cache_rows, forward_tiles32, sum_records
 from .native_threads import n_workers, run_parallel
 from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
@@ -275,28 +275,30 @@ def _dynamic(kernel, head: tuple, tail: tuple, tiles: np.ndarray) -> None:
 
 
 def _forward32(gs, boxes, cols, bg, lists, height, width, tiles_x):
-    """float32 path (:mod:`.native_simd`; lists = (offsets, ids, rel, bases) of ``prepare_tiles``):
-    image (H, W, C) with background, alpha, t_final, n_contrib, and for the backward the tile
-    order (most 4x4 blocks first, so the last tiles taken are short) and the pairs' G cache."""
-    offsets, ids, rel, bases = lists
-    tiles = np.argsort(bases[:-1] - bases[1:], kind="stable")
+    """float32 path (:mod:`.native_simd`; lists = (offsets, ids, keys, key bytes, blocks) of
+    ``prepare_tiles(sort=False)``: the workers sort the lists they take): image (H, W, C) with
+    background, alpha, t_final, n_contrib, and for the backward the tile order (longest lists
+    first, so the last tiles taken are short), each record's first G-cache row, the G cache."""
+    offsets, ids, keys, key_bytes, blocks = lists
+    tiles = np.argsort(offsets[:-1] - offsets[1:], kind="stable")
     image = np.empty((height, width, cols.shape[1]), np.float32)
     alpha, t_final = np.empty((height, width), np.float32), np.empty((height, width), np.float32)
     n_contrib = np.empty((height, width), np.int32)
-    gcache = np.empty((bases[-1], TILE), np.float32)
-    _dynamic(forward_tiles32, (gs, boxes, cols, bg, offsets, ids),
-             (height, width, tiles_x, image, alpha, t_final, n_contrib, bases, rel, gcache), tiles)
-    return image, alpha, t_final, n_contrib, tiles, gcache
+    rows, gcache = np.empty(len(ids), np.int64), np.empty((cache_rows(blocks, n_workers(len(tiles))), TILE), np.float32)
+    _dynamic(forward_tiles32, (gs, boxes, cols, bg, offsets, ids), (height, width, tiles_x, image, alpha, t_final,
+             n_contrib, keys, key_bytes, rows, gcache, np.zeros(1, np.int64)), tiles)
+    return image, alpha, t_final, n_contrib, tiles, rows, gcache
 
 
-def _backward32(gs, boxes, cols, bg, lists, t_final, n_contrib, tiles, gcache, g_img, g_alpha, height, width, tiles_x):
+def _backward32(gs, boxes, cols, bg, lists, t_final, n_contrib, tiles, rows, gcache, g_img, g_alpha, height, width,
+                tiles_x):
     """float32 path: dgs (N, 6), dcol (N, 3), dbg (3,): per tile-list record and per tile, then
     summed in one fixed order (bit-identical for any thread count)."""
-    offsets, ids, rel, bases = lists
+    offsets, ids = lists[:2]
     drec = np.empty((len(ids), 9), np.float32)
     dbg = np.empty((len(offsets) - 1, cols.shape[1]), np.float32)
     _dynamic(backward_tiles32, (gs, boxes, cols, bg, offsets, ids),
-             (height, width, tiles_x, t_final, n_contrib, bases, rel, gcache, g_img, g_alpha, drec, dbg), tiles)
+             (height, width, tiles_x, t_final, n_contrib, rows, gcache, g_img, g_alpha, drec, dbg), tiles)
     dgs, dcol = sum_records(ids, drec, len(gs))
     return dgs, dcol, dbg.sum(0)
 
@@ -313,7 +315,7 @@ class _RasterizeNative(torch.autograd.Function):
         dt = np.float32 if f32 else np.float64
         gs, boxes, *lists = prepare_tiles(means2d.detach().numpy(), conics.detach().numpy(),
                                           opacities.detach().numpy(), depths.detach().numpy(), radii.numpy(),
-                                          height, width, dt)
+                                          height, width, dt, sort=not f32)
         tiles_x = -(-width // TILE)
         cols, bg = _np(colors, dt), _np(background.reshape(-1), dt)
         ctx.sizes = (height, width, tiles_x)

@@ -33,7 +33,7 @@ from numba import njit
 from torch import Tensor
 
 from .native_prep import CHUNK, gather_columns
-from .native_threads import in_shares
+from .native_threads import in_chunks, next_chunk
 from .project import MAX_RADIUS, Projected
 
 
@@ -117,15 +117,17 @@ def _camera(W_arr, cam_arr):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")  # numpy: no zero test before each division
-def _project_forward(means, scales, quats, W_arr, cam_arr, near, low_pass, height, width, lo, hi, means2d, conics,
-                     depths, cov2d, radii):
-    """Gaussians lo..hi-1 into means2d (N, 2), conics (N, 3), depths (N,), cov2d (N, 3) (separate
+def _project_forward(means, scales, quats, W_arr, cam_arr, near, low_pass, height, width, counter, total, means2d,
+                     conics, depths, cov2d, radii):
+    """The chunks of the ``total`` Gaussians this worker takes (``next_chunk``) into means2d (N, 2), conics (N, 3), depths (N,), cov2d (N, 3) (separate
     contiguous arrays: the rasterizer reads them; any float dtype, computed in float64) and
     radii (N,) int32."""
     W, cam = _camera(W_arr, cam_arr)
     inp, out = np.empty((10, CHUNK)), np.empty((10, CHUNK))
-    for c0 in range(lo, hi, CHUNK):
-        n = min(CHUNK, hi - c0)
+    while True:
+        c0, n = next_chunk(counter, total, CHUNK)
+        if n <= 0:
+            break
         gather_columns(quats, c0, n, inp, gather_columns(scales, c0, n, inp, gather_columns(means, c0, n, inp, 0)))
         for j in range(CHUNK):  # the vectorised loop (a full chunk: stale columns are ignored)
             m, s, q = (inp[0, j], inp[1, j], inp[2, j]), (inp[3, j], inp[4, j], inp[5, j]), (inp[6, j], inp[7, j],
@@ -179,14 +181,16 @@ def _jacobian_backward(x, y, zs, u_free, v_free, inv_z, W, cam, gJ0, gJ1, g_mx, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2d, g_con, g_depth, g_cov, lo, hi,
+def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2d, g_con, g_depth, g_cov, counter, total,
                       g_means, g_scales, g_quats):
-    """Gaussians lo..hi-1: dL/dmeans (N, 3), dL/dscales (N, 3), dL/dquats (N, 4) (written, any
+    """The chunks of the ``total`` Gaussians this worker takes: dL/dmeans (N, 3), dL/dscales (N, 3), dL/dquats (N, 4) (written, any
     float dtype) from dL/d(means2d, conics, depths, cov2d) (zeros where an output had none)."""
     W, cam = _camera(W_arr, cam_arr)
     inp, out = np.empty((19, CHUNK)), np.empty((10, CHUNK))
-    for c0 in range(lo, hi, CHUNK):
-        n = min(CHUNK, hi - c0)
+    while True:
+        c0, n = next_chunk(counter, total, CHUNK)
+        if n <= 0:
+            break
         row = gather_columns(quats, c0, n, inp, gather_columns(scales, c0, n, inp, gather_columns(means, c0, n, inp, 0)))
         gather_columns(g_cov, c0, n, inp, gather_columns(g_depth, c0, n, inp, gather_columns(g_con, c0, n, inp, gather_columns(g_m2d, c0, n, inp, row))))
         for j in range(CHUNK):  # the vectorised loop: arrays only indexed here (passing one to a
@@ -263,7 +267,7 @@ class _ProjectNative(torch.autograd.Function):
         arrays += (np.ascontiguousarray(w2c.detach().double().cpu().numpy()),)
         n, dt = len(means), arrays[0].dtype
         out = (np.empty((n, 2), dt), np.empty((n, 3), dt), np.empty(n, dt), np.empty((n, 3), dt), np.zeros(n, np.int32))
-        in_shares(_project_forward, n, (*arrays, cam, near, low_pass, height, width), out)
+        in_chunks(_project_forward, n, (*arrays, cam, near, low_pass, height, width), out)
         ctx.saved = (arrays, cam, near, low_pass)
         return tuple(torch.from_numpy(o) for o in out)  # means2d, conics, depths, cov2d, radii
 
@@ -274,7 +278,7 @@ class _ProjectNative(torch.autograd.Function):
         grads = (_array(g_m2d, (n, 2), dt), _array(g_con, (n, 3), dt), _array(g_depth, (n,), dt).reshape(n, 1),
                  _array(g_cov, (n, 3), dt))
         out = tuple(np.empty(a.shape, a.dtype) for a in arrays[:3])  # dL/d(means, scales, quats)
-        in_shares(_project_backward, len(arrays[0]), (*arrays, cam, near, low_pass, *grads), out)
+        in_chunks(_project_backward, len(arrays[0]), (*arrays, cam, near, low_pass, *grads), out)
         return (*(torch.from_numpy(o) for o in out), None, None, None, None, None, None)
 
 

@@ -40,7 +40,8 @@ from llvmlite import ir
 from numba import njit, types
 from numba.core.extending import intrinsic
 
-from .native_threads import next_item
+from .native_prep import sort_tile
+from .native_threads import next_item, next_items
 from .reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
 
 L = 16  # tile edge, and lanes per 4x4 block
@@ -172,24 +173,40 @@ def _fwd_block(rec, k, b, tx0, ty0, T, last, img, gcache, o):
     return n_stop
 
 
+ROWS = 256  # G-cache rows a worker reserves at a time
+
+
+def cache_rows(blocks: int, workers: int) -> int:
+    """G-cache rows that ``forward_tiles32`` may reserve for lists touching ``blocks`` 4x4 blocks:
+    a worker takes ROWS at a time and leaves fewer than L (the most one record needs) unused."""
+    return blocks + (blocks // (ROWS - L) + 1 + workers) * ROWS
+
+
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height, width, tiles_x, image, alpha_out,
-                    t_final, n_contrib, bases, rel, gcache):
+                    t_final, n_contrib, keys, key_bytes, rows, gcache, reserved):
     """Front-to-back compositing, float32: one worker takes tiles[counter[0]++] until none are left.
 
     gs (N, 8) float32 records (see native_prep.py), boxes (N, 4) int64, colors (N, 3), bg (3,).
     Writes image (H, W, 3) with background, alpha_out (H, W), t_final (H, W) and n_contrib (H, W)
-    (int32: tile-list position after the last contributor), and for the backward the pairs' G:
-    record k of tile t in gcache rows bases[t] + rel[k] on, one per block (``native_prep._bin_tiles``;
-    records behind the last one a tile visits are left unwritten, the backward never reads them).
+    (int32: tile-list position after the last contributor). key_bytes > 0: the tile lists are
+    in index order and each is first sorted by depth here (``native_prep.sort_tile``), in place,
+    for the backward too. For the backward, the pairs' G: record k's blocks in gcache rows
+    rows[k]..., taken ROWS at a time from reserved[0] (``cache_rows`` gives enough); records
+    behind the last one a tile visits get none, the backward never reads them.
     """
     last, tb = np.empty((L, L), np.int32), np.empty((4, L, L), np.float32)
     T, img = tb[0], tb[1:4]  # one buffer: LLVM sees that its parts cannot overlap
+    longest = max(1, np.max(offsets[1:] - offsets[:-1])) if key_bytes > 0 else 1
+    buf_ids, buf_keys, count = np.empty(2 * longest, np.int32), np.empty(2 * longest, np.int64), np.empty(257, np.int64)
+    o, o_end = 0, 0
     while True:
         i = next_item(counter)
         if i >= len(tiles):
             break
         t = tiles[i]
+        if key_bytes > 0:
+            sort_tile(ids, keys, offsets[t], offsets[t + 1], key_bytes, buf_ids, buf_keys, count)
         tx0, ty0 = (t % tiles_x) * L, (t // tiles_x) * L
         w, h = min(L, width - tx0), min(L, height - ty0)
         T[:], last[:], img[:] = _ONE, 0, _ZERO
@@ -198,9 +215,15 @@ def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height,
             g = ids[k]
             span, rec = _record(gs, colors, boxes, g, tx0, ty0, w, h)
             bx0, by0, nbx, nb = _blocks(span)
-            o = bases[t] + rel[k]
+            if o + nb > o_end:
+                o = next_items(reserved, ROWS)
+                o_end = o + ROWS
+                if o_end > len(gcache):
+                    raise RuntimeError("forward_tiles32: G cache too small (allocate cache_rows(blocks, workers))")
+            rows[k] = o
             for q in range(nb):  # one loop over the blocks: one loop exit to predict, not one per row
                 n_live -= _fwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, img, gcache, o + q)
+            o += nb
             if n_live == 0:
                 break
         _store_tile(img, T, last, bg, tx0, ty0, w, h, image, alpha_out, t_final, n_contrib)
@@ -310,7 +333,7 @@ def _reduce_lanes(acc, g, gs, drec, k):
 
 @njit(nogil=True, cache=True, fastmath={"contract"}, error_model="numpy")
 def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height, width, tiles_x, t_final, n_contrib,
-                     bases, rel, gcache, grad_image, grad_alpha, drec, dbg):
+                     rows, gcache, grad_image, grad_alpha, drec, dbg):
     """Gradients per tile-list record, tiles taken as in ``forward_tiles32``: drec (M, 9) gets
     record k's dL/d(mean x, y, conic a, b, c, opacity, colour 0-2) (zeros behind the tile's last
     contributor), dbg (tiles, 3) tile t's dL/dbackground. Nothing is summed across tiles here,
@@ -337,7 +360,7 @@ def backward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height
                 for j in range(L):
                     acc[q, j] = _ZERO
             bx0, by0, nbx, nb = _blocks(span)
-            o = bases[t] + rel[k]
+            o = rows[k]
             for q in range(nb):
                 _bwd_block(rec, k, _block(q, bx0, by0, nbx), tx0, ty0, T, last, gimg, gtail, behind, acc, gcache, o + q)
             _reduce_lanes(acc, g, gs, drec, k)

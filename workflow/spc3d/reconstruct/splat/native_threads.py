@@ -29,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import torch
-from numba import types
+from numba import njit, types
 from numba.core import cgutils
 from numba.core.extending import intrinsic
 
@@ -84,29 +84,44 @@ def run_parallel(work, n: int) -> None:
         future.result()
 
 
-def in_shares(kernel, n: int, inputs: tuple, outputs: tuple, grain: int = 2048) -> None:
-    """``kernel(*inputs, lo, hi, *outputs)`` over contiguous shares [lo, hi) of n items, one per
-    worker (at most one per ``grain`` items: smaller shares are not worth a thread); each worker
-    writes only its own rows of the outputs."""
-    workers = n_workers(max(1, n // grain))
-    bounds = np.linspace(0, n, workers + 1).astype(np.int64)
-    run_parallel(lambda w: kernel(*inputs, bounds[w], bounds[w + 1], *outputs), workers)
+def in_chunks(kernel, n: int, inputs: tuple, outputs: tuple, grain: int = 2048) -> None:
+    """``kernel(*inputs, counter, n, *outputs)`` on every worker (at most one per ``grain`` items:
+    smaller shares are not worth a thread); the kernel takes chunks of the n items with
+    ``next_chunk(counter, n, size)`` until none is left, so a worker that starts late takes fewer
+    (the first OpenMP thread to enter a region can run ~30 us before the others get the GIL),
+    and writes only the outputs of its chunks."""
+    counter = np.zeros(1, np.int64)
+    run_parallel(lambda w: kernel(*inputs, counter, n, *outputs), n_workers(max(1, n // grain)))
 
 
 @intrinsic
-def next_item(typingctx, counter):
-    """Atomically ``counter[0] += 1`` (int64 array) and return the old value: the next work item
-    of a dynamically scheduled loop. Relaxed ordering: the counter only deals out indices; the
-    end of the parallel region orders everything the workers wrote."""
-    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+def next_items(typingctx, counter, n):
+    """Atomically ``counter[0] += n`` (int64 array) and return the old value: the first of the
+    next n work items of a dynamically scheduled loop. Relaxed ordering: the counter only deals
+    out indices; the end of the parallel region orders everything the workers wrote."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64 and isinstance(n, types.Integer)):
         return None
 
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
         ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [context.get_constant(types.intp, 0)])
-        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+        inc = context.cast(builder, args[1], signature.args[1], types.int64)
+        return builder.atomic_rmw("add", ptr, inc, "monotonic")
 
-    return types.int64(counter), codegen
+    return types.int64(counter, n), codegen
+
+
+@njit(inline="always")
+def next_item(counter):
+    """``next_items(counter, 1)``: the next work item."""
+    return next_items(counter, 1)
+
+
+@njit(inline="always")
+def next_chunk(counter, n, size):
+    """(first item, item count) of the next chunk of ``size`` of n items; count <= 0: none left."""
+    c0 = next_item(counter) * size
+    return c0, min(size, n - c0)
 
 
 _KEPT: set = set()  # idents of OpenMP worker threads whose Python thread state is kept
