@@ -218,6 +218,66 @@ def test_next_item_deals_every_item_once():
     assert (taken == 1).all() and counter[0] >= len(taken)
 
 
+def test_next_chunk_deals_every_item_once():
+    """Chunks of 7 of 20003 items (the last one short), 4 racing workers: every item once."""
+    from numba import njit
+    from spc3d.reconstruct.splat import native_threads
+
+    @njit(nogil=True)
+    def drain(counter, taken):
+        while True:
+            c0, n = native_threads.next_chunk(counter, len(taken), 7)
+            if n <= 0:
+                return
+            for i in range(c0, c0 + n):
+                taken[i] += 1
+
+    counter, taken = np.zeros(1, np.int64), np.zeros(20003, np.int64)
+    native_threads.run_parallel(lambda w: drain(counter, taken), 4)
+    assert (taken == 1).all()
+
+
+def test_native_projection_and_tile_lists_do_not_depend_on_threads(monkeypatch):
+    """Projection (forward, backward) and set-up passes take chunks dynamically: outputs and
+    tile lists are identical for 1, 2 and 3 threads."""
+    from spc3d.reconstruct.splat.native_prep import prepare_tiles
+
+    means, scales, quats = gaussians3d(5000, seed=5)
+    opacities = torch.rand(5000, generator=torch.Generator().manual_seed(5)).numpy()
+    cam = rotated_camera()
+    results = []
+    for n in (1, 2, 3):
+        monkeypatch.setattr(torch, "get_num_threads", lambda n=n: n)
+        leaves = [t.clone().float().requires_grad_() for t in (means, scales, quats)]
+        p = project_gaussians_native(*leaves, **cam)
+        (p.means2d.sum() + p.conics.sum() + p.depths.sum()).backward()
+        lists = prepare_tiles(p.means2d.detach().numpy(), p.conics.detach().numpy(), opacities,
+                              p.depths.detach().numpy(), p.radii.numpy(), 24, 32, np.float32)
+        results.append([p.means2d, p.conics, p.depths, p.radii, *(t.grad for t in leaves),
+                        *(torch.from_numpy(np.asarray(a)) for a in lists[2:4])])
+    for out in zip(*results):
+        assert all(torch.equal(out[0], other) for other in out[1:])
+
+
+def test_float32_forward_refuses_a_too_small_pair_cache():
+    """The G cache is sized by ``cache_rows``; a smaller one is an error naming it, not a write
+    past its end."""
+    from spc3d.reconstruct.splat.native_prep import prepare_tiles
+    from spc3d.reconstruct.splat.native_simd import forward_tiles32
+
+    means2d, conics, opacities, colors, depths, radii, height, width, bg = screen_scene(300, 24, 32, seed=9)
+    gs, boxes, offsets, ids, keys, key_bytes, _ = prepare_tiles(
+        means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(), radii.numpy(), height, width,
+        np.float32, sort=False)
+    out = [np.empty((height, width, 3), np.float32), np.empty((height, width), np.float32),
+           np.empty((height, width), np.float32), np.empty((height, width), np.int32)]
+    tiles = np.arange(len(offsets) - 1)
+    with pytest.raises(RuntimeError, match="cache_rows"):
+        forward_tiles32(gs, boxes, colors.numpy(), bg.numpy(), offsets, ids, tiles, np.zeros(1, np.int64), height,
+                        width, 2, *out, keys, key_bytes, np.empty(len(ids), np.int64), np.empty((8, 16), np.float32),
+                        np.zeros(1, np.int64))
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_native_two_threads_match_one(monkeypatch, dtype):
     """float32 (SIMD kernels, tiles dealt out dynamically, gradients per tile-list record summed

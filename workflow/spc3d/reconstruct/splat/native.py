@@ -8,43 +8,46 @@ returns the dtype of ``colors``. Both follow the algorithm below.
 
 Algorithm (the 3DGS CUDA rasterizer, mapped to CPU threads):
 
-1. set-up (:func:`.native_prep.prepare_tiles`, one numba pass): per-Gaussian records, pixel boxes
-   (the 3-sigma square of :func:`.reference.pixel_boxes` tightened to the ellipse outside which
-   alpha < 1/255, so no composited pair is lost), a radix sort by depth and per-tile lists:
-   every TILE x TILE tile lists the Gaussians whose box touches it, in depth order.
+1. set-up (:func:`.native_prep.prepare_tiles`, two numba passes on all threads): per-Gaussian
+   records, pixel boxes (the 3-sigma square of :func:`.reference.pixel_boxes` tightened to the
+   ellipse outside which alpha < 1/255, so no composited pair is lost) and per-tile lists:
+   every TILE x TILE tile lists the Gaussians whose box touches it, in depth order (a stable
+   radix sort per list; the float32 forward sorts each list itself, in parallel).
 2. forward (float64: ``_forward_tile``; float32: 4x4-pixel SIMD blocks, :mod:`.native_simd`):
    the tile's list is walked front to back, Gaussian-major: each Gaussian updates the
    still-unfinished pixels of its box inside the tile (its parameters stay in registers; no
    pixel tests Gaussians whose box misses it). Pairs with alpha < 1/255 are skipped; a pixel
    stops before its transmittance would drop below 1e-4. Per pixel it stores the final
-   transmittance and the list position after its last contributor.
+   transmittance and the list position after its last contributor; the float32 forward also
+   keeps every visited pair's G = exp(power) for the backward (~4 MB at 10k Gaussians, 128x96).
 3. backward (``_backward_tile`` / :mod:`.native_simd`): the list is walked back to front from the
    last contributor, recovering ``T_k = T_{k+1} / (1 - alpha_k)`` (alpha <= 0.99 keeps this
    stable) and the colour composited behind, accumulating dL/d(means2d, conics, opacities,
    colors) per Gaussian, then once into the worker's buffer; dL/dbackground = Σ T_final · dL/dimage.
 4. float64 kernels evaluate exp(power) by a per-row recurrence (``_row_step``); the float32
-   kernels use a polynomial exp2 on exponents in log2 units.
+   kernels use a polynomial exp2 on exponents in log2 units (the backward reuses the forward's).
 
 Threads: ``torch.get_num_threads()`` workers. The float32 kernels take tiles from a shared atomic
 counter, longest tile lists first (a worker that starts late or runs slower takes fewer tiles:
 2-thread forward + backward regions ~10-15 % shorter than with a fixed round-robin deal), and
 write gradients per tile-list record, which ``native_simd.sum_records`` adds up per Gaussian in
-list order: no races, and the same bits for any thread count. The float64 kernels deal tiles
-round-robin, each worker adding into its own gradient buffers, summed at the end. The workers
-are the threads of torch's own OpenMP team (:mod:`.native_threads`): separate threads
-competed with torch's spin-waiting OpenMP workers for the cores. ``parallel=True`` / ``prange``
-is avoided on purpose: numba's OpenMP layer made every parallel region wait ~30 ms next to
-torch's pool here, and forcing numba's process-global threading layer would change other users.
+list order: no races, and the same bits for any thread count. The set-up and projection passes
+deal chunks of 256 Gaussians the same way. The float64 kernels deal tiles round-robin, each
+worker adding into its own gradient buffers, summed at the end. The workers are the threads of
+torch's own OpenMP team (:mod:`.native_threads`): separate threads competed with torch's
+spin-waiting OpenMP workers for the cores. ``parallel=True`` / ``prange`` is avoided on purpose:
+numba's OpenMP layer made every parallel region wait ~30 ms next to torch's pool here, and
+forcing numba's process-global threading layer would change other users.
 
 Measured (10k Gaussians at 128x96, one training step of ``benchmarks/rasterizer.py``; this 2-core
 machine's speed drifts by ±15 % between runs, so ratios are taken within one run): native
-projection + rasterizer ~4.2-5.0 ms on 2 threads (~7.2-8.0 ms on 1) against ~90-125 ms
-(~145-170 ms) for the pure-PyTorch reference: 20-22x (18-20x on 1 thread). One thread, per
-step: forward kernel ~1.9 ms, backward ~3.2 ms (of which ~0.6 ms the per-record lane sums),
-set-up ~0.4 ms, projection forward + backward ~0.6 ms, loss and autograd ~0.5 ms. Two
-threads: forward region ~1.07 ms, backward ~1.69 ms, each parallel region ~10-40 us of
-overhead. History: 22-27 ms per step with scalar float64 kernels, 11-15 ms with 16-lane row
-kernels.
+projection + rasterizer ~3.4-4.2 ms on 2 threads (~5.4-6.5 ms on 1) against ~85-115 ms
+(~135-170 ms) for the pure-PyTorch reference: 24-28x (~24x on 1 thread). Two threads, per
+step: set-up ~0.33 ms, forward region ~0.96 ms (with the per-tile sorts), backward ~1.05 ms,
+projection forward + backward ~0.5 ms, loss and autograd ~0.3 ms, each parallel region
+~10-50 us of overhead (the second thread to need the GIL waits for it). History: 22-27 ms per
+step with scalar float64 kernels, 11-15 ms with 16-lane row kernels, 4.2-5.0 ms before the
+G cache and the alias-check-free tile buffers of :mod:`.native_simd`.
 
 Densification: the view-space positional gradient of 3DGS is ``means2d.grad`` (in pixels; call
 ``means2d.retain_grad()`` before ``backward``); nothing extra is returned.
