@@ -137,7 +137,8 @@ def _records_and_boxes(means2d, conics, opacities, radii, bits, height, width, t
             for ty in range(y0 >> TILE_SHIFT, (y1 >> TILE_SHIFT) + 1):
                 for tx in range(x0 >> TILE_SHIFT, (x1 >> TILE_SHIFT) + 1):
                     counts[c, ty * tiles_x + tx] += 1
-            n_blocks += ((x1 >> BLOCK_SHIFT) - (x0 >> BLOCK_SHIFT) + 1) * ((y1 >> BLOCK_SHIFT) - (y0 >> BLOCK_SHIFT) + 1)
+            bw, bh = (x1 >> BLOCK_SHIFT) - (x0 >> BLOCK_SHIFT) + 1, (y1 >> BLOCK_SHIFT) - (y0 >> BLOCK_SHIFT) + 1
+            n_blocks += bw * bh
         blocks[c] = n_blocks
 
 

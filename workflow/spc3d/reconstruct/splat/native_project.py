@@ -119,9 +119,9 @@ def _camera(W_arr, cam_arr):
 @njit(cache=True, nogil=True, error_model="numpy")  # numpy: no zero test before each division
 def _project_forward(means, scales, quats, W_arr, cam_arr, near, low_pass, height, width, counter, total, means2d,
                      conics, depths, cov2d, radii):
-    """The chunks of the ``total`` Gaussians this worker takes (``next_chunk``) into means2d (N, 2), conics (N, 3), depths (N,), cov2d (N, 3) (separate
-    contiguous arrays: the rasterizer reads them; any float dtype, computed in float64) and
-    radii (N,) int32."""
+    """The chunks of the ``total`` Gaussians this worker takes (``next_chunk``) into means2d
+    (N, 2), conics (N, 3), depths (N,), cov2d (N, 3) (separate contiguous arrays: the rasterizer
+    reads them; any float dtype, computed in float64) and radii (N,) int32."""
     W, cam = _camera(W_arr, cam_arr)
     inp, out = np.empty((10, CHUNK)), np.empty((10, CHUNK))
     while True:
@@ -183,8 +183,9 @@ def _jacobian_backward(x, y, zs, u_free, v_free, inv_z, W, cam, gJ0, gJ1, g_mx, 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2d, g_con, g_depth, g_cov, counter, total,
                       g_means, g_scales, g_quats):
-    """The chunks of the ``total`` Gaussians this worker takes: dL/dmeans (N, 3), dL/dscales (N, 3), dL/dquats (N, 4) (written, any
-    float dtype) from dL/d(means2d, conics, depths, cov2d) (zeros where an output had none)."""
+    """The chunks of the ``total`` Gaussians this worker takes: dL/dmeans (N, 3), dL/dscales
+    (N, 3), dL/dquats (N, 4) (written, any float dtype) from dL/d(means2d, conics, depths, cov2d)
+    (zeros where an output had none)."""
     W, cam = _camera(W_arr, cam_arr)
     inp, out = np.empty((19, CHUNK)), np.empty((10, CHUNK))
     while True:

@@ -158,7 +158,9 @@ def _fwd_block(rec, k, b, tx0, ty0, T, last, img, gcache, o):
     mx, my, la, lb, lc, lpmin, opacity, c0, c1, c2, x0, x1, y0, y1 = rec
     bx, by, fx, fy = _block_origin(b, tx0, ty0)
     k1 = np.int32(k + 1)
-    b, o = np.uint64(b) & np.uint64(L - 1), np.uint64(o)  # unsigned: no negative-index wraparound
+    # unsigned (no negative-index wraparound) and b masked to 0..15 (a no-op): LLVM can then prove
+    # that the parts of the tile buffer do not overlap and drops its run-time alias checks
+    b, o = np.uint64(b) & np.uint64(L - 1), np.uint64(o)
     n_stop = np.int32(0)
     for j in range(L):
         lx, ly = bx + _LANE_X[j], by + _LANE_Y[j]  # exact: small integers
@@ -282,7 +284,9 @@ def _bwd_block(rec, k, b, tx0, ty0, T, last, gimg, gtail, behind, acc, gcache, o
     mx, my, la, lb, lc, lpmin, opacity, c0, c1, c2, x0, x1, y0, y1 = rec
     bx, by, fx, fy = _block_origin(b, tx0, ty0)
     k32 = np.int32(k)
-    b, o = np.uint64(b) & np.uint64(L - 1), np.uint64(o)  # unsigned: no negative-index wraparound
+    # unsigned (no negative-index wraparound) and b masked to 0..15 (a no-op): LLVM can then prove
+    # that the parts of the tile buffer do not overlap and drops its run-time alias checks
+    b, o = np.uint64(b) & np.uint64(L - 1), np.uint64(o)
     for j in range(L):
         dx, dy = (fx + _LANE_X[j]) - mx, (fy + _LANE_Y[j]) - my
         G = gcache[o, j]
