@@ -194,11 +194,17 @@ def sort_tile(ids, keys, lo, hi, nbytes, buf_ids, buf_keys, count):
         ids[lo + i] = buf_ids[src + i]
 
 
+@njit(inline="always")
+def sort_scratch(offsets):
+    """Scratch arrays (buf_ids, buf_keys, count) for ``sort_tile`` on any of these tile lists."""
+    longest = max(1, np.max(offsets[1:] - offsets[:-1]))
+    return np.empty(2 * longest, np.int32), np.empty(2 * longest, np.int64), np.empty(257, np.int64)
+
+
 @njit(cache=True, nogil=True)
 def sort_tiles(ids, keys, offsets, nbytes):
     """``sort_tile`` for every tile list."""
-    longest = max(1, np.max(offsets[1:] - offsets[:-1]))
-    buf_ids, buf_keys, count = np.empty(2 * longest, np.int32), np.empty(2 * longest, np.int64), np.empty(257, np.int64)
+    buf_ids, buf_keys, count = sort_scratch(offsets)
     for t in range(len(offsets) - 1):
         sort_tile(ids, keys, offsets[t], offsets[t + 1], nbytes, buf_ids, buf_keys, count)
 

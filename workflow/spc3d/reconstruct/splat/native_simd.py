@@ -48,7 +48,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.core.extending import intrinsic
 
-from .native_prep import sort_tile
+from .native_prep import sort_scratch, sort_tile
 from .native_threads import next_item, next_items
 from .reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
 
@@ -207,8 +207,7 @@ def forward_tiles32(gs, boxes, colors, bg, offsets, ids, tiles, counter, height,
     """
     last, tb = np.empty((L, L), np.int32), np.empty((4, L, L), np.float32)
     T, img = tb[0], tb[1:4]  # one buffer: LLVM sees that its parts cannot overlap
-    longest = max(1, np.max(offsets[1:] - offsets[:-1])) if key_bytes > 0 else 1
-    buf_ids, buf_keys, count = np.empty(2 * longest, np.int32), np.empty(2 * longest, np.int64), np.empty(257, np.int64)
+    buf_ids, buf_keys, count = sort_scratch(offsets)
     o, o_end = 0, 0
     while True:
         i = next_item(counter)
