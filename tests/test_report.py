@@ -46,6 +46,23 @@ def test_screenshot_tool_names_the_missing_browser(monkeypatch, tmp_path):
     assert tool.main([str(page)]) == 2  # a clear error, not a traceback
 
 
+def test_screenshot_tool_names_what_a_page_never_finished(tmp_path):
+    """A page that is not a Snakemake report never mounts the report's app: a clear error, no PNG."""
+    tool = load_tool()
+    try:
+        tool.find_browser()
+    except tool.BrowserMissing as exc:
+        pytest.skip(str(exc))
+    page = tmp_path / "plain.html"
+    page.write_text("<html><body><p>not a report</p></body></html>")
+    png = tmp_path / "plain.png"
+    with pytest.raises(RuntimeError, match=r"plain.html: the page did not settle in time "
+                                           r"\(the report's React app has not mounted\)"):
+        tool.screenshot(page, png, timeout_s=2)
+    assert not png.exists() and not list(tmp_path.glob("*.part"))
+    assert tool.main([str(page), str(png), "--timeout", "1"]) == 1
+
+
 @pytest.mark.slow
 def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     """One smoke run, then the report: every table, figure and caption embedded; a browser renders it."""
@@ -101,3 +118,6 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
         assert img.std() > 0.05, f"{name}: the screenshot is blank"  # a page that failed to render is one colour
         _, counts = np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0, return_counts=True)
         assert counts.max() / counts.sum() < 0.9 and len(counts) > 500, f"{name}: hardly anything drawn"
+        # The side bar is dark only once Tailwind's runtime has written its CSS: a picture taken too early
+        # shows it unstyled, near white (mean ~0.9 here; styled ~0.4).
+        assert img[100:900, :250].mean() < 0.6, f"{name}: the side bar is not styled yet"
