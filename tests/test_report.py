@@ -118,6 +118,6 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
         assert img.std() > 0.05, f"{name}: the screenshot is blank"  # a page that failed to render is one colour
         _, counts = np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0, return_counts=True)
         assert counts.max() / counts.sum() < 0.9 and len(counts) > 500, f"{name}: hardly anything drawn"
-        # The side bar is dark only once Tailwind's runtime has written its CSS: a picture taken too early
-        # shows it unstyled, near white (mean ~0.9 here; styled ~0.4).
-        assert img[100:900, :250].mean() < 0.6, f"{name}: the side bar is not styled yet"
+        # The side bar is dark only once Tailwind's runtime has written all its CSS. Measured on this
+        # smoke report: styled 0.38-0.41; pictures taken too early 0.58 (half styled) and 0.88-0.96.
+        assert img[100:900, :250].mean() < 0.5, f"{name}: the side bar is not styled yet"
