@@ -57,3 +57,26 @@ def run_snakemake(workdir, *args, timeout=600, path_prefix=None):
     if path_prefix:
         env["PATH"] = f"{path_prefix}{os.pathsep}{env.get('PATH', '')}"
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+class Interrupted(Exception):
+    """Raised by :class:`InterruptAt` to stand for a killed training (the process stops mid-run)."""
+
+
+class InterruptAt:
+    """A trainer (for spc3d.training.run) that stops dead at iteration ``at``, as a kill would:
+    whatever checkpoints were written before stay, nothing after is done."""
+
+    def __init__(self, trainer, at: int):
+        self.trainer, self.at = trainer, at
+
+    def step(self, it):
+        if it == self.at:
+            raise Interrupted(f"interrupted at iteration {it}")
+        return self.trainer.step(it)
+
+    def state(self):
+        return self.trainer.state()
+
+    def load(self, state):
+        self.trainer.load(state)

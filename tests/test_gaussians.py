@@ -1,5 +1,6 @@
 """3DGS model and training: density control keeps Adam consistent, resume is exact, the SPAD
 likelihood objective is finite and recovers the maximum-likelihood flux."""
+import dataclasses
 import math
 
 import numpy as np
@@ -12,8 +13,10 @@ from spc3d.reconstruct import densify
 from spc3d.reconstruct.gaussians import GaussianConfig, GaussianModel, knn_rms_distance, random_points
 from spc3d.reconstruct.objectives import BernoulliObjective, RGBObjective, linear_to_srgb, srgb_to_linear
 from spc3d.reconstruct.splatting import SplatTrainer, make_optimizer
-from spc3d.reconstruct.train import Views, run
+from spc3d.reconstruct.train import Views
 from spc3d.scenes import render_scene
+from spc3d.training import Checkpoint, CheckpointPolicy, fingerprint, run
+from conftest import InterruptAt, Interrupted
 
 
 @pytest.fixture(scope="module")
@@ -94,12 +97,13 @@ def test_resume_matches_uninterrupted_run(scene, tmp_path, one_thread):
     views = tiny_views(scene)
     full = SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=3)
     run(full, 24, desc="full")
-    ckpt = tmp_path / "ckpt.pt"
+    ckpt = Checkpoint(tmp_path / "ckpt.pt", fingerprint("test", {"cfg": dataclasses.asdict(cfg)}, {}))
     first = SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=3)
-    run(first, 13, ckpt, checkpoint_every=13, desc="part 1")  # "killed" after 13 iterations
+    with pytest.raises(Interrupted):  # fraction 0.5 of 24: a checkpoint at 12, killed at 15
+        run(InterruptAt(first, 15), 24, ckpt, CheckpointPolicy(fraction=0.5, minutes=0), desc="part 1")
     second = SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=3)
-    rec = run(second, 24, ckpt, checkpoint_every=100, desc="part 2")
-    assert rec["resumed_from"] == 13 and len(second.model) == len(full.model) > 200
+    rec = run(second, 24, ckpt, desc="part 2")
+    assert rec["resumed_from"] == 12 and len(second.model) == len(full.model) > 200
     assert torch.equal(second.model.means, full.model.means)
     assert torch.equal(second.render(views.cameras, 0), full.render(views.cameras, 0))
 

@@ -28,7 +28,8 @@ def _configs(tmp_path, lpips_cache) -> list[str]:
     local = tmp_path / "local.yaml"
     local.write_text(yaml.safe_dump({
         "metrics": {"lpips_source": str(lpips_cache)},
-        "stage1": {"train": {"iterations": 300, "checkpoint_every": 20, "batch_size": 2, "crop": 32}}}))
+        "checkpoints": {"fraction": 20 / 300, "minutes": 0},
+        "stage1": {"train": {"iterations": 300, "batch_size": 2, "crop": 32}}}))
     return ["--configfile", str(SMOKE), str(local)]
 
 

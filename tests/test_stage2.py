@@ -60,9 +60,13 @@ def test_reconstruct_writes_renders_and_resumes(scene, tmp_path):
     assert train["test_views"] == ["image000", "image008"] and train["seed"] == 1
     assert train["capacity"]["gaussians"] > 0 and train["settings"]["iterations"] == 12 and rec["train_s"] > 0
     assert io.read_rgb(out / "renders" / "image008.png").shape == (36, 48, 3)
-    longer = reconstruct(scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs",
+    again = reconstruct(scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs", TINY_3DGS, seed=1,
+                        checkpoint=ckpt)
+    assert again["resumed_from"] == 12 and again["checkpoint"]["discarded"] is None  # same job: resumed
+    longer = reconstruct(scene / "scenes" / "gallery", tmp_path / "recon3", "gt", "3dgs",
                          {**TINY_3DGS, "iterations": 16}, seed=1, checkpoint=ckpt)
-    assert longer["resumed_from"] == 12  # a rerun continues from the checkpoint
+    assert longer["resumed_from"] == 0 and "settings.iterations: 12 -> 16" in longer["checkpoint"]["discarded"]
+    assert io.read_json(tmp_path / "recon3" / "train.json")["checkpoint"]["resumed_from"] == 0
 
 
 def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):

@@ -16,7 +16,9 @@ from spc3d.scenes import write_builtin_scene
 from spc3d.simulate import simulate_scene
 from spc3d.translate import base, data, train
 from spc3d.translate.apply import score_images, translate_scene
+from spc3d.training import CheckpointPolicy, run
 from spc3d.workflow import LABELS, STAGE1_METHODS, translator_settings
+from conftest import InterruptAt, Interrupted
 from torch import nn
 
 
@@ -157,10 +159,12 @@ def test_translate_pads_and_crops_back(tiny_registered):
         model.translate(torch.rand(3, 7, 9))
 
 
+TINY_TRAIN = {"crop": 16, "log_every": 5, "decay_from": 1.0}
+
+
 def _train(world, out, ckpt, iterations, tiny):
-    return train.train_translator(tiny, [world / "augment" / "orchard"], out, {}, {"iterations": iterations,
-                                  "crop": 16, "checkpoint_every": 5, "log_every": 5,
-                                  "decay_from": 1.0}, seed=3, checkpoint=ckpt)
+    return train.train_translator(tiny, [world / "augment" / "orchard"], out, {},
+                                  {**TINY_TRAIN, "iterations": iterations}, seed=3, checkpoint=ckpt)
 
 
 def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_registered):
@@ -172,11 +176,16 @@ def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_reg
     assert (tmp_path / "full" / "curve.png").stat().st_size > 1000
     losses = np.loadtxt(tmp_path / "full" / "curve.csv", delimiter=",", skiprows=1)[:, 1]
     assert losses[-1] < losses[0]
-    # stopped after 20 iterations (constant lr, so a 20-run is a 40-run cut short), rerun to 40: same losses
-    _train(world, tmp_path / "part", tmp_path / "resume.pt", 20, tiny_registered)
+    # killed at iteration 23 (checkpoints every 10), rerun: resumed from 20, the same losses and curve
+    job = train.setup_training(tiny_registered, [world / "augment" / "orchard"], {}, {**TINY_TRAIN, "iterations": 40},
+                               seed=3, checkpoint=tmp_path / "resume.pt")
+    with pytest.raises(Interrupted):
+        run(InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings), 23), 40, job.checkpoint,
+            CheckpointPolicy(fraction=0.25, minutes=0))
     resumed = _train(world, tmp_path / "resumed", tmp_path / "resume.pt", 40, tiny_registered)
-    assert resumed["resumed_from"] == 20
+    assert resumed["resumed_from"] == 20 and resumed["checkpoint"]["discarded"] is None
     assert resumed["final_losses"]["loss"] == pytest.approx(full["final_losses"]["loss"], rel=1e-6)
+    assert (tmp_path / "resumed" / "curve.csv").read_text() == (tmp_path / "full" / "curve.csv").read_text()
 
 
 def test_translate_scene_and_stage1_scores(world, tmp_path, tiny_registered, lpips_cache):

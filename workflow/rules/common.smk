@@ -10,7 +10,7 @@ validate(config, schema="../schemas/config.schema.yaml")
 sys.path.insert(0, str(Path(workflow.basedir) / "workflow"))
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, resolve_combinations, scene_specs,
+from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, llff_input_files, resolve_combinations, scene_specs,
                              stage1_sources, translator_settings)
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
@@ -102,9 +102,9 @@ def get_scene_spec(wildcards):
 
 
 def get_scene_source(wildcards):
-    """The LLFF folder's poses file of a real scene (so edits trigger a rerun); none for built-ins."""
+    """The files of a real LLFF scene (poses and every image read: an edit reruns it); none for built-ins."""
     spec = SCENE_SPECS[wildcards.scene]
-    return [Path(spec["path"]) / "poses_bounds.npy"] if spec["kind"] == "llff" else []
+    return llff_input_files(spec["path"], spec["factor"]) if spec["kind"] == "llff" else []
 
 
 def get_spc_settings(wildcards):

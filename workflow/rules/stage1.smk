@@ -21,6 +21,7 @@ rule train_translator:
         frames=config["stage1"]["frames"],
         seed=config["seed"],
         checkpoint=get_translator_checkpoint,
+        policy=config["checkpoints"],
     log:
         "logs/train_translator/{method}.log",
     benchmark:

@@ -24,6 +24,7 @@ rule reconstruct:
         seed=get_seed,
         frames=config["stage2"]["frames"],
         checkpoint=get_checkpoint_path,
+        policy=config["checkpoints"],
     log:
         "logs/reconstruct/{scene}/{source}+{model}{rep}.log",
     benchmark:

@@ -2,6 +2,7 @@
 from pathlib import Path
 
 from spc3d.stage2 import reconstruct
+from spc3d.training import CheckpointPolicy
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
@@ -10,4 +11,4 @@ with logged(snakemake.log[0]):
     reconstruct(inp.scene, snakemake.output[0], w.source, w.model, p.settings, p.seed,
                 spc_dir=inp.get("spc"), image_dir=str(Path(translated) / "images") if translated else None,
                 checkpoint=p.checkpoint, frames=p.frames, threads=snakemake.threads,
-                points_dir=inp.get("colmap"))
+                points_dir=inp.get("colmap"), policy=CheckpointPolicy(**p.policy))

@@ -1,5 +1,6 @@
 """Adapter: rule train_translator -> spc3d.translate.train.train_translator."""
 from spc3d.lpips_net import load_npz
+from spc3d.training import CheckpointPolicy
 from spc3d.translate.train import train_translator
 from spc3d.workflow import logged
 
@@ -7,4 +8,5 @@ with logged(snakemake.log[0]):
     p = snakemake.params
     train_translator(snakemake.wildcards.method, list(snakemake.input.pairs), snakemake.output[0], p.settings,
                      p.train, seed=p.seed, frames=p.frames, checkpoint=p.checkpoint,
-                     vgg_weights=load_npz(snakemake.input.vgg, "vgg"), threads=snakemake.threads)
+                     vgg_weights=load_npz(snakemake.input.vgg, "vgg"), threads=snakemake.threads,
+                     policy=CheckpointPolicy(**p.policy))

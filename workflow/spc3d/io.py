@@ -23,18 +23,44 @@ import numpy as np
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it: put it straight back
+    os.umask(mask)
+    return mask
+
+
+UMASK = _umask()
+
+
+def remove_stale_tmp(path: str | os.PathLike) -> list[Path]:
+    """Delete the temporary siblings an interrupted writer of ``path`` left (``.{name}.*.tmp``)."""
+    path = Path(path)
+    stale = sorted(path.parent.glob(f".{path.name}.*.tmp")) if path.parent.is_dir() else []
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+    return stale
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, is_dir: bool = False):
-    """Yield a temporary sibling path; on success rename it to ``path`` (replacing it)."""
+    """Yield a temporary sibling path; on success rename it to ``path`` (replacing it).
+
+    Temporary siblings that an interrupted earlier writer of ``path`` left are removed first; a
+    folder gets the permissions of the user's umask (``mkdtemp`` would make it 0700, unreadable
+    to the rest of a group on a shared file system).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_tmp(path)
     suffix = "" if is_dir else path.suffix  # keep the suffix: writers pick formats from it
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     target = tmp if is_dir else tmp / f"part{suffix}"
     try:
         yield target
-        if is_dir and path.exists():
-            shutil.rmtree(path)
+        if is_dir:
+            os.chmod(tmp, 0o777 & ~UMASK)
+            if path.exists():
+                shutil.rmtree(path)
         os.replace(target, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -141,7 +167,7 @@ def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
 
 def write_json(path: str | os.PathLike, obj) -> None:
     with atomic_path(path) as tmp:
-        Path(tmp).write_text(json.dumps(obj, indent=2, default=_json_default) + "\n")
+        Path(tmp).write_text(json.dumps(obj, indent=2, default=json_default) + "\n")
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
@@ -158,7 +184,7 @@ def read_json(path: str | os.PathLike):
         raise ValueError(f"{path} is not valid JSON: {e}") from e
 
 
-def _json_default(o):
+def json_default(o):
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):

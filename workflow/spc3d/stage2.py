@@ -8,7 +8,9 @@
                          rendering wall time, capacity (Gaussians / voxels / parameters, peak memory)
 
 The checkpoint lives outside that folder (``checkpoint``, e.g. ``results/checkpoints/...``) so
-that Snakemake's clean-up of an interrupted job's outputs keeps it: a rerun resumes from it.
+that Snakemake's clean-up of an interrupted job's outputs keeps it: a rerun resumes from it, but
+only when its fingerprint (resolved settings, seed, source, input digests, code) is the job's own
+(:mod:`spc3d.training`); a checkpoint of other settings is discarded, with the reason logged.
 """
 
 from __future__ import annotations
@@ -26,8 +28,8 @@ from . import io, llff
 from .cameras import split_views
 from .colmap import sparse_points
 from .reconstruct import RECONSTRUCTORS
-from .reconstruct.train import run, seed_everything
 from .sources import load_source
+from .training import Checkpoint, CheckpointPolicy, digest_path, fingerprint, peak_rss_mb, run, seed_everything
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +37,13 @@ log = logging.getLogger(__name__)
 def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source: str, model: str,
                 settings: dict, seed: int = 0, spc_dir: str | os.PathLike | None = None,
                 image_dir: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
-                frames: int = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None) -> dict:
+                frames: int = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None,
+                policy: CheckpointPolicy = CheckpointPolicy()) -> dict:
     """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
 
     ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
     initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
+    ``policy``: when the checkpoint is written (every 10 % of the run or 10 minutes by default).
     """
     if model not in RECONSTRUCTORS:
         raise ValueError(f"unknown stage-2 model {model!r}; choose one of {sorted(RECONSTRUCTORS)}")
@@ -50,13 +54,17 @@ def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source
     points, init = initial_points(points_dir)
     trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
     log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
-    if checkpoint:
-        Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
-    record = run(trainer, iterations, checkpoint, desc=f"{source}+{model}")
-    render_s = write_renders(trainer, scene_dir, out_dir, record | {
-        "model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"),
-        "seed": seed, "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None,
-        "init": init})
+    meta = {"model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"), "seed": seed,
+            "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None, "init": init}
+    ckpt = Checkpoint(checkpoint, fingerprint("reconstruct", meta, {
+        "scene": digest_path(scene_dir), "spc": digest_path(spc_dir), "images": digest_path(image_dir),
+        "points": digest_path(points_dir)})) if checkpoint else None
+    result = run(trainer, iterations, ckpt, policy, desc=f"{source}+{model}",
+                 postfix=lambda stats: {k: v for k, v in trainer.capacity().items() if isinstance(v, int)})
+    record = {**{k: v for k, v in result.items() if k != "final"},
+              "final_loss": result["final"].get("loss"), "final_train_psnr": result["final"].get("psnr"),
+              "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()}}
+    render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
     return record | {"render_s": render_s}
 
 

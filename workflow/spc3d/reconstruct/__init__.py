@@ -13,24 +13,8 @@ None means the model's own RGB loss (3DGS: 0.8 L1 + 0.2 D-SSIM; NeRF: MSE); a
 
 from __future__ import annotations
 
-import dataclasses
-
+from ..training import build_config
 from .objectives import RGBObjective
-
-
-def build_config(cls, settings: dict, where: str, base=None):
-    """``cls`` with ``settings`` overriding ``base`` (or the defaults); unknown keys name themselves."""
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(settings) - fields)
-    if unknown:
-        raise ValueError(f"{where}: unknown setting(s) {unknown}; valid keys: {sorted(fields)}")
-    values = {k: _tuples(v) for k, v in settings.items()}
-    return dataclasses.replace(base, **values) if base is not None else cls(**values)
-
-
-def _tuples(v):
-    """YAML lists -> tuples, so frozen configs stay hashable."""
-    return tuple(_tuples(x) for x in v) if isinstance(v, list) else v
 
 
 def make_3dgs(views, objective, settings: dict, seed: int, points=None):

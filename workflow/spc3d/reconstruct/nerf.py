@@ -14,6 +14,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..training import set_lr  # noqa: F401 - part of this module's API (lr_at -> set_lr)
 from .volume import composite, edges_from_points, sample_pdf, stratified_t
 
 
@@ -135,12 +136,6 @@ def make_optimizer(model: NeRF, cfg: NerfConfig) -> torch.optim.Optimizer:
     """Adam (β = 0.9, 0.999, as the paper) over all weights, one group named 'mlp'."""
     return torch.optim.Adam([{"params": list(model.parameters()), "name": "mlp", "lr": cfg.lr}],
                             betas=(0.9, 0.999))
-
-
-def set_lr(optimizer: torch.optim.Optimizer, lrs: dict[str, float]) -> None:
-    """Set each named parameter group's learning rate from ``lrs`` (as returned by ``lr_at``)."""
-    for group in optimizer.param_groups:
-        group["lr"] = lrs[group["name"]]
 
 
 __all__ = ["NerfConfig", "nerf_preset", "NeRF", "NerfMLP", "positional_encoding", "lr_at", "make_optimizer",

@@ -22,6 +22,7 @@ from ..cameras import Cameras, transform_cameras
 from . import nerf, nerf_grid
 from .rays import camera_rays, ndc_rays, recenter, view_dirs
 from ..metrics import psnr
+from ..training import default_device, set_lr
 from .train import Views
 from .volume import render_chunked
 
@@ -35,10 +36,6 @@ def all_rays(cams: Cameras, idx) -> tuple[Tensor, Tensor, Tensor]:
         o_n, d_n = ndc_rays(o, d, float(fx), float(fy), cams.width, cams.height)
         o_all.append(o_n), d_all.append(d_n), v_all.append(view_dirs(d))
     return torch.cat(o_all), torch.cat(d_all), torch.cat(v_all)
-
-
-def default_device() -> torch.device:
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
 class RayTrainer:
@@ -61,7 +58,7 @@ class RayTrainer:
     def step(self, it: int) -> dict:
         if self.kind == "nerf-grid":
             self._grid_schedule(it)
-        _set_lr(self.opt, self.lib.lr_at(it, self.cfg))
+        set_lr(self.opt, self.lib.lr_at(it, self.cfg))
         sel = torch.as_tensor(self.rng.integers(self.targets.shape[0], size=self.cfg.batch_rays), device=self.device)
         out = self.model(self.rays[0][sel], self.rays[1][sel], train=True, viewdirs=self.rays[2][sel])
         target = self.targets[sel]
@@ -109,8 +106,3 @@ class RayTrainer:
         self.opt = self.lib.make_optimizer(self.model, self.cfg)
         self.opt.load_state_dict(state["opt"])
         self.rng.bit_generator.state = state["rng"]
-
-
-def _set_lr(opt: torch.optim.Optimizer, lrs: dict[str, float]) -> None:
-    for group in opt.param_groups:
-        group["lr"] = lrs[group["name"]]

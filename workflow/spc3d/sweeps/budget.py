@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 
 from ..augment import split_count
-from ..reconstruct import build_config
+from ..training import build_config
 from .knobs import PLAIN_SOURCES, check_setting, split_combination, used_knobs
 
 # The translator's main width (``width`` knob) per stage-1 method.

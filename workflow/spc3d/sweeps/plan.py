@@ -6,7 +6,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pandas as pd
 
@@ -64,9 +63,11 @@ def point_base(combo: str, config: dict, scene: str, train: list[str], specs: di
 
 
 def scene_inputs(base: dict) -> list[str]:
-    """The poses files of the real LLFF scenes a point reads (so that editing them reruns it)."""
+    """The files of the real LLFF scenes a point reads (poses and images: editing one reruns it)."""
+    from ..workflow import llff_input_files
+
     specs = [base["scene"], *base["train_scenes"].values()]
-    return [str(Path(s["path"]) / "poses_bounds.npy") for s in specs if s["kind"] == "llff"]
+    return [f for s in specs if s["kind"] == "llff" for f in llff_input_files(s["path"], s["factor"])]
 
 
 def point_paths(folder: str, table: pd.DataFrame, patterns: list[str], combos: list[str]) -> list[str]:

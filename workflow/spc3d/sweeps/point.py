@@ -35,7 +35,7 @@ from .. import io
 from ..augment import AugmentSettings, augment_scene
 from ..evaluate import evaluate
 from ..prepare import prepare_scene
-from ..reconstruct.train import peak_rss_mb
+from ..training import peak_rss_mb
 from ..simulate import simulate_scene
 from ..spc import SPCParams
 from ..stage2 import reconstruct

@@ -11,7 +11,10 @@
 
 The schedule follows pix2pix/pix2pixHD (constant lr for the first half, then linear decay to 0:
 their "100 + 100 epochs"), expressed in iterations. The checkpoint (optimiser states and the
-sampler's RNG included) lives outside the output folder so a killed job resumes when rerun.
+sampler's RNG included) lives outside the output folder so a killed job resumes when rerun; it is
+resumed only when its fingerprint (method, resolved settings, seed, frames, digests of the pairs,
+of published weights and of the perceptual-loss network, code) is the job's own
+(:mod:`spc3d.training`), otherwise discarded with the reason logged.
 """
 
 from __future__ import annotations
@@ -19,17 +22,15 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
 import torch
-from tqdm import tqdm
 
 from .. import io
-from ..reconstruct import build_config
-from ..reconstruct.train import peak_rss_mb, seed_everything
+from ..training import (Checkpoint, CheckpointPolicy, build_config, default_device, digest_arrays, digest_path,
+                        fingerprint, peak_rss_mb, run, seed_everything)
 from . import TRANSLATORS
 from .data import PairSampler, load_pairs
 
@@ -44,12 +45,12 @@ class TrainSettings:
     batch_size: int = 4  # pairs per step (pix2pix/pix2pixHD: 1)
     crop: int = 64  # random square crop side in pixels (pix2pix: 256 from 286)
     decay_from: float = 0.5  # fraction of the iterations after which lr decays linearly to 0
-    checkpoint_every: int = 200  # iterations between checkpoints
     log_every: int = 10  # iterations between curve points
 
     def __post_init__(self):
-        if self.iterations < 0 or self.batch_size < 1 or self.crop < 8:
-            raise ValueError(f"stage1.train: need iterations >= 0, batch_size >= 1, crop >= 8; got {self}")
+        if self.iterations < 0 or self.batch_size < 1 or self.crop < 8 or self.log_every < 1:
+            raise ValueError(f"stage1.train: need iterations >= 0, batch_size >= 1, crop >= 8, log_every >= 1; "
+                             f"got {self}")
         if not 0.0 <= self.decay_from <= 1.0:
             raise ValueError(f"stage1.train.decay_from={self.decay_from}: must be in [0, 1]")
 
@@ -81,69 +82,94 @@ def build_translator(method: str, cfg, device: torch.device, vgg_weights: dict |
     return TRANSLATORS[method].Translator(cfg, device, vgg_weights=vgg_weights)
 
 
-def _device() -> torch.device:
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+class TranslatorTrainer:
+    """A translator and its pair sampler as a trainer for :func:`spc3d.training.run`.
+
+    Each step sets the learning-rate scale, draws a batch and optimises; every ``log_every``
+    steps (and at the last) the losses join ``curve``, which the checkpoint carries.
+    """
+
+    def __init__(self, model, sampler: PairSampler, s: TrainSettings):
+        self.model, self.sampler, self.s, self.curve = model, sampler, s, []
+
+    def step(self, it: int) -> dict[str, float]:
+        self.model.train(True)
+        self.model.set_lr_scale(lr_scale(it, self.s))
+        binary, rgb = (x.to(self.model.device) for x in self.sampler())
+        losses = self.model.train_step(binary, rgb)
+        if it % self.s.log_every == 0 or it == self.s.iterations:
+            self.curve.append({"iteration": it, **losses})
+        return losses
+
+    def state(self) -> dict:
+        return {"model": self.model.state(), "sampler": self.sampler.state(), "curve": self.curve}
+
+    def load(self, state: dict) -> None:
+        self.model.load(state["model"])
+        self.sampler.load(state["sampler"])
+        self.curve = list(state["curve"])
 
 
-def _save_checkpoint(path, it, model, sampler, elapsed, curve) -> None:
-    with io.atomic_path(path) as tmp:
-        torch.save({"iteration": it, "state": model.state(), "sampler": sampler.state(), "elapsed_s": elapsed,
-                    "curve": curve, "torch_rng": torch.get_rng_state()}, tmp)
-
-
-def _resume(path, model, sampler) -> tuple[int, float, list]:
-    if not path or not Path(path).is_file():
-        return 0, 0.0, []
-    ckpt = torch.load(path, weights_only=False, map_location="cpu")  # our own file
-    model.load(ckpt["state"])
-    sampler.load(ckpt["sampler"])
-    torch.set_rng_state(ckpt["torch_rng"])
-    log.info("resuming from %s at iteration %d", path, ckpt["iteration"])
-    return int(ckpt["iteration"]), float(ckpt["elapsed_s"]), list(ckpt["curve"])
-
-
-def fit(model, sampler: PairSampler, s: TrainSettings, checkpoint=None, desc: str = "stage1") -> dict:
+def fit(model, sampler: PairSampler, s: TrainSettings, checkpoint: Checkpoint | None = None,
+        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "stage1") -> dict:
     """Run the optimisation to ``s.iterations``; returns timing, curve and final losses."""
-    start, elapsed, curve = _resume(checkpoint, model, sampler)
-    t0, losses = time.perf_counter() - elapsed, {}
-    model.train(True)
-    bar = tqdm(range(start + 1, s.iterations + 1), desc=desc, initial=start, total=s.iterations, mininterval=2.0)
-    for it in bar:
-        model.set_lr_scale(lr_scale(it, s))
-        binary, rgb = (x.to(model.device) for x in sampler())
-        losses = model.train_step(binary, rgb)
-        if it % s.log_every == 0 or it == s.iterations:
-            curve.append({"iteration": it, **losses})
-            bar.set_postfix({k: f"{v:.4f}" for k, v in losses.items()})
-        if checkpoint and (it % s.checkpoint_every == 0 or it == s.iterations):
-            _save_checkpoint(checkpoint, it, model, sampler, time.perf_counter() - t0, curve)
-    return {"iterations": s.iterations, "resumed_from": start, "train_s": time.perf_counter() - t0,
-            "final_losses": losses, "curve": curve}
+    trainer = TranslatorTrainer(model, sampler, s)
+    if s.iterations == 0:  # published weights used as they are (setup_training allows nothing else)
+        return {"iterations": 0, "resumed_from": 0, "train_s": 0.0, "checkpoint": None, "final_losses": {},
+                "curve": []}
+    result = run(trainer, s.iterations, checkpoint, policy, desc=desc, log_every=s.log_every)
+    return {**{k: v for k, v in result.items() if k != "final"}, "final_losses": result["final"],
+            "curve": trainer.curve}
+
+
+@dataclass
+class TrainingJob:
+    """Everything a stage-1 training needs, built from the rule's arguments (see :func:`setup_training`)."""
+
+    model: object  # the Translator
+    sampler: PairSampler
+    settings: TrainSettings
+    checkpoint: Checkpoint | None
+    meta: dict  # method, seed, frames, resolved model and training settings (the fingerprint's settings)
+    pairs: int
+
+
+def setup_training(method: str, augment_dirs: list[str], settings: dict, train: dict, seed: int = 0,
+                   frames: int = 1, checkpoint: str | os.PathLike | None = None,
+                   vgg_weights: dict | None = None) -> TrainingJob:
+    """Seed, build the model and its pair sampler, and the checkpoint with this job's fingerprint."""
+    seed_everything(seed)
+    cfg, s = model_config(method, settings), build_config(TrainSettings, train, "stage1.train")
+    model = build_translator(method, cfg, default_device(), vgg_weights)
+    pretrained = settings.get("checkpoint")
+    if pretrained:
+        model.load_pretrained(pretrained)
+    elif s.iterations == 0:
+        raise ValueError(f"stage1.train.iterations=0 for {method}: an untrained network is not a result; use "
+                         f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)")
+    binary, rgb = load_pairs(augment_dirs, frames)
+    sampler = PairSampler(binary, rgb, s.batch_size, s.crop, seed, paired=model.paired)
+    meta = {"method": method, "seed": seed, "frames": frames, "settings": dataclasses.asdict(cfg),
+            "train": dataclasses.asdict(s), "pretrained": pretrained}
+    inputs = {f"pairs[{i}]": digest_path(d) for i, d in enumerate(augment_dirs)}
+    ckpt = Checkpoint(checkpoint, fingerprint("train_translator", meta, inputs | {
+        "pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)})) if checkpoint else None
+    return TrainingJob(model, sampler, s, ckpt, meta, len(binary))
 
 
 def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.PathLike, settings: dict,
                      train: dict, seed: int = 0, frames: int = 1, checkpoint: str | os.PathLike | None = None,
-                     vgg_weights: dict | None = None, threads: int | None = None) -> dict:
+                     vgg_weights: dict | None = None, threads: int | None = None,
+                     policy: CheckpointPolicy = CheckpointPolicy()) -> dict:
     """Train ``method`` on the augmented pairs of ``augment_dirs``; write ``out_dir`` (see module doc)."""
     if threads:
         torch.set_num_threads(threads)
-    seed_everything(seed)
-    cfg, s = model_config(method, settings), build_config(TrainSettings, train, "stage1.train")
-    model = build_translator(method, cfg, _device(), vgg_weights)
-    pretrained = settings.get("checkpoint")
-    if pretrained:
-        model.load_pretrained(pretrained)
-    binary, rgb = load_pairs(augment_dirs, frames)
-    sampler = PairSampler(binary, rgb, s.batch_size, s.crop, seed, paired=model.paired)
-    if checkpoint:
-        Path(checkpoint).parent.mkdir(parents=True, exist_ok=True)
-    result = fit(model, sampler, s, checkpoint, desc=method)
-    record = {"method": method, "seed": seed, "frames": frames, "pairs": len(binary),
-              "augment_dirs": [str(d) for d in augment_dirs], "pretrained": pretrained,
-              "settings": dataclasses.asdict(cfg), "train": dataclasses.asdict(s),
-              "parameters": model.parameter_count(), "device": str(model.device),
+    job = setup_training(method, augment_dirs, settings, train, seed, frames, checkpoint, vgg_weights)
+    result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method)
+    record = {**job.meta, "pairs": job.pairs, "augment_dirs": [str(d) for d in augment_dirs],
+              "parameters": job.model.parameter_count(), "device": str(job.model.device),
               "peak_rss_mb": peak_rss_mb(), **{k: v for k, v in result.items() if k != "curve"}}
-    write_model_folder(out_dir, model, record, result["curve"])
+    write_model_folder(out_dir, job.model, record, result["curve"])
     return record
 
 
@@ -191,7 +217,7 @@ def load_translator(model_dir: str | os.PathLike, device: torch.device | None = 
     cfg = build_config(TRANSLATORS[method].Config, saved["config"], f"{path} config")
     if any(f.name == "vgg_loss" for f in dataclasses.fields(cfg)):
         cfg = dataclasses.replace(cfg, vgg_loss=False)  # the perceptual loss is a training-only network
-    model = build_translator(method, cfg, device or _device())
+    model = build_translator(method, cfg, device or default_device())
     for k, m in model.modules().items():
         m.load_state_dict(saved["modules"][k])
     return method, model

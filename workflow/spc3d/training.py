@@ -1,0 +1,289 @@
+"""Training utilities shared by stage 1 (:mod:`spc3d.translate`) and stage 2 (:mod:`spc3d.reconstruct`).
+
+    seed_everything, default_device, peak_rss_mb, build_config    small helpers both stages use
+    fingerprint, digest_path                                       what determines a training
+    Checkpoint, CheckpointPolicy                                   checkpoints that belong to their settings
+    run                                                            the one training loop
+
+A trainer (stage 1: :class:`spc3d.translate.train.TranslatorTrainer`; stage 2: one per model
+family) offers
+
+    step(it) -> dict[str, float]     one optimisation step (``it`` is 1-based); the values are shown
+    state() -> dict / load(state)    everything needed to continue bit for bit (no pickled objects:
+                                     tensors, numbers, strings, lists and dicts only)
+
+:func:`run` drives it: a tqdm bar, a checkpoint every ``CheckpointPolicy.fraction`` of the run or
+every ``minutes`` of training, whichever comes first (and at the end), and on restart a resume from
+the last checkpoint.
+
+**A checkpoint belongs to its settings.** It stores the job's *fingerprint*: the resolved settings
+and seed, a digest of every input file, a digest of this package's code and :data:`FORMAT`. It is
+resumed only when the fingerprint is identical; otherwise it is deleted, with a log line naming
+what changed (``settings.iterations: 40 -> 20``), and the training starts from scratch. A rerun
+after a settings change can therefore never continue (or silently reuse) a model trained under
+other settings, and the record describes the model actually in it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import logging
+import math
+import os
+import random
+import resource
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from . import io
+
+log = logging.getLogger(__name__)
+
+FORMAT = 2  # bump when what a checkpoint holds changes meaning (2: fingerprinted checkpoints)
+
+
+# --- small helpers ------------------------------------------------------------------------------
+
+def seed_everything(seed: int) -> None:
+    """Python, numpy and torch's global generators (models draw from their own seeded streams too)."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def default_device() -> torch.device:
+    """CUDA when present, else the CPU."""
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process in MiB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def set_lr(optimizer: torch.optim.Optimizer, lrs: dict[str, float]) -> None:
+    """Set each named parameter group's learning rate from ``lrs`` (group name -> lr)."""
+    for group in optimizer.param_groups:
+        group["lr"] = lrs[group["name"]]
+
+
+def build_config(cls, settings: dict, where: str, base=None):
+    """``cls`` with ``settings`` overriding ``base`` (or the defaults); unknown keys name themselves."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(settings) - fields)
+    if unknown:
+        raise ValueError(f"{where}: unknown setting(s) {unknown}; valid keys: {sorted(fields)}")
+    values = {k: _tuples(v) for k, v in settings.items()}
+    return dataclasses.replace(base, **values) if base is not None else cls(**values)
+
+
+def _tuples(v):
+    """YAML lists -> tuples, so frozen configs stay hashable."""
+    return tuple(_tuples(x) for x in v) if isinstance(v, list) else v
+
+
+# --- fingerprints -------------------------------------------------------------------------------
+
+def _hash_file(h, path: Path) -> None:
+    with open(path, "rb") as f:
+        for block in iter(functools.partial(f.read, 1 << 20), b""):
+            h.update(block)
+
+
+def digest_path(path: str | os.PathLike | None) -> str | None:
+    """sha256 of a file, or of a folder's files (relative names and contents, sorted).
+
+    Hidden entries (``.name``: the atomic writers' temporary folders) are skipped.
+    """
+    if path is None:
+        return None
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"input {path} does not exist (cannot fingerprint a training on it)")
+    h = hashlib.sha256()
+    if path.is_file():
+        _hash_file(h, path)
+        return h.hexdigest()
+    for root, dirs, files in os.walk(path):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in sorted(f for f in files if not f.startswith(".")):
+            file = Path(root) / name
+            h.update(str(file.relative_to(path)).encode() + b"\0")
+            _hash_file(h, file)
+    return h.hexdigest()
+
+
+def digest_arrays(arrays: dict | None) -> str | None:
+    """sha256 of a dict of arrays (e.g. loss-network weights handed over in memory)."""
+    if arrays is None:
+        return None
+    h = hashlib.sha256()
+    for key in sorted(arrays):
+        a = np.ascontiguousarray(np.asarray(arrays[key]))
+        h.update(f"{key}:{a.dtype}:{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """sha256 of this package's Python sources: a code change invalidates every checkpoint."""
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for file in sorted(root.rglob("*.py")):
+        h.update(str(file.relative_to(root)).encode() + b"\0")
+        _hash_file(h, file)
+    return h.hexdigest()
+
+
+def canonical(obj):
+    """A JSON-stable copy: tuples -> lists, numpy scalars -> numbers, paths -> strings, keys sorted."""
+    return json.loads(json.dumps(obj, sort_keys=True, default=io.json_default))
+
+
+FINGERPRINT_KEYS = ("format", "code", "kind", "inputs")
+
+
+def fingerprint(kind: str, job: dict, inputs: dict[str, str | None]) -> dict:
+    """What determines a training: its kind, the job's resolved settings (seed included), input
+    digests and the code. ``job``'s keys sit at the top level, so a change reads as
+    ``settings.iterations: 40 -> 20`` or ``seed: 0 -> 1``; ``inputs`` maps a name to a digest
+    (:func:`digest_path`, :func:`digest_arrays`) or None."""
+    clash = sorted(set(job) & set(FINGERPRINT_KEYS))
+    if clash:
+        raise ValueError(f"fingerprint: job keys {clash} are reserved")
+    return {"format": FORMAT, "code": code_digest(), "kind": kind, **canonical(job), "inputs": dict(inputs)}
+
+
+def _flatten(obj, prefix: str = "") -> dict:
+    if isinstance(obj, dict):
+        out = {}
+        for k, v in obj.items():
+            out.update(_flatten(v, f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    return {prefix: obj}
+
+
+def differences(old: dict, new: dict, limit: int = 6) -> str:
+    """What changed between two fingerprints, e.g. ``settings.iterations: 40 -> 20; inputs.scene changed``."""
+    a, b = _flatten(old), _flatten(new)
+    diffs = []
+    for key in sorted(set(a) | set(b)):
+        if a.get(key, "<unset>") == b.get(key, "<unset>"):
+            continue
+        if key.startswith("inputs.") or key == "code":
+            diffs.append(f"{key} changed")
+        else:
+            diffs.append(f"{key}: {_short(a.get(key, '<unset>'))} -> {_short(b.get(key, '<unset>'))}")
+    more = f"; and {len(diffs) - limit} more" if len(diffs) > limit else ""
+    return "; ".join(diffs[:limit]) + more
+
+
+def _short(value) -> str:
+    text = json.dumps(value) if not isinstance(value, str) else value
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+# --- checkpoints --------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CheckpointPolicy:
+    """When a training writes its checkpoint (always at the end too)."""
+
+    fraction: float = 0.1  # every this fraction of the run's iterations (0: never by count)
+    minutes: float = 10.0  # and after this many minutes of training since the last one (0: never by time)
+
+    def __post_init__(self):
+        if not 0.0 <= self.fraction <= 1.0 or self.minutes < 0:
+            raise ValueError(f"checkpoints: need 0 <= fraction <= 1 and minutes >= 0, got {self}")
+
+    def every(self, iterations: int) -> int | None:
+        """Iterations between count-based checkpoints (None: only by time and at the end)."""
+        return max(1, math.ceil(self.fraction * iterations)) if self.fraction > 0 else None
+
+
+class Checkpoint:
+    """One training's checkpoint file and the fingerprint it must carry to be resumed.
+
+    ``record`` collects what happened (resumed from, discarded and why, saves) for ``train.json``.
+    """
+
+    def __init__(self, path: str | os.PathLike, fingerprint: dict):
+        self.path, self.fingerprint = Path(path), fingerprint
+        self.record = {"path": str(self.path), "resumed_from": 0, "discarded": None, "saves": 0}
+
+    def _read(self) -> dict | None:
+        """The saved checkpoint if it belongs to this job, else None (discarded with a reason)."""
+        if not self.path.is_file():
+            return None
+        try:
+            saved = torch.load(self.path, weights_only=True, map_location="cpu")
+            old = saved["fingerprint"]
+        except Exception as e:  # noqa: BLE001 - any unreadable file is discarded the same way
+            return self._discard(f"unreadable ({type(e).__name__}: {str(e).splitlines()[0][:120]})")
+        if old != self.fingerprint:
+            return self._discard(differences(old, self.fingerprint))
+        return saved
+
+    def _discard(self, why: str) -> None:
+        log.warning("discarding checkpoint %s, it does not belong to this run: %s", self.path, why)
+        self.path.unlink(missing_ok=True)
+        self.record["discarded"] = why
+        return None
+
+    def resume(self, trainer) -> tuple[int, float]:
+        """Load ``trainer`` from the checkpoint if it belongs to this job: (iterations done, seconds)."""
+        saved = self._read()
+        if saved is None:
+            return 0, 0.0
+        trainer.load(saved["state"])
+        torch.set_rng_state(saved["torch_rng"])
+        it = int(saved["iteration"])
+        log.info("resuming from %s at iteration %d", self.path, it)
+        self.record["resumed_from"] = it
+        return it, float(saved["elapsed_s"])
+
+    def save(self, it: int, trainer, elapsed: float) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with io.atomic_path(self.path) as tmp:
+            torch.save({"fingerprint": self.fingerprint, "iteration": it, "state": trainer.state(),
+                        "elapsed_s": elapsed, "torch_rng": torch.get_rng_state()}, tmp)
+        self.record["saves"] += 1
+
+
+# --- the loop -----------------------------------------------------------------------------------
+
+def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
+        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "train", log_every: int = 50,
+        postfix=None) -> dict:
+    """Train to ``iterations`` (resuming from ``checkpoint`` when it belongs to this job).
+
+    ``postfix(stats) -> dict`` adds values to the progress bar every ``log_every`` steps.
+    Returns iterations, resume point, training seconds, the last step's values and the
+    checkpoint record.
+    """
+    if iterations < 1:
+        raise ValueError(f"{desc}: iterations must be >= 1 (got {iterations}); an untrained model is not a result")
+    start, elapsed = checkpoint.resume(trainer) if checkpoint else (0, 0.0)
+    every, t0 = policy.every(iterations), time.perf_counter() - elapsed
+    last_save, stats = time.perf_counter(), {}
+    bar = tqdm(range(start + 1, iterations + 1), desc=desc, initial=start, total=iterations, mininterval=2.0)
+    for it in bar:
+        stats = trainer.step(it)
+        if it % log_every == 0:
+            bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items()} | (postfix(stats) if postfix else {}))
+        due = it == iterations or (every and it % every == 0) or \
+            (policy.minutes > 0 and time.perf_counter() - last_save >= 60.0 * policy.minutes)
+        if checkpoint and due:
+            checkpoint.save(it, trainer, time.perf_counter() - t0)
+            last_save = time.perf_counter()
+    return {"iterations": iterations, "resumed_from": start, "train_s": time.perf_counter() - t0,
+            "final": stats, "checkpoint": checkpoint.record if checkpoint else None}
