@@ -1,11 +1,18 @@
 # spc3d: binary single-photon-camera images -> colour novel views.
 # Thin on purpose: the stages live in workflow/rules/*.smk, the logic in the spc3d library.
+import sys
+
 from snakemake.utils import min_version
 
 min_version("8.0")
-
+sys.path.insert(0, f"{workflow.basedir}/workflow")  # a source checkout works without `pip install -e .`
+from spc3d.config import read_yaml
 
 # The repository's config.yaml is the default even with --directory elsewhere; --configfile overrides.
+# Read once first: a YAML syntax error then names its line (Snakemake's own message does not).
+read_yaml(f"{workflow.basedir}/config.yaml")
+
+
 configfile: f"{workflow.basedir}/config.yaml"
 
 

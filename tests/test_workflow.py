@@ -41,20 +41,6 @@ def test_bad_scene_config_is_named(change, match):
         scene_specs(cfg, sorted(LAYOUTS), REPO)
 
 
-@pytest.mark.parametrize("override,match", [
-    ("resolution: {width: big}", r"'big' is not of type 'integer'.*\['resolution'\]\['width'\]"),
-    ("spc: {q: 1.5}", r"1.5 is greater than the maximum of 1"),
-    ("spc: {mode: poisson}", r"'poisson' is not one of \['bernoulli', 'paper'\]"),
-    ("colour: 3", r"Additional properties are not allowed \('colour' was unexpected\)"),
-])
-def test_schema_errors_name_the_key(tmp_path, override, match):
-    cfg = tmp_path / "bad.yaml"
-    cfg.write_text(override + "\n")
-    proc = snakemake(tmp_path, "-n", "--configfile", str(cfg), timeout=120)
-    assert proc.returncode != 0
-    assert re.search(match, proc.stderr + proc.stdout, re.S), proc.stderr[-2000:]
-
-
 def test_dry_run_lists_the_dag(tmp_path):
     proc = snakemake(tmp_path, "-n", "--quiet", "rules", timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -1,13 +1,16 @@
 # Config validation and the small named helpers the rules use (no logic in the rules themselves).
-import sys
 from pathlib import Path
 
 from snakemake.utils import validate
 
-validate(config, schema="../schemas/config.schema.yaml")
+from spc3d.config import check_config, check_settings, read_yaml, resolve_paths
 
-# A source checkout works without `pip install -e .` too.
-sys.path.insert(0, str(Path(workflow.basedir) / "workflow"))
+# Short messages naming the key (Snakemake's own validate prints the whole schema), then its
+# validate fills in the defaults; every relative path is then taken from the repository root.
+check_config(config, read_yaml(Path(workflow.basedir) / "workflow" / "schemas" / "config.schema.yaml"))
+validate(config, schema="../schemas/config.schema.yaml")
+resolve_paths(config, workflow.basedir)
+
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
 from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, llff_input_files, resolve_combinations, scene_specs,
@@ -16,7 +19,7 @@ from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, llff_input_files, res
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
 LPIPS_WEIGHTS = {net: f"results/cache/lpips/lpips_v0.1_{net}.npz" for net in ("alex", "vgg")}
-SCENE_SPECS = scene_specs(config, sorted(LAYOUTS), workflow.basedir)
+SCENE_SPECS = scene_specs(config, sorted(LAYOUTS))
 TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])
 ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
@@ -24,6 +27,7 @@ COLMAP_INPUTS = list(config["colmap"]["inputs"])
 STAGE2_MODELS = ["3dgs", "nerf", "nerf-grid"]
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
+check_settings(config, STAGE1_USED, sorted({c.partition("+")[2] for c in COMBINATIONS}))
 # Stage-2 repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}".
 SEEDS = [config["seed"] + k for k in range(config["stage2"]["seeds"])]
 # Sources scored before 3D (stage1_evaluate): the translators in use and the training-free images.
@@ -143,6 +147,12 @@ def get_translator_train(wildcards):
     return translator_settings(config["stage1"], wildcards.method)[1]
 
 
+def get_translator_pretrained(wildcards):
+    """Published weights the method starts from (an input: replacing the file retrains it); none by default."""
+    path = get_translator_settings(wildcards).get("checkpoint")
+    return [path] if path else []
+
+
 def get_translator_checkpoint(wildcards):
     return f"results/checkpoints/models/{wildcards.method}/checkpoint.pt"
 
@@ -167,3 +177,62 @@ def get_qualitative_inputs(wildcards):
 def get_stage2_gpus(wildcards):
     """GPUs a stage-2 job can use: 3DGS runs on CPU threads here, the NeRFs use CUDA when present."""
     return 0 if wildcards.model == "3dgs" else 1
+
+
+
+# --- SLURM: every distinct request is tried before anything is submitted -------------------------
+import subprocess
+
+from snakemake.exceptions import WorkflowError
+
+
+onstart:
+    check_slurm_requests()
+
+
+SBATCH_FLAGS = {"slurm_partition": "--partition={}", "slurm_account": "--account={}", "mem_mb": "--mem={}",
+                "runtime": "--time={}", "threads": "--cpus-per-task={}", "gpu": "--gpus={}"}
+
+
+def check_slurm_requests():
+    """With the SLURM executor: each distinct request of the jobs to run (the resources the plugin
+    turns into sbatch options, first attempt) is tried with `sbatch --test-only`, so one the cluster
+    cannot satisfy (an unknown partition, more memory, CPUs or GPUs than a node has) stops the run at
+    once, naming the rule and the resource, instead of failing later with sbatch's vaguer answer."""
+    if getattr(workflow.executor_plugin, "name", None) != "slurm":
+        return
+    requests = {}
+    for job in workflow.dag.needrun_jobs():
+        if not job.is_local:
+            ask = {k: job.resources.get(k) for k in SBATCH_FLAGS if k != "threads"} | {"threads": job.threads}
+            requests.setdefault(tuple((k, v) for k, v in ask.items() if v not in (None, "", 0)), job)
+    problems = [p for ask, job in requests.items() if (p := slurm_problem(job, dict(ask)))]
+    if problems:
+        raise WorkflowError("SLURM cannot run these jobs, nothing was submitted:\n  " + "\n  ".join(problems))
+
+
+def slurm_problem(job, ask):
+    """None if SLURM accepts ``ask`` for ``job``; else one line naming the rule and what is too much."""
+    flags = [SBATCH_FLAGS[k].format(v) for k, v in ask.items()]
+    test = subprocess.run(["sbatch", "--test-only", *flags, "--wrap", "true"], capture_output=True, text=True)
+    if test.returncode == 0:
+        return None
+    part = ask.get("slurm_partition")
+    sinfo = subprocess.run(["sinfo", "-N", "-h", "-o", "%P %c %m %G"], capture_output=True, text=True).stdout
+    nodes = [line.split() for line in sinfo.splitlines()]  # partition (default: *), CPUs, MB, GRES
+    mine = [n for n in nodes if n[0].rstrip("*") == part or (part is None and n[0].endswith("*"))]
+    where = f"partition {part}" if part else "the default partition"
+    cpus, mem = max((int(n[1].rstrip("+")) for n in mine), default=0), max((int(n[2].rstrip("+")) for n in mine), default=0)
+    if not mine:
+        what = f"slurm_partition={part}: no such partition (there are {', '.join(sorted({n[0] for n in nodes}))})"
+    elif ask.get("mem_mb", 0) > mem:
+        what = f"mem_mb={ask['mem_mb']}: more memory than any node in {where} has ({mem} MB)"
+    elif ask["threads"] > cpus:
+        what = f"threads={ask['threads']}: more CPUs than any node in {where} has ({cpus})"
+    elif ask.get("gpu") and not any("gpu" in n[3] for n in mine):
+        what = f"gpu={ask['gpu']}: no node in {where} has a GPU (ask for gpu=0, or a GPU partition)"
+    else:
+        what = "asks for " + ", ".join(f"{k}={v}" for k, v in ask.items())
+    wildcards = ", ".join(f"{k}={v}" for k, v in job.wildcards.items())
+    answer = " ".join(test.stderr.split())
+    return f"rule {job.rule.name} ({wildcards}): {what}. `sbatch --test-only {' '.join(flags)}`: {answer}"

@@ -7,6 +7,7 @@ rule train_translator:
     input:
         pairs=expand("results/augment/{scene}", scene=TRAIN_SCENES),
         vgg=LPIPS_WEIGHTS["vgg"],
+        pretrained=get_translator_pretrained,
     output:
         report(
             directory("results/models/{method}"),

@@ -12,14 +12,13 @@ TRADEOFF_COMBOS = parse_combinations(config["tradeoff"]["combinations"], config[
                                      PLAIN_SOURCES + STAGE1_METHODS, "tradeoff.combinations")
 PHOTON_COMBOS = parse_combinations(config["photon_level"]["combinations"], config["stage2"]["nerf_variant"],
                                    PLAIN_SOURCES + STAGE1_METHODS, "photon_level.combinations")
-TRADEOFF_SPACE = Paramspace(read_table(Path(workflow.basedir) / config["tradeoff"]["table"]))
+TRADEOFF_SPACE = Paramspace(read_table(config["tradeoff"]["table"]))
 PHOTON_SPACE = Paramspace(photon_table(config["photon_level"]["detection"], config["photon_level"]["frames"],
                                        "photon_level.detection/frames"))
 PHOTON_BUDGET = photon_budget(config["photon_level"]["budget"])
 SWEEP_SCENE, SWEEP_TRAIN = sweep_scenes(config["tradeoff"]["scene"], config["tradeoff"]["train_scenes"], EVAL_SCENES,
                                         TRAIN_SCENES, sorted(LAYOUTS) + sorted(config["llff_scenes"]))
-SWEEP_SPECS = scene_specs(config | {"scenes": {"train": SWEEP_TRAIN, "eval": [SWEEP_SCENE]}}, sorted(LAYOUTS),
-                          workflow.basedir)
+SWEEP_SPECS = scene_specs(config | {"scenes": {"train": SWEEP_TRAIN, "eval": [SWEEP_SCENE]}}, sorted(LAYOUTS))
 # Per combination: the config values a point starts from (spc3d.sweeps.budget) and the LLFF files it reads.
 SWEEP_BASES = ByCombination({c: point_base(c, config, SWEEP_SCENE, SWEEP_TRAIN, SWEEP_SPECS,
                                            {m: translator_settings(config["stage1"], m) for m in STAGE1_METHODS})
@@ -40,6 +39,9 @@ rule tradeoff_point:
         budget={},
         base=SWEEP_BASES,
         keep_work=config["tradeoff"]["keep_work"],
+        # outside the point's folder: a killed point resumes its trainings (deleted at its end unless keep_work)
+        checkpoints=f"results/checkpoints/tradeoff/{{combo}}/{TRADEOFF_SPACE.wildcard_pattern}",
+        policy=config["checkpoints"],
     log:
         f"logs/tradeoff/{{combo}}/{TRADEOFF_SPACE.wildcard_pattern}.log",
     benchmark:
@@ -93,6 +95,9 @@ rule photon_level_point:
         budget=PHOTON_BUDGET,
         base=SWEEP_BASES,
         keep_work=config["tradeoff"]["keep_work"],
+        # outside the point's folder: a killed point resumes its trainings (deleted at its end unless keep_work)
+        checkpoints=f"results/checkpoints/photon_level/{{combo}}/{PHOTON_SPACE.wildcard_pattern}",
+        policy=config["checkpoints"],
     log:
         f"logs/photon_level/{{combo}}/{PHOTON_SPACE.wildcard_pattern}.log",
     benchmark:

@@ -87,6 +87,19 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     return np.ascontiguousarray(data, dtype=np.float32)
 
 
+def image_shape(path: str | os.PathLike) -> tuple[int, int, int]:
+    """(H, W, C) of an image from its header alone (no pixel is decoded)."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format or missing file'}")
+    try:
+        spec = inp.spec()
+        return spec.height, spec.width, spec.nchannels
+    finally:
+        inp.close()
+
+
 def read_rgb(path: str | os.PathLike) -> np.ndarray:
     """Read an image as float32 (H, W, 3) in [0, 1]: gray is replicated, alpha dropped."""
     img = read_image(path)
@@ -192,3 +205,27 @@ def json_default(o):
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def load_torch(path: str | os.PathLike, what: str = "checkpoint"):
+    """A torch file's tensors, numbers, strings and containers, on the CPU; never runs pickled code.
+
+    A missing, corrupt or code-carrying file raises an error naming ``path`` and ``what`` it was
+    meant to be (torch's own message would advise ``weights_only=False``, unsafe for a file
+    from elsewhere).
+    """
+    import pickle
+
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} {path} does not exist")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        why = "it holds pickled Python objects, not only tensors; spc3d does not run code from weight files"
+    except Exception as e:  # noqa: BLE001 - torch raises many types for a damaged file
+        why = f"{type(e).__name__}: {str(e).splitlines()[0][:160]}"
+    raise ValueError(f"{path} is not a readable {what} ({why}); give a file written by torch.save of a "
+                     f"state_dict (a dict of tensors)")

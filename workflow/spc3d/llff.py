@@ -52,23 +52,88 @@ def image_folder(root: str | os.PathLike, factor: int) -> Path:
 
 def load_llff(root: str | os.PathLike, factor: int = 8, width: int | None = None) -> SceneData:
     """Load an LLFF folder at ``factor``, then area-downscale to ``width`` (aspect kept) if given."""
+    files, poses_bounds = llff_contents(root, factor)
+    images = read_views(files)
+    cams = llff_to_cameras(poses_bounds, images.shape[1], images.shape[2])
+    scene = SceneData(images, cams, [f.stem for f in files], meta={"source": str(root), "factor": factor})
+    return resize_scene(scene, width) if width else scene
+
+
+def llff_contents(root: str | os.PathLike, factor: int) -> tuple[list[Path], np.ndarray]:
+    """The image files at ``factor`` and the checked ``poses_bounds`` of an LLFF folder.
+
+    Cheap (no image is decoded), so the workflow calls it at parse time too: a folder whose poses
+    are not finite, whose bounds are not 0 < near < far, or whose image count differs from its
+    pose count is refused before any job runs.
+    """
     root = Path(root)
     folder = image_folder(root, factor)
     pb_path = root / "poses_bounds.npy"
     if not pb_path.is_file():
         raise FileNotFoundError(f"{pb_path} is missing (an LLFF folder needs poses_bounds.npy, N x 17)")
-    poses_bounds = np.load(pb_path)
+    try:
+        poses_bounds = np.load(pb_path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"cannot read {pb_path}: {e} (expected a .npy array, N x 17)") from None
+    check_poses_bounds(poses_bounds, pb_path)
     files = io.list_images(folder)
     if len(files) != len(poses_bounds):
         raise ValueError(
             f"{folder} holds {len(files)} images but {pb_path} has {len(poses_bounds)} poses; they must match"
         )
-    images = np.stack([io.read_rgb(f) for f in files])
-    if len({im.shape for im in images}) > 1:
-        raise ValueError(f"images in {folder} differ in size")
-    cams = llff_to_cameras(poses_bounds, images.shape[1], images.shape[2])
-    scene = SceneData(images, cams, [f.stem for f in files], meta={"source": str(root), "factor": factor})
-    return resize_scene(scene, width) if width else scene
+    check_image_headers(files)
+    return files, poses_bounds
+
+
+def check_poses_bounds(pb: np.ndarray, path) -> None:
+    """LLFF poses_bounds (N, 17): finite numbers, proper rotations, positive hwf, 0 < near < far."""
+    if pb.ndim != 2 or pb.shape[1] != 17 or pb.shape[0] == 0 or not np.issubdtype(pb.dtype, np.number):
+        raise ValueError(f"{path}: array of shape {pb.shape} ({pb.dtype}); LLFF poses_bounds.npy is N x 17 numbers "
+                         f"(a 3x5 pose [R | t | h w f] per view, then near and far)")
+    bad = np.flatnonzero(~np.isfinite(pb).all(axis=1))
+    if bad.size:
+        raise ValueError(f"{path}: non-finite poses (NaN or inf) in view(s) {_first(bad)}; every pose, hwf and "
+                         f"bound must be a finite number")
+    poses = pb[:, :15].reshape(-1, 3, 5)
+    rot = poses[:, :, :3]
+    err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((err > 1e-3) | (np.linalg.det(rot) <= 0))
+    if bad.size:
+        raise ValueError(f"{path}: the 3x3 part of view(s) {_first(bad)} is not a rotation (orthonormal, det +1)")
+    bad = np.flatnonzero((poses[:, :, 4] <= 0).any(axis=1))
+    if bad.size:
+        raise ValueError(f"{path}: view(s) {_first(bad)} have height, width or focal length <= 0 (column 5 of "
+                         f"the pose is h, w, f in pixels)")
+    near, far = pb[:, 15], pb[:, 16]
+    bad = np.flatnonzero((near <= 0) | (far <= near))
+    if bad.size:
+        i = bad[0]
+        raise ValueError(f"{path}: view(s) {_first(bad)} have bounds near={near[i]:g}, far={far[i]:g}; need "
+                         f"0 < near < far (scene depths in front of the camera)")
+
+
+def _first(indices: np.ndarray, n: int = 5) -> str:
+    shown = ", ".join(map(str, indices[:n]))
+    return shown + (f" (and {len(indices) - n} more)" if len(indices) > n else "")
+
+
+def check_image_headers(files: list[Path]) -> None:
+    """Every view RGB (3 channels, or 4 with alpha) and of one size, judged from the file headers."""
+    first = None
+    for f in files:
+        h, w, c = io.image_shape(f)
+        if c not in (3, 4):
+            raise ValueError(f"{f}: {c} channel(s); the views of a scene must be RGB (3 channels, or 4 with "
+                             f"alpha): convert it, or remove it together with its row of poses_bounds.npy")
+        first = first or (f, h, w)
+        if (h, w) != first[1:]:
+            raise ValueError(f"{f} is {w}x{h} pixels but {first[0].name} is {first[2]}x{first[1]}: every image of "
+                             f"{f.parent} must have the same size")
+
+
+def read_views(files: list[Path]) -> np.ndarray:
+    """(N, H, W, 3) sRGB in [0, 1] of a scene's views (alpha dropped; see :func:`check_image_headers`)."""
+    return np.stack([np.clip(io.read_image(f)[:, :, :3], 0.0, 1.0) for f in files])
 
 
 def resize_scene(scene: SceneData, width: int, height: int | None = None) -> SceneData:

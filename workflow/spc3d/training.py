@@ -27,6 +27,7 @@ other settings, and the record describes the model actually in it.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import hashlib
 import json
@@ -76,13 +77,48 @@ def set_lr(optimizer: torch.optim.Optimizer, lrs: dict[str, float]) -> None:
 
 
 def build_config(cls, settings: dict, where: str, base=None):
-    """``cls`` with ``settings`` overriding ``base`` (or the defaults); unknown keys name themselves."""
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(settings) - fields)
+    """``cls`` with ``settings`` overriding ``base`` (or the defaults).
+
+    Unknown keys, values of the wrong type (judged by the field's default) and the class's own
+    checks (``__post_init__``) raise a ValueError that names ``where``, the key and the value.
+    """
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(settings) - set(fields))
     if unknown:
-        raise ValueError(f"{where}: unknown setting(s) {unknown}; valid keys: {sorted(fields)}")
+        close = difflib.get_close_matches(unknown[0], fields, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ValueError(f"{where}: unknown setting(s) {unknown}; {hint}valid keys: {sorted(fields)}")
     values = {k: _tuples(v) for k, v in settings.items()}
-    return dataclasses.replace(base, **values) if base is not None else cls(**values)
+    for key, value in values.items():
+        _check_type(where, key, value, _default(fields[key]))
+    try:
+        return dataclasses.replace(base, **values) if base is not None else cls(**values)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{where}: {e}") from None
+
+
+def require_positive(cfg, *names: str) -> None:
+    """For a config's ``__post_init__``: every named count must be >= 1."""
+    bad = [f"{n} = {getattr(cfg, n)!r}" for n in names if getattr(cfg, n) < 1]
+    if bad:
+        raise ValueError(f"{', '.join(bad)}: must be >= 1")
+
+
+def _default(field):
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    return field.default_factory() if field.default_factory is not dataclasses.MISSING else None
+
+
+def _check_type(where: str, key: str, value, default) -> None:
+    """``value`` must have the kind of ``default`` (an int is a fine float; None defaults take anything)."""
+    if default is None or value is None:
+        return
+    kinds = {bool: (bool,), int: (int,), float: (int, float), str: (str,), tuple: (tuple,)}
+    want = kinds.get(type(default))
+    if want and (not isinstance(value, want) or (isinstance(value, bool) and bool not in want)):
+        raise ValueError(f"{where}.{key} = {value!r}: expected {type(default).__name__} "
+                         f"(like the default {default!r})")
 
 
 def _tuples(v):

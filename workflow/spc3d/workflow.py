@@ -42,7 +42,7 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
                 if not (path / "poses_bounds.npy").is_file():
                     raise ConfigError(f"llff_scenes.{name}: {path} is not an LLFF folder (no poses_bounds.npy)")
                 specs[name] = {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
-                llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")  # the image folder exists
+                llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")  # checked now, not in a job
             elif name in builtin_layouts:
                 specs[name] = {"kind": "builtin", "layout": name, "height": res["height"], "width": res["width"],
                                "views": config["builtin"]["views"], "supersample": config["builtin"]["supersample"],
@@ -58,14 +58,16 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
 
 def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") -> list[str]:
     """The files a real LLFF scene is read from (poses_bounds.npy and every image of the folder at
-    ``factor``): declared as rule inputs, so editing one image reruns that scene and what follows."""
-    from .io import list_images
-    from .llff import image_folder
+    ``factor``), after checking the folder (:func:`spc3d.llff.llff_contents`): declared as rule
+    inputs, so editing one image reruns that scene and what follows."""
+    from .llff import llff_contents
 
     try:
-        images = list_images(image_folder(path, factor))
+        images, _ = llff_contents(path, factor)
     except FileNotFoundError as e:
         raise ConfigError(f"{where}: {e} (resolution.llff_factor={factor})") from None
+    except ValueError as e:
+        raise ConfigError(f"{where}: {e}") from None
     return [str(Path(path) / "poses_bounds.npy"), *map(str, images)]
 
 

@@ -22,6 +22,7 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import Cameras
+from ..training import require_positive
 from .splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
 from .splat.project import SH_C0
 
@@ -55,6 +56,11 @@ class GaussianConfig:
     init_points: int = 5000  # random initialisation only
     backend: str = "native"  # rasterizer back-end
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        require_positive(self, "iterations", "sh_interval", "densify_every", "max_gaussians", "init_points")
+        if not 0 <= self.sh_degree <= 3:
+            raise ValueError(f"sh_degree = {self.sh_degree}: the rasterizer evaluates degrees 0..3")
 
 
 class GaussianModel(nn.Module):

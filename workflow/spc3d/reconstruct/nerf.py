@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..training import set_lr  # noqa: F401 - part of this module's API (lr_at -> set_lr)
+from ..training import require_positive, set_lr  # noqa: F401 - set_lr: part of this module's API (lr_at -> set_lr)
 from .volume import composite, edges_from_points, sample_pdf, stratified_t
 
 
@@ -36,6 +36,9 @@ class NerfConfig:
     n_iters: int = 200_000  # iteration budget the learning rate decays over
     batch_rays: int = 1024  # rays per training step (N_rand)
     chunk: int = 4096  # rays per forward pass when rendering whole images
+
+    def __post_init__(self):
+        require_positive(self, "depth", "width", "n_coarse", "n_iters", "batch_rays", "chunk")
 
 
 def nerf_preset(name: str) -> NerfConfig:

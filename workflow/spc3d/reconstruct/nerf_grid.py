@@ -24,6 +24,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..training import require_positive
 from .nerf import positional_encoding
 from .volume import accumulate, composite_weights, stratified_t
 
@@ -55,6 +56,11 @@ class GridConfig:
     occupancy_every: int = 100  # trainer: call ``update_occupancy`` this often ...
     occupancy_warmup: int = 200  # ... from this iteration on (before it every cell is kept)
     chunk: int = 8192  # rays per forward pass when rendering whole images
+
+    def __post_init__(self):
+        require_positive(self, "channels", "n_samples", "n_iters", "batch_rays", "occupancy_every", "chunk")
+        if not self.res_schedule or any(res < 2 for _, res in self.res_schedule):
+            raise ValueError(f"res_schedule = {self.res_schedule}: needs (iteration, resolution >= 2) pairs")
 
     @property
     def step_ref(self) -> float:

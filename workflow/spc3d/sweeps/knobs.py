@@ -88,7 +88,12 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"sweep table {path} does not exist")
-    table = pd.read_csv(path, sep="\t" if path.suffix == ".tsv" else ",", comment="#", skipinitialspace=True)
+    sep = "\t" if path.suffix == ".tsv" else ","
+    try:
+        table = pd.read_csv(path, sep=sep, comment="#", skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not a {'tab' if sep == chr(9) else 'comma'}-separated table "
+                         f"({str(e).strip().splitlines()[-1]}); every row needs one value per column") from None
     table.columns = [str(c).strip() for c in table.columns]
     if table.empty:
         raise ValueError(f"{path}: the sweep table has no rows")

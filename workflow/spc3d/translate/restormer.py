@@ -34,6 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .. import io
 from .base import TranslatorBase, pad_to_multiple
 
 
@@ -312,7 +313,7 @@ class Translator(TranslatorBase):
 
 def _official_state_dict(path: Path) -> dict[str, Tensor]:
     """Read the state_dict of an official Restormer ``.pth`` ({"params": sd}; also "params_ema" or a bare sd)."""
-    blob = torch.load(path, map_location="cpu", weights_only=True)
+    blob = io.load_torch(path, "Restormer checkpoint")
     if not isinstance(blob, dict):
         raise TypeError(f"{path}: expected a dict with key 'params', got {type(blob).__name__}")
     for key in ("params", "params_ema", "state_dict"):

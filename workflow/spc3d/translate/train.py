@@ -78,6 +78,23 @@ def model_config(method: str, settings: dict):
     return build_config(module.Config, settings, f"stage1.{method}", base)
 
 
+def train_settings(train: dict, method: str, pretrained: str | None = None) -> TrainSettings:
+    """``stage1.train`` (with the method's own ``train`` block) as TrainSettings; 0 iterations only
+    when the method starts from published weights (an untrained network is not a result)."""
+    s = build_config(TrainSettings, train, f"stage1.{method}.train")
+    if s.iterations == 0 and not pretrained:
+        raise ValueError(f"stage1.train.iterations = 0 for {method}: an untrained network is not a result; use "
+                         f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)")
+    return s
+
+
+def check_pretrained(method: str, settings: dict) -> None:
+    """Load the published weights of ``settings['checkpoint']`` into the method's network now (safely:
+    no pickled code runs), so a corrupt or mismatched file stops the run before any job."""
+    cfg = model_config(method, settings)
+    build_translator(method, cfg, torch.device("cpu")).load_pretrained(settings["checkpoint"])
+
+
 def build_translator(method: str, cfg, device: torch.device, vgg_weights: dict | None = None):
     return TRANSLATORS[method].Translator(cfg, device, vgg_weights=vgg_weights)
 
@@ -136,22 +153,20 @@ class TrainingJob:
 
 def setup_training(method: str, augment_dirs: list[str], settings: dict, train: dict, seed: int = 0,
                    frames: int = 1, checkpoint: str | os.PathLike | None = None,
-                   vgg_weights: dict | None = None) -> TrainingJob:
-    """Seed, build the model and its pair sampler, and the checkpoint with this job's fingerprint."""
+                   vgg_weights: dict | None = None, input_digests: dict | None = None) -> TrainingJob:
+    """Seed, build the model and its pair sampler, and the checkpoint with this job's fingerprint
+    (``input_digests``, when given, identifies the pairs instead of digests of their folders)."""
     seed_everything(seed)
-    cfg, s = model_config(method, settings), build_config(TrainSettings, train, "stage1.train")
-    model = build_translator(method, cfg, default_device(), vgg_weights)
     pretrained = settings.get("checkpoint")
+    cfg, s = model_config(method, settings), train_settings(train, method, pretrained)
+    model = build_translator(method, cfg, default_device(), vgg_weights)
     if pretrained:
         model.load_pretrained(pretrained)
-    elif s.iterations == 0:
-        raise ValueError(f"stage1.train.iterations=0 for {method}: an untrained network is not a result; use "
-                         f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)")
     binary, rgb = load_pairs(augment_dirs, frames)
     sampler = PairSampler(binary, rgb, s.batch_size, s.crop, seed, paired=model.paired)
     meta = {"method": method, "seed": seed, "frames": frames, "settings": dataclasses.asdict(cfg),
             "train": dataclasses.asdict(s), "pretrained": pretrained}
-    inputs = {f"pairs[{i}]": digest_path(d) for i, d in enumerate(augment_dirs)}
+    inputs = input_digests or {f"pairs[{i}]": digest_path(d) for i, d in enumerate(augment_dirs)}
     ckpt = Checkpoint(checkpoint, fingerprint("train_translator", meta, inputs | {
         "pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)})) if checkpoint else None
     return TrainingJob(model, sampler, s, ckpt, meta, len(binary))
@@ -160,11 +175,12 @@ def setup_training(method: str, augment_dirs: list[str], settings: dict, train: 
 def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.PathLike, settings: dict,
                      train: dict, seed: int = 0, frames: int = 1, checkpoint: str | os.PathLike | None = None,
                      vgg_weights: dict | None = None, threads: int | None = None,
-                     policy: CheckpointPolicy = CheckpointPolicy()) -> dict:
-    """Train ``method`` on the augmented pairs of ``augment_dirs``; write ``out_dir`` (see module doc)."""
+                     policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None) -> dict:
+    """Train ``method`` on the augmented pairs of ``augment_dirs``; write ``out_dir`` (see module doc).
+    ``input_digests``: see :func:`spc3d.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
     if threads:
         torch.set_num_threads(threads)
-    job = setup_training(method, augment_dirs, settings, train, seed, frames, checkpoint, vgg_weights)
+    job = setup_training(method, augment_dirs, settings, train, seed, frames, checkpoint, vgg_weights, input_digests)
     result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method)
     record = {**job.meta, "pairs": job.pairs, "augment_dirs": [str(d) for d in augment_dirs],
               "parameters": job.model.parameter_count(), "device": str(job.model.device),
@@ -212,7 +228,7 @@ def load_translator(model_dir: str | os.PathLike, device: torch.device | None = 
     path = Path(model_dir) / "model.pt"
     if not path.is_file():
         raise FileNotFoundError(f"{path} is missing: train the method first (rule train_translator)")
-    saved = torch.load(path, weights_only=False, map_location="cpu")  # our own file
+    saved = io.load_torch(path, "trained stage-1 model")
     method = saved["method"]
     cfg = build_config(TRANSLATORS[method].Config, saved["config"], f"{path} config")
     if any(f.name == "vgg_loss" for f in dataclasses.fields(cfg)):
