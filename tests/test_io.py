@@ -79,3 +79,40 @@ def test_atomic_directory_replaces_whole(tmp_path):
     with io.atomic_path(out, is_dir=True) as tmp:
         (tmp / "b.txt").write_text("2")
     assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
+
+
+def test_atomic_folders_follow_the_umask_and_stale_temporaries_go(tmp_path):
+    """A finished folder has the umask's permissions (mkdtemp alone would leave it 0700); the
+    temporary siblings an interrupted writer left are removed when the same path is written again."""
+    stale = tmp_path / ".out.abcd1234.tmp"
+    (stale / "half").mkdir(parents=True)
+    (tmp_path / ".out.json.wxyz6789.tmp").write_text("half")  # another output's leftover: not ours to remove
+    with io.atomic_path(tmp_path / "out", is_dir=True) as tmp:
+        (tmp / "x.txt").write_text("1")
+    assert (tmp_path / "out" / "x.txt").read_text() == "1"
+    assert (tmp_path / "out").stat().st_mode & 0o777 == 0o777 & ~io.UMASK
+    assert not stale.exists() and (tmp_path / ".out.json.wxyz6789.tmp").exists()
+
+
+def test_image_shape_reads_only_the_header(tmp_path):
+    io.write_image(tmp_path / "a.png", np.zeros((5, 7, 3), np.float32))
+    assert io.image_shape(tmp_path / "a.png") == (5, 7, 3)
+    (tmp_path / "b.png").write_bytes(b"not a png")
+    with pytest.raises(ValueError, match="b.png"):
+        io.image_shape(tmp_path / "b.png")
+
+
+def test_load_torch_never_runs_pickled_code(tmp_path):
+    import torch
+
+    class Evil:
+        def __reduce__(self):
+            return (exec, ("raise SystemExit('ran')",))
+
+    torch.save({"w": Evil()}, tmp_path / "evil.pt")
+    with pytest.raises(ValueError, match=r"evil\.pt is not a readable weights file \(it holds pickled"):
+        io.load_torch(tmp_path / "evil.pt", "weights file")
+    torch.save({"w": torch.ones(2)}, tmp_path / "ok.pt")
+    assert torch.equal(io.load_torch(tmp_path / "ok.pt")["w"], torch.ones(2))
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        io.load_torch(tmp_path / "missing.pt")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -33,9 +34,12 @@ UMASK = _umask()
 
 
 def remove_stale_tmp(path: str | os.PathLike) -> list[Path]:
-    """Delete the temporary siblings an interrupted writer of ``path`` left (``.{name}.*.tmp``)."""
+    """Delete the temporary siblings an interrupted writer of ``path`` left (``.{name}.XXXXXXXX.tmp``,
+    as :func:`atomic_path` names them; ``.{name}.json.XXXXXXXX.tmp`` belongs to another output)."""
     path = Path(path)
-    stale = sorted(path.parent.glob(f".{path.name}.*.tmp")) if path.parent.is_dir() else []
+    own = re.compile(rf"\.{re.escape(path.name)}\.[a-z0-9_]{{8}}\.tmp")
+    stale = sorted(p for p in path.parent.glob(f".{path.name}.*.tmp") if own.fullmatch(p.name)) \
+        if path.parent.is_dir() else []
     for p in stale:
         shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
     return stale
