@@ -80,3 +80,56 @@ class InterruptAt:
 
     def load(self, state):
         self.trainer.load(state)
+
+
+# --- killing and resuming runs (tests/test_reliability.py) ---------------------------------------
+
+def snakemake_process(workdir, *args, log_name="snakemake.out"):
+    """Start snakemake like :func:`run_snakemake`, in a new session (its process group is its pid, so
+    ``os.killpg`` reaches it and every job); its output goes to ``workdir/log_name``."""
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
+    out = open(Path(workdir) / log_name, "w")
+    try:
+        return subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+                                env=dict(os.environ, PYTHONUNBUFFERED="1"))
+    finally:
+        out.close()  # the child holds its own copy
+
+
+def process_alive(pid: int) -> bool:
+    """Running (not ended, not a zombie waiting for its reaper) — Linux /proc."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+def child_processes(pid: int) -> list[tuple[int, str]]:
+    """(pid, command line) of every live descendant of ``pid`` (Linux /proc)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                continue
+            parents[int(entry.name)] = (int(stat[stat.rindex(")") + 2:].split()[1]), cmd)
+    found, frontier = [], {pid}
+    while frontier:
+        frontier = {p for p, (ppid, _) in parents.items() if ppid in frontier}
+        found += [(p, parents[p][1]) for p in sorted(frontier)]
+    return found
+
+
+def wait_until(condition, timeout: float, interval: float = 0.02) -> bool:
+    """Poll ``condition()`` until it holds (True) or ``timeout`` seconds pass (False)."""
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(interval)
+    return bool(condition())

@@ -2,9 +2,11 @@
 from pathlib import Path
 
 from spc3d.sweeps.point import run_point
+from spc3d.training import CheckpointPolicy
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
     p = snakemake.params
     run_point(Path(snakemake.output[0]).parent, snakemake.wildcards.combo, {**p.budget, **p.setting}, p.base,
-              lpips_dir=Path(snakemake.input.lpips[0]).parent, threads=snakemake.threads, keep_work=p.keep_work)
+              lpips_dir=Path(snakemake.input.lpips[0]).parent, threads=snakemake.threads, keep_work=p.keep_work,
+              checkpoints=p.checkpoints, policy=CheckpointPolicy(**p.policy))

@@ -38,12 +38,15 @@ def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source
                 settings: dict, seed: int = 0, spc_dir: str | os.PathLike | None = None,
                 image_dir: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
                 frames: int = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None,
-                policy: CheckpointPolicy = CheckpointPolicy()) -> dict:
+                policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None) -> dict:
     """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
 
     ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
     initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
     ``policy``: when the checkpoint is written (every 10 % of the run or 10 minutes by default).
+    ``input_digests``: what identifies the inputs in the checkpoint's fingerprint, instead of digests
+    of the input folders (for a caller that rebuilds them identically on every attempt, as a sweep
+    point does: their records' timings differ each time).
     """
     if model not in RECONSTRUCTORS:
         raise ValueError(f"unknown stage-2 model {model!r}; choose one of {sorted(RECONSTRUCTORS)}")
@@ -56,7 +59,7 @@ def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source
     log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
     meta = {"model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"), "seed": seed,
             "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None, "init": init}
-    ckpt = Checkpoint(checkpoint, fingerprint("reconstruct", meta, {
+    ckpt = Checkpoint(checkpoint, fingerprint("reconstruct", meta, input_digests or {
         "scene": digest_path(scene_dir), "spc": digest_path(spc_dir), "images": digest_path(image_dir),
         "points": digest_path(points_dir)})) if checkpoint else None
     result = run(trainer, iterations, ckpt, policy, desc=f"{source}+{model}",

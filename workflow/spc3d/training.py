@@ -3,6 +3,7 @@
     seed_everything, default_device, peak_rss_mb, build_config    small helpers both stages use
     fingerprint, digest_path                                       what determines a training
     Checkpoint, CheckpointPolicy                                   checkpoints that belong to their settings
+    CheckpointLock, SnakemakeWatch                                 one trainer per checkpoint, none orphaned
     run                                                            the one training loop
 
 A trainer (stage 1: :class:`spc3d.translate.train.TranslatorTrainer`; stage 2: one per model
@@ -22,10 +23,18 @@ resumed only when the fingerprint is identical; otherwise it is deleted, with a 
 what changed (``settings.iterations: 40 -> 20``), and the training starts from scratch. A rerun
 after a settings change can therefore never continue (or silently reuse) a model trained under
 other settings, and the record describes the model actually in it.
+
+**One trainer per checkpoint, and none without its Snakemake.** While it trains, :func:`run`
+holds an exclusive lock on ``<checkpoint>.lock`` (:class:`CheckpointLock`): a second training of
+the same checkpoint (a rerun while an earlier one still runs) stops at once with a message naming
+the other process. A training started by Snakemake stops by itself, within about a second and
+before writing anything more, once that Snakemake process is gone (:class:`SnakemakeWatch`:
+after ``kill -9`` of Snakemake it would otherwise run on, reparented, writing its checkpoint).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import functools
@@ -36,6 +45,7 @@ import math
 import os
 import random
 import resource
+import socket
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +55,11 @@ import torch
 from tqdm import tqdm
 
 from . import io
+
+try:
+    import fcntl  # POSIX only: where it is missing (Windows) a checkpoint is not locked
+except ImportError:  # pragma: no cover
+    fcntl = None
 
 log = logging.getLogger(__name__)
 
@@ -295,6 +310,142 @@ class Checkpoint:
         self.record["saves"] += 1
 
 
+# --- guards: one trainer per checkpoint, none without its Snakemake -------------------------------
+
+class CheckpointInUse(RuntimeError):
+    """Another live training holds the checkpoint (see :class:`CheckpointLock`)."""
+
+
+class Orphaned(RuntimeError):
+    """The Snakemake process that started this training is gone (see :class:`SnakemakeWatch`)."""
+
+
+class CheckpointLock:
+    """An exclusive ``flock`` on ``<checkpoint>.lock``, held while a training runs.
+
+    A second trainer of the same checkpoint raises :class:`CheckpointInUse`, naming the holder
+    (pid, host and start, which the holder writes into the file). The file is removed on release;
+    as another process may have opened it just before, a new holder checks that the file it locked
+    is still the one at the path. Without ``fcntl`` (Windows), or on a file system without locks
+    (logged), nothing is locked.
+    """
+
+    def __init__(self, checkpoint: str | os.PathLike):
+        self.checkpoint = Path(checkpoint)
+        self.path = self.checkpoint.with_name(self.checkpoint.name + ".lock")
+        self.fd: int | None = None
+
+    def __enter__(self) -> CheckpointLock:
+        if fcntl is None:
+            return self
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        while self.fd is None:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 256, 0).decode(errors="replace").split()
+                os.close(fd)
+                raise CheckpointInUse(self.busy(holder)) from None
+            except OSError as e:  # e.g. ENOLCK: a file system without locks
+                os.close(fd)
+                log.warning("cannot lock %s (%s): a second trainer of this checkpoint would go unnoticed", self.path, e)
+                return self
+            if _same_file(fd, self.path):
+                self.fd = fd
+            else:  # its holder released and removed it meanwhile: lock the file now at the path
+                os.close(fd)
+        os.ftruncate(self.fd, 0)
+        os.write(self.fd, f"{os.getpid()} {socket.gethostname()} {time.strftime('%Y-%m-%dT%H:%M:%S')}\n".encode())
+        return self
+
+    def busy(self, holder: list[str]) -> str:
+        """The refusal: which checkpoint, held by whom (``holder``: pid, host, start), what to do."""
+        pid, host, since = (holder + ["?", "?", "?"])[:3]
+        return (f"checkpoint {self.checkpoint} is in use by another training (pid {pid} on {host}, started "
+                f"{since}): two trainers would overwrite each other's checkpoint. Wait until it ends, or stop "
+                f"it (`kill {pid}` on {host}) and rerun; a training whose Snakemake was killed stops by itself "
+                f"within a few seconds.")
+
+    def __exit__(self, *exc) -> None:
+        if self.fd is not None:
+            self.path.unlink(missing_ok=True)  # while still holding the lock (see __enter__)
+            os.close(self.fd)
+            self.fd = None
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    fst = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (fst.st_dev, fst.st_ino)
+
+
+WATCH_EVERY_S = 1.0  # how often a training looks for its Snakemake (and always before a checkpoint)
+
+
+class SnakemakeWatch:
+    """Notices that the Snakemake process which started this training is gone.
+
+    It records this process's ancestors up to the outermost Snakemake among them: a Snakemake 9
+    ``script:`` job is its direct child, but a shell or a ``--mode subprocess`` Snakemake may sit in
+    between, and in a SLURM job the outermost is the job's own Snakemake (under slurmstepd). When
+    one of them dies its children are reparented, so the chain read again differs, and
+    :meth:`check` raises :class:`Orphaned`. Linux only (``/proc``): elsewhere, and outside
+    Snakemake, :meth:`start` returns None and nothing is watched.
+    """
+
+    def __init__(self, chain: list[int]):
+        self.chain, self.next_check = chain, time.monotonic() + WATCH_EVERY_S
+
+    @classmethod
+    def start(cls) -> SnakemakeWatch | None:
+        chain = _ancestors()
+        found = [i for i, pid in enumerate(chain) if _is_snakemake(_cmdline(pid))]
+        return cls(chain[:found[-1] + 1]) if found else None
+
+    def check(self, now: bool = False) -> None:
+        """Raise :class:`Orphaned` when the chain changed (read every WATCH_EVERY_S, or ``now``)."""
+        if not now and time.monotonic() < self.next_check:
+            return
+        self.next_check = time.monotonic() + WATCH_EVERY_S
+        if _ancestors(len(self.chain)) != self.chain:
+            raise Orphaned(f"the Snakemake process that started this training (pid {self.chain[-1]}) is gone: "
+                           "stopping, so that no orphaned training runs on and writes; rerun the workflow "
+                           "(after `snakemake --unlock`) to resume from the last checkpoint")
+
+
+def _ancestors(limit: int = 64) -> list[int]:
+    """This process's parent, grandparent, ... (read from /proc: empty where there is none)."""
+    chain, pid = [], os.getppid()
+    while pid > 0 and len(chain) < limit:
+        try:
+            with open(f"/proc/{pid}/stat", "rb") as f:
+                stat = f.read()
+        except OSError:  # no /proc, or the process just ended
+            break
+        chain.append(pid)
+        pid = int(stat[stat.rindex(b")") + 2:].split()[1])  # the field after the state; comm may hold ")"
+    return chain
+
+
+def _cmdline(pid: int) -> list[str]:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().decode(errors="replace").split("\0")
+    except OSError:
+        return []
+
+
+def _is_snakemake(argv: list[str]) -> bool:
+    """``snakemake ...``, ``python /venv/bin/snakemake ...`` or ``python -m snakemake ...``."""
+    if any(os.path.basename(a) == "snakemake" for a in argv[:2]):
+        return True
+    return "-m" in argv[1:] and argv[argv.index("-m") + 1:argv.index("-m") + 2] == ["snakemake"]
+
+
 # --- the loop -----------------------------------------------------------------------------------
 
 def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
@@ -302,24 +453,31 @@ def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
         postfix=None) -> dict:
     """Train to ``iterations`` (resuming from ``checkpoint`` when it belongs to this job).
 
-    ``postfix(stats) -> dict`` adds values to the progress bar every ``log_every`` steps.
-    Returns iterations, resume point, training seconds, the last step's values and the
-    checkpoint record.
+    ``postfix(stats) -> dict`` adds values to the progress bar every ``log_every`` steps. The
+    checkpoint is locked while it trains (:class:`CheckpointInUse` if another training holds it),
+    and under Snakemake it stops with :class:`Orphaned` once that Snakemake is gone. Returns
+    iterations, resume point, training seconds, the last step's values and the checkpoint record.
     """
     if iterations < 1:
         raise ValueError(f"{desc}: iterations must be >= 1 (got {iterations}); an untrained model is not a result")
-    start, elapsed = checkpoint.resume(trainer) if checkpoint else (0, 0.0)
-    every, t0 = policy.every(iterations), time.perf_counter() - elapsed
-    last_save, stats = time.perf_counter(), {}
-    bar = tqdm(range(start + 1, iterations + 1), desc=desc, initial=start, total=iterations, mininterval=2.0)
-    for it in bar:
-        stats = trainer.step(it)
-        if it % log_every == 0:
-            bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items()} | (postfix(stats) if postfix else {}))
-        due = it == iterations or (every and it % every == 0) or \
-            (policy.minutes > 0 and time.perf_counter() - last_save >= 60.0 * policy.minutes)
-        if checkpoint and due:
-            checkpoint.save(it, trainer, time.perf_counter() - t0)
-            last_save = time.perf_counter()
+    watch = SnakemakeWatch.start()
+    with CheckpointLock(checkpoint.path) if checkpoint else contextlib.nullcontext():
+        start, elapsed = checkpoint.resume(trainer) if checkpoint else (0, 0.0)
+        every, t0 = policy.every(iterations), time.perf_counter() - elapsed
+        last_save, stats = time.perf_counter(), {}
+        bar = tqdm(range(start + 1, iterations + 1), desc=desc, initial=start, total=iterations, mininterval=2.0)
+        for it in bar:
+            if watch:
+                watch.check()
+            stats = trainer.step(it)
+            if it % log_every == 0:
+                bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items()} | (postfix(stats) if postfix else {}))
+            due = it == iterations or (every and it % every == 0) or \
+                (policy.minutes > 0 and time.perf_counter() - last_save >= 60.0 * policy.minutes)
+            if checkpoint and due:
+                if watch:
+                    watch.check(now=True)  # never write for a Snakemake that is gone
+                checkpoint.save(it, trainer, time.perf_counter() - t0)
+                last_save = time.perf_counter()
     return {"iterations": iterations, "resumed_from": start, "train_s": time.perf_counter() - t0,
             "final": stats, "checkpoint": checkpoint.record if checkpoint else None}

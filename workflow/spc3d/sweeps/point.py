@@ -17,16 +17,26 @@ Output folder::
                    images, capacity, resolved settings of every stage
     recon/         the reconstruction's renders and train.json
     work/          scenes, SPC data, pairs, model, translations: deleted at the end unless keep_work
+
+A killed point resumes its trainings (``checkpoints``: a folder outside the output folder, e.g.
+``results/checkpoints/tradeoff/...``; deleted at the end unless keep_work). Every other stage runs
+again: its outputs come out identical, but for the timings in their records, which is why the
+checkpoints are fingerprinted with the point's resolved plan and input files instead of digests of
+``work/`` (:class:`Resume`). ``resumed_from`` in metrics.json says where each training picked up; a
+resumed point's stage times count this attempt only (its trainings' ``train_s`` count all).
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
 import logging
 import os
 import resource
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -35,11 +45,12 @@ from .. import io
 from ..augment import AugmentSettings, augment_scene
 from ..evaluate import evaluate
 from ..prepare import prepare_scene
-from ..training import peak_rss_mb
+from ..training import CheckpointPolicy, canonical, digest_path, peak_rss_mb
 from ..simulate import simulate_scene
 from ..spc import SPCParams
 from ..stage2 import reconstruct
 from .budget import resolve_point
+from .plan import scene_inputs
 
 log = logging.getLogger(__name__)
 STAGES = ("prepare", "simulate", "augment", "train", "translate", "reconstruct", "evaluate")
@@ -63,30 +74,63 @@ def cpu_seconds() -> float:
     return r.ru_utime + r.ru_stime
 
 
+@dataclass(frozen=True)
+class Resume:
+    """Where a point's trainings checkpoint (``folder``; None: nowhere) and what identifies their
+    inputs (``digests``: the point's plan and input files, see the module docstring)."""
+
+    folder: Path | None
+    digests: dict
+    policy: CheckpointPolicy = CheckpointPolicy()
+
+    def kwargs(self, name: str) -> dict:
+        """Checkpoint arguments of the training ``name`` (translator, reconstruct)."""
+        if self.folder is None:
+            return {}
+        return {"checkpoint": self.folder / f"{name}.pt", "policy": self.policy, "input_digests": self.digests}
+
+
+def point_digests(plan: dict, base: dict) -> dict:
+    """The point's resolved settings of every stage and the content of the LLFF files it reads."""
+    files = {f: digest_path(f) for f in scene_inputs(base)}
+    text = json.dumps(canonical({"plan": plan, "files": files}), sort_keys=True)
+    return {"point": hashlib.sha256(text.encode()).hexdigest()}
+
+
 def run_point(out_dir: str | os.PathLike, combo: str, setting: dict, base: dict, lpips_dir: str | os.PathLike,
-              threads: int = 1, keep_work: bool = False) -> dict:
-    """Run ``combo`` at ``setting`` (see :mod:`.budget` for ``base``); write and return metrics.json."""
+              threads: int = 1, keep_work: bool = False, checkpoints: str | os.PathLike | None = None,
+              policy: CheckpointPolicy = CheckpointPolicy()) -> dict:
+    """Run ``combo`` at ``setting`` (see :mod:`.budget` for ``base``); write and return metrics.json.
+
+    ``checkpoints``: the folder of the trainings' checkpoints (see the module docstring)."""
     t0, cpu0 = time.perf_counter(), cpu_seconds()
     torch.set_num_threads(threads)
     plan = resolve_point(base, setting, combo)
     out, times = Path(out_dir), {}
     work = out / "work"
     shutil.rmtree(work, ignore_errors=True)
+    resume = Resume(Path(checkpoints) if checkpoints else None, point_digests(plan, base), policy)
     log.info("%s at %s", combo, plan["setting"])
     scene_dir, spc_dir = prepare_and_simulate(plan, work, times)
-    model_record, image_dir = run_stage1(plan, work, lpips_dir, threads, times) if plan["translator"] else (None, None)
+    model_record, image_dir = run_stage1(plan, work, lpips_dir, threads, times, resume) if plan["translator"] \
+        else (None, None)
     with timed(times, "reconstruct"):
-        reconstruct(scene_dir, out / "recon", plan["source"], plan["model"], plan["stage2"], plan["seed"],
-                    spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"] or 1, threads=threads)
+        recon = reconstruct(scene_dir, out / "recon", plan["source"], plan["model"], plan["stage2"], plan["seed"],
+                            spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"] or 1, threads=threads,
+                            **resume.kwargs("reconstruct"))
     with timed(times, "evaluate"):
         scores = evaluate(out / "recon", scene_dir, work / "eval.json", lpips_dir=lpips_dir)
         stage1 = score_source(plan, work, image_dir, lpips_dir)
     record = point_record(plan, scores, stage1, times, time.perf_counter() - t0, cpu_seconds() - cpu0)
     record["translator"] = model_record and {k: model_record[k] for k in TRANSLATOR_KEYS}
+    record["resumed_from"] = {"train": model_record and model_record["resumed_from"],
+                              "reconstruct": recon["resumed_from"]}
     record["spc_record"] = io.read_json(spc_dir / "spc.json") if spc_dir else None
     io.write_json(out / "metrics.json", record)
     if not keep_work:
         shutil.rmtree(work, ignore_errors=True)
+        if resume.folder:
+            shutil.rmtree(resume.folder, ignore_errors=True)
     log.info("%s: %.2f dB in %.1f s", combo, record["mean"]["psnr"], record["wall_s"])
     return record
 
@@ -108,7 +152,8 @@ def prepare_and_simulate(plan: dict, work: Path, times: dict) -> tuple[Path, Pat
     return work / "scenes" / names[0], work / "spc" / names[0]
 
 
-def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict) -> tuple[dict, Path]:
+def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict,
+               resume: Resume = Resume(None, {})) -> tuple[dict, Path]:
     """Augment the training scenes, train the translator, translate the evaluation scene."""
     from ..lpips_net import cache_file, load_npz
     from ..translate.apply import translate_scene
@@ -123,7 +168,8 @@ def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict) -> 
     with timed(times, "train"):
         record = train_translator(tr["method"], [str(work / "augment" / n) for n in aug["counts"]], work / "model",
                                   tr["settings"], tr["train"], seed=plan["seed"], frames=plan["frames"],
-                                  vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"), threads=threads)
+                                  vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"), threads=threads,
+                                  **resume.kwargs("translator"))
     eval_name = plan["scene_name"]
     with timed(times, "translate"):
         translate_scene(work / "model", work / "spc" / eval_name, work / "scenes" / eval_name, work / "translate",
