@@ -192,7 +192,8 @@ def test_killed_training_resumes_where_it_stopped(name, upstream, tmp_path, lpip
 def test_a_kill_while_spc_data_is_written_leaves_nothing_behind(tmp_path, lpips_cache):
     """A killed spc_simulate leaves its hidden work folder; the rerun removes it (and writes the data)."""
     config = tmp_path / "spc.yaml"
-    config.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}, "spc": {"frames": 256}}))
+    config.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}, "spc": {"frames": 256},
+                                      "builtin": {"views": 24}}))  # ~1 s of writing to kill it in
     command = ["--cores", "1", "results/spc/courtyard", "--configfile", str(SMOKE), str(config)]
     proc = snakemake_process(tmp_path, *command)
     spc_root = tmp_path / "results" / "spc"
