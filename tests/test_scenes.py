@@ -182,3 +182,58 @@ def test_textures_are_cached_linear_and_filtered():
     u = np.array([0.3, 0.3]); v = np.array([0.6, 0.6])
     coarse = a.sample(u, v, np.array([1.0, 1e6]))[:, 1]
     np.testing.assert_allclose(coarse, a.levels[-1][:, 0, 0], rtol=1e-5)  # far away: the mean colour
+
+
+# --- held-out content -------------------------------------------------------------------------
+
+def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
+    from spc3d.scenes import LAYOUT_ROLES, content
+    from spc3d.scenes.procedural import PATTERNS
+    from spc3d.scenes.textures import EVAL_SOURCES, SAMPLE_IMAGES, TRAIN_SOURCES
+
+    assert not TRAIN_SOURCES & EVAL_SOURCES
+    assert TRAIN_SOURCES | EVAL_SOURCES == set(SAMPLE_IMAGES) | {f"proc:{p}" for p in PATTERNS}
+    assert set(LAYOUT_ROLES) == set(LAYOUTS)
+    for name, role in LAYOUT_ROLES.items():
+        pool = TRAIN_SOURCES if role == "train" else EVAL_SOURCES
+        assert content(name) and content(name) <= pool, (name, sorted(content(name) - pool))
+
+
+def test_the_default_split_shares_no_texture_source():
+    """The default config (and the smoke preset) train and evaluate on layouts that share nothing."""
+    import yaml
+
+    from spc3d.scenes import content, shared_content
+    from conftest import REPO
+
+    for path in (REPO / "config.yaml", REPO / "workflow" / "presets" / "smoke.yaml"):
+        scenes = yaml.safe_load(path.read_text())["scenes"]
+        assert shared_content(scenes["train"], scenes["eval"]) == {}, path
+        seen = set().union(*(content(n) for n in scenes["train"]))
+        assert not seen & set().union(*(content(n) for n in scenes["eval"]))
+
+
+def test_a_split_that_shares_content_is_refused_naming_the_source():
+    import yaml
+
+    from spc3d.workflow import ConfigError, scene_specs
+    from conftest import REPO
+
+    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
+    cfg["scenes"] = {"train": ["tabletop", "orchard"], "eval": ["gallery"]}
+    with pytest.raises(ConfigError, match=r"share content \('astronaut' in tabletop/orchard and gallery"):
+        scene_specs(cfg, sorted(LAYOUTS))
+
+
+def test_procedural_patterns_are_deterministic_and_in_range():
+    from spc3d.scenes import procedural
+
+    for name, spec in procedural.PATTERNS.items():
+        img = procedural.pattern(name)
+        again = np.clip(spec.make(*spec.shape), 0.0, 1.0)
+        assert img.shape == (*spec.shape, 3) and np.array_equal(img, again), name
+        assert 0.0 <= img.min() and img.max() <= 1.0 and img.std() > 0.02, name  # a pattern, not a flat colour
+    tex = texture("proc:tiles")
+    assert tex.name == "proc:tiles" and tex.shape == (256, 256) and tex.levels[0].shape == (3, 256, 256)
+    with pytest.raises(ValueError, match="proc:lava"):
+        texture("proc:lava")

@@ -53,7 +53,21 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
     overlap = set(config["scenes"]["train"]) & set(config["scenes"]["eval"])
     if overlap:
         raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
+    check_disjoint_content(config["scenes"]["train"], config["scenes"]["eval"])
     return specs
+
+
+def check_disjoint_content(train: list[str], evaluate: list[str]) -> None:
+    """No texture, object or background of a built-in evaluation scene may appear in a training one."""
+    from .scenes import LAYOUT_ROLES, shared_content
+
+    shared = shared_content(train, evaluate)
+    if shared:
+        seen = "; ".join(f"{src!r} in {'/'.join(a)} and {'/'.join(b)}" for src, (a, b) in list(shared.items())[:4])
+        pools = {role: [n for n, r in LAYOUT_ROLES.items() if r == role] for role in ("train", "eval")}
+        raise ConfigError(f"scenes.train and scenes.eval share content ({seen}{' ...' if len(shared) > 4 else ''}): "
+                          f"evaluation scenes must be unseen in training; train on {pools['train']} and evaluate "
+                          f"on {pools['eval']}")
 
 
 def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") -> list[str]:

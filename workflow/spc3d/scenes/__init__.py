@@ -11,6 +11,9 @@ Public API
 ``LAYOUTS``                 name -> layout builder (``() -> Layout``)
 ``render_scene(...)``       -> :class:`spc3d.llff.SceneData` (images, depths, cameras, names, meta)
 ``write_builtin_scene(...)`` renders and writes the canonical LLFF folder via ``llff.write_scene``
+``content(layout)``          the texture sources (photographs, procedural patterns) a layout shows
+``shared_content(a, b)``     sources that layouts ``a`` and ``b`` have in common (must be none
+                            between training and evaluation scenes)
 
 Identical arguments give bit-identical images; ``seed`` only moves the cameras (grid jitter and a
 small random tilt), the scene content is fixed per layout.
@@ -25,13 +28,33 @@ import numpy as np
 
 from ..cameras import Cameras
 from ..llff import SceneData, write_scene
-from .layouts import LAYOUT_BUILDERS
+from .layouts import LAYOUT_BUILDERS, LAYOUT_ROLES
 from .render import Layout, depth_bounds, make_cameras, render_view
 
 LAYOUTS = dict(LAYOUT_BUILDERS)
 MAX_VIEWS = 200
 
-__all__ = ["LAYOUTS", "Layout", "render_scene", "write_builtin_scene"]
+__all__ = ["LAYOUTS", "LAYOUT_ROLES", "Layout", "content", "render_scene", "shared_content", "write_builtin_scene"]
+
+
+def content(layout: str) -> frozenset[str]:
+    """Texture sources of every primitive of ``layout`` (sides and tops; plain paint is no content).
+
+    Cheap: a layout is assembled without building any texture pyramid.
+    """
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown layout {layout!r}; available layouts: {', '.join(sorted(LAYOUTS))}")
+    textures = [t for prim in LAYOUTS[layout]().primitives for t in (prim.texture, getattr(prim, "top", None)) if t]
+    return frozenset(t.name for t in textures if t.name != "solid")
+
+
+def shared_content(train: list[str], evaluate: list[str]) -> dict[str, tuple[list[str], list[str]]]:
+    """Texture sources seen by a layout of ``train`` and one of ``evaluate``: source -> (train
+    layouts, evaluation layouts) showing it. Names that are not built-in layouts are skipped."""
+    a = {n: content(n) for n in train if n in LAYOUTS}
+    b = {n: content(n) for n in evaluate if n in LAYOUTS}
+    common = set().union(*a.values()) & set().union(*b.values()) if a and b else set()
+    return {src: ([n for n in a if src in a[n]], [n for n in b if src in b[n]]) for src in sorted(common)}
 
 
 def _check_args(layout: str, height: int, width: int, views: int, supersample: int) -> None:

@@ -1,4 +1,4 @@
-"""Photographic textures from scikit-image's bundled sample images (available offline).
+"""Textures of the built-in scenes: scikit-image's bundled photographs and procedural patterns.
 
 A :class:`Texture` holds a mip pyramid of **linear-light** RGB images (sRGB decoded with the
 IEC 61966-2-1 curve, then optionally tinted). Lookups are bilinear within a level and linear
@@ -7,37 +7,55 @@ so a texture seen from far away is band-limited like a photograph instead of ali
 
 Texture coordinates: ``u`` runs left -> right, ``v`` top -> bottom of the source image; one unit
 spans the image once. Outside [0, 1] the image is mirror-repeated (seamless, no wrap seams).
+
+**Content sources.** Every texture names its source (``Texture.name``: a sample image such as
+``"brick"``, a procedural pattern such as ``"proc:cobbles"``, or ``"solid"`` for plain paint), and
+the sources are split into two disjoint pools, :data:`TRAIN_SOURCES` and :data:`EVAL_SOURCES`:
+layouts meant for training translators draw only from the first, evaluation layouts only from
+the second, so no texture, object or background of an evaluation scene is ever seen in training
+(:func:`spc3d.scenes.shared_content` checks any split). Pyramids are built on first use, so a
+layout can be assembled (and its content listed) without decoding or filtering any image.
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from ..llff import area_matrix
 from ..spc import srgb_to_linear
+from .procedural import PATTERNS, pattern
 
 SAMPLE_IMAGES = (
     "astronaut", "brick", "camera", "chelsea", "coffee", "coins", "colorwheel", "grass", "gravel",
     "horse", "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket", "text",
     "clock", "cell",
 )
+# Disjoint pools of content (photographs and procedural patterns; "solid" paint is no content).
+TRAIN_SOURCES = frozenset({"astronaut", "brick", "camera", "cell", "clock", "coins", "grass", "gravel", "horse",
+                           "text", "proc:marble", "proc:wood", "proc:weave"})
+EVAL_SOURCES = frozenset({"chelsea", "coffee", "colorwheel", "hubble_deep_field", "immunohistochemistry", "moon",
+                          "page", "retina", "rocket", "proc:cobbles", "proc:masonry", "proc:tiles"})
 MAX_SIZE = 512  # textures are area-downscaled once so that their longer side is at most this
 
 
 @dataclass(frozen=True, eq=False)
 class Texture:
-    """Mip pyramid of linear RGB images: ``levels[0]`` (3, h, w) float32, each next level half size."""
+    """A content source and its mip pyramid: ``levels[0]`` (3, h, w) float32, each next level half size.
 
-    name: str
-    levels: tuple[np.ndarray, ...]
+    ``build`` makes the pyramid; :attr:`levels` calls it once, on first use.
+    """
 
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(h, w) of the full-resolution level, in texels."""
-        return self.levels[0].shape[1:]
+    name: str  # content source: a sample image, "proc:<pattern>", or "solid"
+    shape: tuple[int, int]  # (h, w) of the full-resolution level, in texels
+    build: Callable[[], tuple[np.ndarray, ...]] = field(repr=False)
+
+    @functools.cached_property
+    def levels(self) -> tuple[np.ndarray, ...]:
+        return self.build()
 
     @property
     def size(self) -> int:
@@ -104,37 +122,69 @@ def mip_pyramid(img: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 @functools.lru_cache(maxsize=None)
-def _base_image(name: str) -> np.ndarray:
-    """Sample image ``name`` as linear RGB (h, w, 3) float64, longer side <= MAX_SIZE (read-only)."""
+def _raw_image(name: str) -> np.ndarray:
+    """Sample image ``name`` as stored by scikit-image (cheap: no filtering)."""
     if name not in SAMPLE_IMAGES:
-        raise ValueError(f"unknown texture {name!r}; available: {', '.join(SAMPLE_IMAGES)}")
+        raise ValueError(f"unknown texture {name!r}; available: {', '.join(SAMPLE_IMAGES)} or "
+                         f"{', '.join('proc:' + p for p in PATTERNS)}")
     import skimage.data  # lazy: only scene generation needs it
 
     img = np.asarray(getattr(skimage.data, name)())
-    img = img.astype(np.float64) if img.dtype == bool else img.astype(np.float64) / 255.0
-    img = srgb_to_linear(img if img.ndim == 3 else np.repeat(img[:, :, None], 3, axis=2))[:, :, :3]
-    scale = MAX_SIZE / max(img.shape[:2])
-    if scale < 1.0:
-        img = _resample(img, max(1, round(img.shape[0] * scale)), max(1, round(img.shape[1] * scale)))
     img.setflags(write=False)
     return img
+
+
+def _scaled_shape(h: int, w: int) -> tuple[int, int]:
+    scale = min(1.0, MAX_SIZE / max(h, w))
+    return max(1, round(h * scale)), max(1, round(w * scale))
+
+
+@functools.lru_cache(maxsize=None)
+def _base_image(name: str) -> np.ndarray:
+    """Texture source ``name`` as linear RGB (h, w, 3) float64, longer side <= MAX_SIZE (read-only)."""
+    if name.startswith("proc:"):
+        img = pattern(name.removeprefix("proc:"))
+    else:
+        raw = _raw_image(name)
+        img = raw.astype(np.float64) if raw.dtype == bool else raw.astype(np.float64) / 255.0
+        img = srgb_to_linear(img if img.ndim == 3 else np.repeat(img[:, :, None], 3, axis=2))[:, :, :3]
+    h, w = _scaled_shape(*img.shape[:2])
+    if (h, w) != img.shape[:2]:
+        img = _resample(img, h, w)
+    img.setflags(write=False)
+    return img
+
+
+def source_shape(name: str) -> tuple[int, int]:
+    """(h, w) of a source's texture, without building it."""
+    if name.startswith("proc:"):
+        return _scaled_shape(*pattern_shape(name.removeprefix("proc:")))
+    return _scaled_shape(*_raw_image(name).shape[:2])
+
+
+def pattern_shape(kind: str) -> tuple[int, int]:
+    if kind not in PATTERNS:
+        raise ValueError(f"unknown procedural texture 'proc:{kind}'; available: {', '.join(PATTERNS)}")
+    return PATTERNS[kind].shape
 
 
 @functools.lru_cache(maxsize=None)
 def texture(name: str, tint: tuple[float, float, float] = (1.0, 1.0, 1.0),
             base: tuple[float, float, float] = (0.0, 0.0, 0.0), gain: float = 1.0) -> Texture:
-    """Cached texture of sample image ``name``, coloured in linear light.
+    """Cached texture of source ``name`` (a sample image or "proc:<pattern>"), coloured in linear light.
 
     Each texel becomes ``base + gain * texel * (tint - base)`` (per channel, clipped to [0, 1]): a
     duotone for gray images (black -> ``base``, white -> ``tint``), a colour cast for colour ones.
     Colours are linear RGB in [0, 1].
     """
-    img = _base_image(name)
-    tint_a, base_a = np.asarray(tint, float), np.asarray(base, float)
-    img = np.clip(base_a + gain * img * (tint_a - base_a), 0.0, 1.0)
-    return Texture(name, mip_pyramid(img))
+    def build():
+        tint_a, base_a = np.asarray(tint, float), np.asarray(base, float)
+        return mip_pyramid(np.clip(base_a + gain * _base_image(name) * (tint_a - base_a), 0.0, 1.0))
+
+    return Texture(name, source_shape(name), build)
 
 
 def solid(colour: tuple[float, float, float]) -> Texture:
     """A one-texel texture of a linear RGB colour (frames, plain paint)."""
-    return Texture("solid", (np.asarray(colour, np.float32).reshape(3, 1, 1),))
+    level = np.asarray(colour, np.float32).reshape(3, 1, 1)
+    return Texture("solid", (1, 1), lambda: (level,))
