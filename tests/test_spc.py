@@ -297,6 +297,22 @@ def test_calibration_hits_target(target):
         assert abs(p.mean() - target) < 1e-4
 
 
+@pytest.mark.parametrize("target", [0.1, 0.5, 0.9])
+def test_paper_mode_calibration_hits_target_in_its_own_frames(target):
+    """Paper mode fires less than the exact model at low flux (P(Normal > 1/2), not 1 - e^-x):
+    its calibration uses its own probability, so simulated paper frames reach the target."""
+    imgs = _scenes()
+    params = spc.SPCParams(mode="paper", frames=64)
+    s = spc.calibrate_flux_scale(imgs, params, target)
+    p = spc.frame_probability(spc.flux_from_srgb(imgs, s), params)
+    assert abs(p.mean() - target) < 1e-4
+    rng = np.random.default_rng(4)
+    fired = np.mean([spc.simulate_frames(im, s, params, rng).mean() for im in imgs])
+    assert abs(fired - target) < 0.003  # Monte Carlo of the sampler itself: 3 x 64 x 6000 bits
+    exact = spc.calibrate_flux_scale(imgs, spc.SPCParams(frames=64), target)
+    assert s != pytest.approx(exact, rel=1e-3)
+
+
 def test_calibration_subsample_keeps_all_channels():
     # 3.1M values -> stride 3 would see only the red channel; the stride is made coprime to C.
     img = np.empty((1000, 1024, 3), np.float32)

@@ -339,11 +339,26 @@ def _linear_histogram(srgb_images: Sequence[np.ndarray] | np.ndarray) -> tuple[n
     return values, counts / counts.sum()
 
 
+def frame_probability(phi: np.ndarray, params: SPCParams) -> np.ndarray:
+    """P(bit = 1) of one frame under the simulator's own model (``params.mode``).
+
+    ``bernoulli``: the exact 1 - exp(-lam*T). ``paper``: P(Normal(eq. 1, eq. 2) count rounds above
+    0) = P(z > (1/2 - mean)/sd) = ndtr((mean - 1/2)/sd), the probability of :func:`_paper_frames`.
+    """
+    if params.mode == "bernoulli":
+        return detection_probability(np.asarray(phi, dtype=np.float64), params)
+    from scipy.special import ndtr
+
+    mean = expected_counts(phi, params)
+    sd = np.sqrt(count_variance(phi, params))
+    with np.errstate(divide="ignore", invalid="ignore"):  # sd = 0 only at lam*T ~ 0: never fires
+        return np.where(sd > 0, ndtr((mean - 0.5) / np.where(sd > 0, sd, 1.0)), 0.0)
+
+
 def _mean_detection(values: np.ndarray, weights: np.ndarray, s: float, params: SPCParams) -> float:
-    lam = params.q * s * values + params.dark_count_rate
     with np.errstate(over="ignore"):  # huge trial scales: lam*T -> inf gives p = 1, as it should
         # np.sum, not a BLAS dot: OpenBLAS threads idle-spin under load (15 ms for 18k values)
-        return -float(np.sum(weights * np.expm1(-lam * params.exposure_s)))
+        return float(np.sum(weights * frame_probability(s * values, params)))
 
 
 def calibrate_flux_scale(srgb_images: Sequence[np.ndarray] | np.ndarray, params: SPCParams,
@@ -351,13 +366,15 @@ def calibrate_flux_scale(srgb_images: Sequence[np.ndarray] | np.ndarray, params:
     """Flux scale s whose mean detection probability over all images equals the target.
 
     srgb_images: list of float (H, W, C) or one (N, H, W, C) array, sRGB in [0, 1]; at most 2**20
-    values are used (deterministic stride). The mean is monotone in s, from p_dark = 1 -
-    exp(-dcr*T) at s = 0 up to 1 (less if some pixels are black), so a geometric bisection finds
-    s to a relative tolerance of 1e-6. A mean target keeps all regions visible (paper section 3.1).
+    values are used (deterministic stride). The detection probability is the simulator's own
+    (:func:`frame_probability`, so ``paper`` mode reaches its target too). The mean is monotone in
+    s, from the dark-count floor at s = 0 up to 1 (less if some pixels are black), so a geometric
+    bisection finds s to a relative tolerance of 1e-6. A mean target keeps all regions visible
+    (paper section 3.1).
     """
     values, weights = _linear_histogram(srgb_images)
     target = _real("target_mean_detection", target_mean_detection, "must be a probability")
-    p_dark = -math.expm1(-params.dark_count_rate * params.exposure_s)
+    p_dark = float(frame_probability(np.zeros(1), params)[0])  # the floor: dark counts only
     black = float(weights[values == 0.0].sum())
     p_max = 1.0 - black * (1.0 - p_dark)  # black pixels stay at p_dark for every s
     if not (p_dark < target < p_max):
