@@ -31,6 +31,7 @@ import yaml
 
 from spc3d import io, metrics, spc
 from spc3d.scenes import write_builtin_scene
+from spc3d.exposure import calibrate_display, write_display
 from spc3d.simulate import simulate_scene
 from spc3d.stage2 import reconstruct
 from conftest import REPO, child_processes, process_alive, run_snakemake, snakemake_process, wait_until
@@ -213,6 +214,10 @@ def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("determinism")
     write_builtin_scene("gallery", root / "scene", height=36, width=48, views=10, supersample=1)
     simulate_scene(root / "scene", root / "spc", spc.SPCParams(frames=2), seed=0)
+    write_builtin_scene("tabletop", root / "train", height=36, width=48, views=10, supersample=1)  # display level
+    simulate_scene(root / "train", root / "train_spc", spc.SPCParams(frames=2), seed=0)
+    calibrate_display([root / "train"], [root / "train_spc"], 1, root / "display.json")
+    write_display(root / "spc", root / "display.json", 1, root / "display")
     return root
 
 
@@ -231,7 +236,7 @@ def test_same_seed_same_result(scene, tmp_path, source, model, settings):
     try:
         for name, threads in (("a", 1), ("b", 1), ("c", 2), ("d", 2)):
             reconstruct(scene / "scene", tmp_path / name, source, model, settings, seed=7, spc_dir=scene / "spc",
-                        threads=threads)
+                        threads=threads, display_dir=scene / "display" if source == "bernoulli" else None)
             runs[name] = _renders(tmp_path / name)
     finally:
         torch.set_num_threads(before)

@@ -5,6 +5,7 @@ import torch
 
 from spc3d import io, spc, tables
 from spc3d.evaluate import evaluate
+from spc3d.exposure import calibrate_display, write_display
 from spc3d.reconstruct import RECONSTRUCTORS, build_config
 from spc3d.reconstruct.gaussians import GaussianConfig
 from spc3d.reconstruct.objectives import BernoulliObjective
@@ -19,9 +20,14 @@ TINY_3DGS = {"iterations": 12, "densify_from": 4, "densify_until": 10, "densify_
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
+    """gallery (evaluated) and tabletop (a training scene: the MLE display level is fitted on it)."""
     root = tmp_path_factory.mktemp("stage2")
-    write_builtin_scene("gallery", root / "scenes" / "gallery", height=36, width=48, views=10, supersample=1)
-    simulate_scene(root / "scenes" / "gallery", root / "spc" / "gallery", spc.SPCParams(frames=4), seed=0)
+    for name in ("gallery", "tabletop"):
+        write_builtin_scene(name, root / "scenes" / name, height=36, width=48, views=10, supersample=1)
+        simulate_scene(root / "scenes" / name, root / "spc" / name, spc.SPCParams(frames=4), seed=0)
+    for K in (1, 4):
+        calibrate_display([root / "scenes" / "tabletop"], [root / "spc" / "tabletop"], K, root / f"display-k{K}.json")
+        write_display(root / "spc" / "gallery", root / f"display-k{K}.json", K, root / "mle" / f"k{K}")
     return root
 
 
@@ -31,17 +37,27 @@ def test_sources_hold_only_training_views(scene):
     assert "image000" not in gt.views.names and "image008" not in gt.views.names
     none = load_source("none", scene / "scenes" / "gallery", scene / "spc" / "gallery")
     assert set(torch.unique(none.views.targets).tolist()) <= {0.0, 1.0}
-    mle = load_source("mle", scene / "scenes" / "gallery", scene / "spc" / "gallery")
+    mle = load_source("mle-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4,
+                      display_dir=scene / "mle" / "k4")
     assert float((mle.views.targets - gt.views.targets).abs().mean()) < float((none.views.targets - gt.views.targets).abs().mean())
+    with pytest.raises(ValueError, match="needs the metered display folder"):
+        load_source("mle", scene / "scenes" / "gallery", scene / "spc" / "gallery")
 
 
-def test_bernoulli_source_uses_the_simulation_physics(scene):
-    src = load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4)
+def test_bernoulli_source_uses_the_camera_physics_and_the_metered_gain(scene):
+    src = load_source("bernoulli-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4,
+                      display_dir=scene / "mle" / "k4")
     rec = io.read_json(scene / "spc" / "gallery" / "spc.json")
-    assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == rec["flux_scale"]
+    gain = io.read_json(scene / "mle" / "k4" / "display.json")["gain"]
+    assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == gain != rec["flux_scale"]
+    assert src.objective.q == rec["params"]["q"] and src.objective.exposure_s == rec["params"]["exposure_s"]
+    assert 0.5 < gain / rec["flux_scale"] < 2.0  # metered from the frames, near the simulator's exposure
     assert set(torch.unique(src.views.targets * 4).round().tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     with pytest.raises(ValueError, match="stage2.frames=5 but .* K=4"):
-        load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=5)
+        load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=5,
+                    display_dir=scene / "mle" / "k4")
+    with pytest.raises(ValueError, match="needs the metered display folder"):
+        load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery")
 
 
 def test_unknown_source_and_setting_are_named(scene):
@@ -71,10 +87,11 @@ def test_reconstruct_writes_renders_and_resumes(scene, tmp_path):
 
 def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):
     settings = {"n_iters": 6, "batch_rays": 256, "n_samples": 16, "res_schedule": [[0, 12]], "chunk": 1024}
-    rec = reconstruct(scene / "scenes" / "gallery", tmp_path / "r", "bernoulli", "nerf-grid", settings,
-                      spc_dir=scene / "spc" / "gallery", frames=2)
+    rec = reconstruct(scene / "scenes" / "gallery", tmp_path / "r", "bernoulli-k4", "nerf-grid", settings,
+                      spc_dir=scene / "spc" / "gallery", frames=4, display_dir=scene / "mle" / "k4")
     train = io.read_json(tmp_path / "r" / "train.json")
-    assert train["objective"] == "bernoulli" and train["frames"] == 2 and rec["capacity"]["resolution"] == 12
+    assert train["objective"] == "bernoulli" and train["frames"] == 4 and rec["capacity"]["resolution"] == 12
+    assert train["display"]["K"] == 4 and train["display"]["gain"] > 0 and train["poses"].startswith("ground truth")
 
 
 def test_evaluate_perfect_renders(scene, tmp_path, lpips_cache):
@@ -91,26 +108,34 @@ def test_evaluate_perfect_renders(scene, tmp_path, lpips_cache):
         lpips(np.zeros((20, 40, 3)), np.zeros((20, 40, 3)), cache_dir=lpips_cache)
 
 
-def fake_metrics(path, scene, combo, seed, psnr, ssim, lpips):
-    io.write_json(path, {"scene": scene, "combination": combo, "seed": seed,
+def fake_metrics(path, scene, combo, seed, psnr, ssim, lpips, K=1):
+    io.write_json(path, {"scene": scene, "combination": combo, "seed": seed, "frames": K,
+                         "init": {"setting": "random", "used": "random"},
+                         "per_view": [{"view": "v0", "psnr": psnr}],
                          "mean": {"psnr": psnr, "ssim": ssim, "lpips_alex": lpips, "lpips_vgg": lpips}})
     return path
 
 
-def test_single_stage_table_marks_best_from_numbers(tmp_path):
+def test_single_stage_table_ranks_within_equal_budgets(tmp_path):
     files = [fake_metrics(tmp_path / "a.json", "s", "none+3dgs", 0, 18.0, 0.5, 0.5),
              fake_metrics(tmp_path / "b.json", "s", "none+3dgs", 1, 20.0, 0.6, 0.4),
              fake_metrics(tmp_path / "c.json", "s", "bernoulli+3dgs", 0, 21.0, 0.55, 0.45),
-             fake_metrics(tmp_path / "d.json", "s", "gt+3dgs", 0, 30.0, 0.9, 0.1)]
+             fake_metrics(tmp_path / "e.json", "s", "mle-k16+3dgs", 0, 25.0, 0.8, 0.2, K=16),
+             fake_metrics(tmp_path / "d.json", "s", "gt+3dgs", 0, 30.0, 0.9, 0.1, K=None)]
     df = tables.single_stage_table([str(f) for f in files], str(tmp_path / "single_stage"), "nerf-grid")
     row = df.set_index("combination").loc["none+3dgs"]
     assert row["psnr_mean"] == pytest.approx(19.0) and row["psnr_std"] == pytest.approx(1.0) and row["runs"] == 2
+    assert row["K"] == 1 and np.isnan(df.set_index("combination").loc["gt+3dgs", "K"])
+    assert list(df["block"]) == sorted(df["block"])  # main, then references (K = 16), then oracle
+    assert df.set_index("combination").loc["mle-k16+3dgs", "block"] == 1
     md = (tmp_path / "single_stage.md").read_text()
-    assert "**21.00 ± 0.00**" in md and "*19.00 ± 1.00*" in md  # oracle rows are not ranked
-    assert "30.00 ± 0.00" in md and "**30.00" not in md
-    assert md.count("**0.5500 ±") == 2  # SSIM tie (0.55 both): both marked best
-    assert "19.42" in md and "NeRF on binary (single stage) [nerf-grid]" in md
-    assert "\\textbf{21.00 $\\pm$ 0.00}" in (tmp_path / "single_stage.tex").read_text()
+    assert "**21.00** " in md and "*19.00 ± 1.00*" in md  # n = 1: no spread shown; oracle not ranked
+    assert " 30.00 " in md and "**30.00" not in md
+    assert "**25.00**" in md  # the K = 16 row is best among K = 16 rows only (it outscores every K = 1 row)
+    assert md.count("**0.5500**") == 1 and "(K = 1)" in md and "(K = 16)" in md and "(oracle, no photons)" in md
+    assert "19.42" in md and "NeRF on binary (single stage) [nerf-grid]" in md and "ground truth" in md
+    assert "metered from their own frames" in md and "| random " in md
+    assert "\\textbf{21.00}" in (tmp_path / "single_stage.tex").read_text()
     assert (tmp_path / "single_stage.csv").read_text().startswith("approach,combination")
 
 
@@ -145,9 +170,12 @@ def test_colmap_points_land_on_the_scene(colmap_scene):
 
 def test_reconstruct_starts_from_colmap_points(colmap_scene, tmp_path):
     settings = {**TINY_3DGS, "iterations": 2}
-    reconstruct(colmap_scene / "scene", tmp_path / "r", "gt", "3dgs", settings, points_dir=colmap_scene / "colmap")
-    assert io.read_json(tmp_path / "r" / "train.json")["init"].startswith("colmap sparse points")
+    reconstruct(colmap_scene / "scene", tmp_path / "r", "gt", "3dgs", settings, points_dir=colmap_scene / "colmap",
+                init_setting="colmap")
+    init = io.read_json(tmp_path / "r" / "train.json")["init"]
+    assert init["setting"] == "colmap" and init["used"].startswith("colmap sparse points")
     failed = tmp_path / "failed"
     io.write_json(failed / "pose_error.json", {"status": "failed: no image registered", "pose": {"aligned": False}})
-    reconstruct(colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed)
-    assert io.read_json(tmp_path / "r2" / "train.json")["init"].startswith("random (")
+    reconstruct(colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed, init_setting="colmap")
+    init = io.read_json(tmp_path / "r2" / "train.json")["init"]
+    assert init["setting"] == "colmap" and init["used"].startswith("random (")  # the fall-back is recorded

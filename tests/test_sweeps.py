@@ -118,7 +118,8 @@ def test_knobs_reach_every_stage():
     grid = resolve_point(base(model_settings={"n_iters": 200, "res_schedule": [[0, 32], [70, 64], [140, 96]]}),
                          {"iters": 100, "grid": 48, "detection": 0.1}, "mle+nerf-grid")
     assert grid["stage2"]["res_schedule"] == [[0, 16], [35, 32], [70, 48]] and grid["stage2"]["n_iters"] == 100
-    assert grid["spc"]["target_detection"] == 0.1 and grid["spc"]["flux_scale"] is None and grid["frames"] == 4
+    assert grid["spc"]["target_detection"] == 0.1 and grid["spc"]["flux_scale"] is None and grid["frames"] == 1
+    assert list(grid["train_scenes"]) == ["tabletop"] and grid["augment"]["counts"] == {}  # display level only
     with pytest.raises(ValueError, match="no translator settings"):
         resolve_point(base(), {}, "pix2pix+3dgs")
     with pytest.raises(ValueError, match="res=12: images are too small"):

@@ -209,7 +209,8 @@ def test_load_translator_names_a_missing_model(tmp_path):
 
 
 def _metrics(path, combo, psnr):
-    io.write_json(path, {"scene": "s", "combination": combo, "seed": 0,
+    io.write_json(path, {"scene": "s", "combination": combo, "seed": 0, "frames": None if combo.startswith("gt") else 1,
+                         "per_view": [{"view": "v0", "psnr": psnr}],
                          "mean": {"psnr": psnr, "ssim": psnr / 40, "lpips_alex": 1 / psnr, "lpips_vgg": 1 / psnr}})
     return str(path)
 
@@ -220,15 +221,18 @@ def test_two_stage_and_stage1_tables(tmp_path):
     df = tables.two_stage_table(files, tmp_path / "two_stage", "nerf-grid")
     assert list(df["combination"][:2]) == ["pix2pixhd+nerf-grid", "pix2pixhd+3dgs"]
     md = (tmp_path / "two_stage.md").read_text()
-    assert "**23.00 ± 0.00**" in md and "*22.00 ± 0.00*" in md and "DiffBIR stand-in" in md and "22.7" in md
+    assert "**23.00**" in md and "*22.00*" in md and "DiffBIR stand-in" in md and "22.7" in md
     s1 = []
-    for i, (src, p) in enumerate([("pix2pixhd", 21.0), ("mle", 19.0), ("none", 9.0)]):
+    for i, (src, p, K) in enumerate([("pix2pixhd", 21.0, 1), ("mle", 19.0, 1), ("none", 9.0, 1),
+                                     ("mle-k16", 24.0, 16)]):
         s1.append(str(tmp_path / f"s{i}.json"))
-        io.write_json(s1[-1], {"scene": "s", "source": src, "mean": {"psnr": p, "ssim": 0.5, "lpips_alex": 0.3,
-                                                                        "lpips_vgg": 0.4}})
+        io.write_json(s1[-1], {"scene": "s", "source": src, "frames": K,
+                               "mean": {"psnr": p, "ssim": 0.5, "lpips_alex": 0.3, "lpips_vgg": 0.4}})
     df = tables.stage1_table(s1, tmp_path / "stage1", LABELS)
-    assert list(df["approach"]) == ["Pix2PixHD", "MLE of K frames", "binary frame (no stage 1)"]
-    assert "**21.00" in (tmp_path / "stage1.md").read_text()
+    assert list(df["approach"]) == ["Pix2PixHD", "MLE", "binary frame (no stage 1)", "MLE"]
+    assert list(df["combination"]) == ["pix2pixhd", "mle", "none", "mle-k16"] and list(df["K"]) == [1, 1, 1, 16]
+    md = (tmp_path / "stage1.md").read_text()
+    assert "**21.00**" in md and "**24.00**" in md and "MLE (K = 16)" in md
 
 
 def test_qualitative_figure(world, tmp_path):

@@ -48,8 +48,9 @@ def test_dry_run_lists_the_dag(tmp_path):
               if len(line.split()) == 2 and line.split()[1].isdigit()}
     assert counts["scene_prepare"] == 4 and counts["spc_simulate"] == 4 and counts["augment"] == 3
     assert counts["colmap_poses"] == 12 and counts["data_summary"] == 1
-    assert counts["reconstruct"] == 14 and counts["evaluate"] == 14 and counts["paper_tables"] == 1
-    assert counts["train_translator"] == 5 and counts["translate"] == 5 and counts["stage1_evaluate"] == 7
+    assert counts["reconstruct"] == 15 and counts["evaluate"] == 15 and counts["paper_tables"] == 1
+    assert counts["train_translator"] == 5 and counts["translate"] == 5 and counts["stage1_evaluate"] == 8
+    assert counts["display_calibration"] == 2 and counts["mle_display"] == 2  # K = 1 and K = 16
     assert counts["qualitative_figure"] == 1 and "tables" not in counts  # `tables` is an explicit target only
 
 
@@ -125,12 +126,14 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     assert pose["registered"] >= 18  # real photos register from their RGB views
 
 
-@pytest.mark.parametrize("preset,reconstructs", [("smoke", 7), ("llff-cpu", 14), ("paper", 42)])
-def test_presets_validate_and_plan(tmp_path, preset, reconstructs):
-    """Every preset passes the schema and plans its DAG (the paper preset: 14 combinations x 3 seeds)."""
+@pytest.mark.parametrize("preset,reconstructs,translators", [("smoke", 7, 3), ("llff-cpu", 15, 5), ("paper", 45, 15)])
+def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
+    """Every preset passes the schema and plans its DAG (the paper preset: 15 combinations x 3 seeds,
+    each seed with its own translators: a repeat redraws everything random)."""
     path = REPO / "workflow" / "presets" / f"{preset}.yaml"
     if "../shared/data/llff" in path.read_text() and not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
         pytest.skip("the preset reads the LLFF scenes of ../shared")
     proc = snakemake(tmp_path, "-n", "--quiet", "rules", "--configfile", str(path), timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert re.search(rf"^reconstruct\s+{reconstructs}$", proc.stdout + proc.stderr, re.M), proc.stdout[-2000:]
+    assert re.search(rf"^train_translator\s+{translators}$", proc.stdout + proc.stderr, re.M), proc.stdout[-2000:]

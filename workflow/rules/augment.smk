@@ -2,17 +2,17 @@ rule augment:
     """Zoom / rotation / shear / flip training pairs (RGB + SPC frames) of one training scene."""
     input:
         scene="results/scenes/{scene}",
-        spc="results/spc/{scene}",
+        spc="results/spc/{scene}{rep}",
     output:
-        directory("results/augment/{scene}"),
+        directory("results/augment/{scene}{rep}"),
     params:
         n_pairs=get_augment_count,
         settings=config["augment"],
-        seed=config["seed"],
+        seed=get_seed,
     log:
-        "logs/augment/{scene}.log",
+        "logs/augment/{scene}{rep}.log",
     benchmark:
-        "benchmarks/augment/{scene}.tsv"
+        "benchmarks/augment/{scene}{rep}.tsv"
     threads: 1
     conda:
         ENV

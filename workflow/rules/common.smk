@@ -13,8 +13,8 @@ resolve_paths(config, workflow.basedir)
 
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, llff_input_files, resolve_combinations, scene_specs,
-                             stage1_sources, translator_settings)
+from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, display_budgets, llff_input_files, resolve_combinations,
+                            scene_specs, source_frames, split_source, stage1_sources, translator_settings)
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -27,27 +27,32 @@ COLMAP_INPUTS = list(config["colmap"]["inputs"])
 STAGE2_MODELS = ["3dgs", "nerf", "nerf-grid"]
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
-check_settings(config, STAGE1_USED, sorted({c.partition("+")[2] for c in COMBINATIONS}))
-# Stage-2 repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}".
-SEEDS = [config["seed"] + k for k in range(config["stage2"]["seeds"])]
+check_settings(config, STAGE1_USED, sorted({c.partition("+")[2] for c in COMBINATIONS}), COMBINATIONS)
+# Repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}". A repeat redraws
+# everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
+SEEDS = [config["seed"] + k for k in range(config["seeds"])]
+REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
+# Frame budgets K of the metered display gain (mle / bernoulli rows), fitted on the training scenes.
+DISPLAY_KS = display_budgets(COMBINATIONS, config["stage2"]["frames"])
 # Sources scored before 3D (stage1_evaluate): the translators in use and the training-free images.
-STAGE1_SCORED = STAGE1_USED + ["mle", "none"]
+STAGE1_SCORED = STAGE1_USED + sorted({c.partition("+")[0] for c in COMBINATIONS
+                                      if split_source(c.partition("+")[0])[0] == "mle"}) + ["none"]
 
 
 wildcard_constraints:
     scene="|".join(ALL_SCENES) or "(?!)",
     images="rgb|binary|average",
-    source="[a-z0-9]+",
+    source="[a-z0-9]+(-k[0-9]+)?",
     model="|".join(STAGE2_MODELS),
     method="|".join(STAGE1_METHODS),
     rep="(-seed[0-9]+)?",
+    K="[0-9]+",
 
 
 def get_final_output():
-    """What `snakemake` builds by default: the data summary and the augmented training pairs."""
+    """What `snakemake` builds by default: the data summary, the tables (with the findings), the figures."""
     return [
         "results/summary/data_summary.md",
-        *expand("results/augment/{scene}", scene=TRAIN_SCENES),
         *get_table_outputs(),
         *expand("results/figures/qualitative_{scene}.png", scene=EVAL_SCENES),
     ]
@@ -55,37 +60,45 @@ def get_final_output():
 
 def get_table_outputs():
     return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1"],
-                  ext=["csv", "md", "tex", "html"])
+                  ext=["csv", "md", "tex", "html"]) + expand("results/tables/findings.{ext}", ext=["md", "json", "html"])
 
 
 def get_stage1_outputs():
-    """Stage-1 scores (before 3D) of every scored source on every evaluation scene."""
-    return expand("results/stage1/{scene}/{source}.json", scene=EVAL_SCENES, source=STAGE1_SCORED)
-
-
-def seed_tag(seed):
-    """'' for the base seed (config `seed`), '-seed{N}' for the repeats."""
-    return "" if seed == config["seed"] else f"-seed{seed}"
+    """Stage-1 scores (before 3D) of every scored source on every evaluation scene, for every seed."""
+    return expand("results/stage1/{scene}/{source}{rep}.json", scene=EVAL_SCENES, source=STAGE1_SCORED, rep=REPS)
 
 
 def get_eval_outputs():
     """metrics.json of every configured combination on every evaluation scene, for every seed."""
-    return expand("results/eval/{scene}/{combo}{rep}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS,
-                  rep=[seed_tag(s) for s in SEEDS])
+    return expand("results/eval/{scene}/{combo}{rep}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS, rep=REPS)
 
 
 def get_seed(wildcards):
-    """The seed of a stage-2 run from its tag ('' = config `seed`)."""
+    """The seed of a run from its tag ('' = config `seed`)."""
     return int(wildcards.rep.removeprefix("-seed")) if wildcards.rep else config["seed"]
 
 
+def get_source_frames(wildcards):
+    """Binary frames per view (K) the row's source consumes; None for the oracle."""
+    return source_frames(wildcards.source, config["stage1"]["frames"], config["stage2"]["frames"])
+
+
+def display_folder(wildcards):
+    """The metered MLE images of the row's frame budget (mle / bernoulli rows)."""
+    return f"results/mle/{wildcards.scene}/k{get_source_frames(wildcards)}{wildcards.rep}"
+
+
 def get_reconstruct_inputs(wildcards):
-    """The scene, its SPC folder for the SPC-derived sources, COLMAP's points for a 3DGS init."""
+    """The scene, its SPC folder for the SPC-derived sources, the stage-1 images or the metered MLE
+    display (mle: its images; bernoulli: its gain), COLMAP's points for a 3DGS init."""
+    base = split_source(wildcards.source)[0]
     inputs = {"scene": f"results/scenes/{wildcards.scene}"}
-    if wildcards.source != "gt":
-        inputs["spc"] = f"results/spc/{wildcards.scene}"
-    if wildcards.source in STAGE1_METHODS:
-        inputs["translated"] = f"results/translate/{wildcards.scene}/{wildcards.source}"
+    if base != "gt":
+        inputs["spc"] = f"results/spc/{wildcards.scene}{wildcards.rep}"
+    if base in STAGE1_METHODS:
+        inputs["translated"] = f"results/translate/{wildcards.scene}/{base}{wildcards.rep}"
+    if base in ("mle", "bernoulli"):
+        inputs["display"] = display_folder(wildcards)
     if wildcards.model == "3dgs" and config["stage2"]["init"] == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     return inputs
@@ -115,11 +128,17 @@ def get_spc_settings(wildcards):
     s = config["spc"]
     physics = {k: s[k] for k in ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")}
     return {"physics": physics, "flux_scale": s["flux_scale"], "target_detection": s["target_detection"],
-            "seed": config["seed"]}
+            "seed": get_seed(wildcards)}
 
 
 def get_augment_count(wildcards):
     return split_count(config["augment"]["count"], len(TRAIN_SCENES), TRAIN_SCENES.index(wildcards.scene))
+
+
+def get_display_training(wildcards):
+    """Scene and SPC folders of the training scenes the display level is fitted on."""
+    return {"scenes": expand("results/scenes/{scene}", scene=TRAIN_SCENES),
+            "spc": expand("results/spc/{scene}{rep}", scene=TRAIN_SCENES, rep=wildcards.rep)}
 
 
 def get_colmap_images(wildcards):
@@ -154,22 +173,25 @@ def get_translator_pretrained(wildcards):
 
 
 def get_translator_checkpoint(wildcards):
-    return f"results/checkpoints/models/{wildcards.method}/checkpoint.pt"
+    return f"results/checkpoints/models/{wildcards.method}{wildcards.rep}/checkpoint.pt"
 
 
 def get_stage1_images(wildcards):
-    """The folder holding a source's images of a scene (stage-1 output, MLE image or binary frame)."""
-    if wildcards.source in STAGE1_METHODS:
-        return f"results/translate/{wildcards.scene}/{wildcards.source}"
-    return f"results/spc/{wildcards.scene}"
+    """The folder holding a source's images of a scene (stage-1 output, metered MLE or binary frame)."""
+    base = split_source(wildcards.source)[0]
+    if base in STAGE1_METHODS:
+        return f"results/translate/{wildcards.scene}/{base}{wildcards.rep}"
+    if base == "mle":
+        return display_folder(wildcards)
+    return f"results/spc/{wildcards.scene}{wildcards.rep}"
 
 
 def get_stage1_subdir(wildcards):
-    return {"mle": "mle_srgb", "none": "binary"}.get(wildcards.source, "images")
+    return "binary" if wildcards.source == "none" else "images"
 
 
 def get_qualitative_inputs(wildcards):
-    """The scene, its SPC folder and the reconstruction of every configured combination."""
+    """The scene, its SPC folder and the reconstruction of every configured combination (first seed)."""
     return {"scene": f"results/scenes/{wildcards.scene}", "spc": f"results/spc/{wildcards.scene}",
             "recons": expand("results/recon/{scene}/{combo}", scene=wildcards.scene, combo=COMBINATIONS)}
 
@@ -177,7 +199,6 @@ def get_qualitative_inputs(wildcards):
 def get_stage2_gpus(wildcards):
     """GPUs a stage-2 job can use: 3DGS runs on CPU threads here, the NeRFs use CUDA when present."""
     return 0 if wildcards.model == "3dgs" else 1
-
 
 
 # --- SLURM: every distinct request is tried before anything is submitted -------------------------
@@ -205,14 +226,14 @@ def check_slurm_requests():
     for job in workflow.dag.needrun_jobs():
         if not job.is_local:
             ask = {k: job.resources.get(k) for k in SBATCH_FLAGS if k != "threads"} | {"threads": job.threads}
-            requests.setdefault(tuple((k, v) for k, v in ask.items() if v not in (None, "", 0)), job)
-    problems = [p for ask, job in requests.items() if (p := slurm_problem(job, dict(ask)))]
+            requests.setdefault(tuple((k, v) for k, v in ask.items() if v not in (None, "", 0)), []).append(job)
+    problems = [p for ask, jobs in requests.items() if (p := slurm_problem(jobs, dict(ask)))]
     if problems:
         raise WorkflowError("SLURM cannot run these jobs, nothing was submitted:\n  " + "\n  ".join(problems))
 
 
-def slurm_problem(job, ask):
-    """None if SLURM accepts ``ask`` for ``job``; else one line naming the rule and what is too much."""
+def slurm_problem(jobs, ask):
+    """None if SLURM accepts ``ask``, the request of ``jobs``; else a line naming rule and resource."""
     flags = [SBATCH_FLAGS[k].format(v) for k, v in ask.items()]
     test = subprocess.run(["sbatch", "--test-only", *flags, "--wrap", "true"], capture_output=True, text=True)
     if test.returncode == 0:
@@ -222,7 +243,8 @@ def slurm_problem(job, ask):
     nodes = [line.split() for line in sinfo.splitlines()]  # partition (default: *), CPUs, MB, GRES
     mine = [n for n in nodes if n[0].rstrip("*") == part or (part is None and n[0].endswith("*"))]
     where = f"partition {part}" if part else "the default partition"
-    cpus, mem = max((int(n[1].rstrip("+")) for n in mine), default=0), max((int(n[2].rstrip("+")) for n in mine), default=0)
+    cpus = max((int(n[1].rstrip("+")) for n in mine), default=0)
+    mem = max((int(n[2].rstrip("+")) for n in mine), default=0)
     if not mine:
         what = f"slurm_partition={part}: no such partition (there are {', '.join(sorted({n[0] for n in nodes}))})"
     elif ask.get("mem_mb", 0) > mem:
@@ -233,6 +255,7 @@ def slurm_problem(job, ask):
         what = f"gpu={ask['gpu']}: no node in {where} has a GPU (ask for gpu=0, or a GPU partition)"
     else:
         what = "asks for " + ", ".join(f"{k}={v}" for k, v in ask.items())
-    wildcards = ", ".join(f"{k}={v}" for k, v in job.wildcards.items())
-    answer = " ".join(test.stderr.split())
-    return f"rule {job.rule.name} ({wildcards}): {what}. `sbatch --test-only {' '.join(flags)}`: {answer}"
+    rules = sorted({job.rule.name for job in jobs})
+    example = ", ".join(f"{k}={v}" for k, v in jobs[0].wildcards.items()) or "no wildcards"
+    return (f"rule{'s' * (len(rules) > 1)} {', '.join(rules)} ({len(jobs)} jobs, e.g. {example}): {what}. "
+            f"`sbatch --test-only {' '.join(flags)}` says: {' '.join(test.stderr.split())}")

@@ -5,12 +5,12 @@
 rule train_translator:
     """Train one stage-1 method on the augmented (binary, RGB) pairs of every training scene."""
     input:
-        pairs=expand("results/augment/{scene}", scene=TRAIN_SCENES),
+        pairs=expand("results/augment/{scene}{{rep}}", scene=TRAIN_SCENES),
         vgg=LPIPS_WEIGHTS["vgg"],
         pretrained=get_translator_pretrained,
     output:
         report(
-            directory("results/models/{method}"),
+            directory("results/models/{method}{rep}"),
             patterns=["{figure,curve}.png"],
             caption="../report/curve.rst",
             category="4. Stage 1 training",
@@ -20,13 +20,13 @@ rule train_translator:
         settings=get_translator_settings,
         train=get_translator_train,
         frames=config["stage1"]["frames"],
-        seed=config["seed"],
+        seed=get_seed,
         checkpoint=get_translator_checkpoint,
         policy=config["checkpoints"],
     log:
-        "logs/train_translator/{method}.log",
+        "logs/train_translator/{method}{rep}.log",
     benchmark:
-        "benchmarks/train_translator/{method}.tsv"
+        "benchmarks/train_translator/{method}{rep}.tsv"
     threads: 1
     resources:
         gpu=1,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
@@ -40,17 +40,17 @@ rule train_translator:
 rule translate:
     """Every view of a scene through a trained stage-1 method (stage 2 reads these as a source)."""
     input:
-        model="results/models/{method}",
-        spc="results/spc/{scene}",
+        model="results/models/{method}{rep}",
+        spc="results/spc/{scene}{rep}",
         scene="results/scenes/{scene}",
     output:
-        directory("results/translate/{scene}/{method}"),
+        directory("results/translate/{scene}/{method}{rep}"),
     params:
         frames=config["stage1"]["frames"],
     log:
-        "logs/translate/{scene}/{method}.log",
+        "logs/translate/{scene}/{method}{rep}.log",
     benchmark:
-        "benchmarks/translate/{scene}/{method}.tsv"
+        "benchmarks/translate/{scene}/{method}{rep}.tsv"
     threads: 1
     priority: 10
     conda:
@@ -66,13 +66,15 @@ rule stage1_evaluate:
         scene="results/scenes/{scene}",
         lpips=list(LPIPS_WEIGHTS.values()),
     output:
-        "results/stage1/{scene}/{source}.json",
+        "results/stage1/{scene}/{source}{rep}.json",
     params:
         subdir=get_stage1_subdir,
+        frames=get_source_frames,
+        seed=get_seed,
     log:
-        "logs/stage1_evaluate/{scene}/{source}.log",
+        "logs/stage1_evaluate/{scene}/{source}{rep}.log",
     benchmark:
-        "benchmarks/stage1_evaluate/{scene}/{source}.tsv"
+        "benchmarks/stage1_evaluate/{scene}/{source}{rep}.tsv"
     threads: 1
     conda:
         ENV

@@ -22,7 +22,8 @@ rule reconstruct:
     params:
         settings=get_model_settings,
         seed=get_seed,
-        frames=config["stage2"]["frames"],
+        frames=get_source_frames,
+        init=config["stage2"]["init"],
         checkpoint=get_checkpoint_path,
         policy=config["checkpoints"],
     log:
@@ -81,7 +82,14 @@ rule paper_tables:
             category="1. Paper tables",
             labels={"table": "Table 3: stage 1 alone, before 3D"},
         ),
+        report(
+            "results/tables/findings.html",
+            caption="../report/findings.rst",
+            category="1. Paper tables",
+            labels={"table": "Findings: each claim with its interval"},
+        ),
         expand("results/tables/{table}.{ext}", table=["two_stage", "single_stage", "stage1"], ext=["csv", "md", "tex"]),
+        expand("results/tables/findings.{ext}", ext=["md", "json"]),
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
     log:

@@ -10,5 +10,5 @@ with logged(snakemake.log[0]):
     translated = inp.get("translated")
     reconstruct(inp.scene, snakemake.output[0], w.source, w.model, p.settings, p.seed,
                 spc_dir=inp.get("spc"), image_dir=str(Path(translated) / "images") if translated else None,
-                checkpoint=p.checkpoint, frames=p.frames, threads=snakemake.threads,
-                points_dir=inp.get("colmap"), policy=CheckpointPolicy(**p.policy))
+                display_dir=inp.get("display"), checkpoint=p.checkpoint, frames=p.frames, threads=snakemake.threads,
+                points_dir=inp.get("colmap"), policy=CheckpointPolicy(**p.policy), init_setting=p.init)

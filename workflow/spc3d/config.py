@@ -131,7 +131,7 @@ def check_file(path: str | None, key: str, what: str) -> None:
 
 # --- typed settings ---------------------------------------------------------------------------
 
-def check_settings(config: dict, methods: list[str], models: list[str]) -> None:
+def check_settings(config: dict, methods: list[str], models: list[str], combinations: list[str] = ()) -> None:
     """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``), check
     published weights, input paths and the values that constrain each other, so that a wrong key
     or value is reported at parse time."""
@@ -151,16 +151,31 @@ def check_settings(config: dict, methods: list[str], models: list[str]) -> None:
             CONFIGS[model](dict(config["stage2"][model]))
     except (TypeError, ValueError, FileNotFoundError) as e:
         raise ConfigError(str(e)) from None
-    check_consistency(config, methods)
+    check_consistency(config, methods, combinations)
 
 
-def check_consistency(config: dict, methods: list[str]) -> None:
+def check_consistency(config: dict, methods: list[str], combinations: list[str] = ()) -> None:
     """Values that are each valid but impossible together, and input paths that must exist."""
+    from .workflow import BUDGET_SOURCES, split_source
+
     spc_frames, train = config["spc"]["frames"], config["scenes"]["train"]
     for key in ("stage1", "stage2"):
         if config[key]["frames"] > spc_frames:
             raise ConfigError(f"{key}.frames = {config[key]['frames']}: more than the spc.frames = {spc_frames} "
                               f"binary frames simulated per view; raise spc.frames or lower {key}.frames")
+    physics = sorted({c for c in combinations if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES})
+    for combo in physics:
+        k = split_source(combo.partition("+")[0])[1]
+        if k and k > spc_frames:
+            raise ConfigError(f"stage2.combinations: {combo!r} uses K = {k} frames per view but spc.frames = "
+                              f"{spc_frames} are simulated; raise spc.frames or lower K")
+    if physics and config["spc"]["mode"] != "bernoulli":
+        raise ConfigError(f"spc.mode = {config['spc']['mode']!r}: the rows {physics} invert the exact Bernoulli "
+                          f"model (MLE, SPAD likelihood), which paper-mode frames do not follow; use spc.mode: "
+                          f"bernoulli or drop those rows from stage2.combinations")
+    if physics and not train:
+        raise ConfigError(f"the rows {physics} show their flux at a display level fitted on the training scenes, "
+                          f"but scenes.train is empty: list at least one training scene")
     if methods and not train:
         raise ConfigError(f"stage-1 methods {methods} are combined (stage2.combinations) but scenes.train is empty: "
                           f"list the scenes their training pairs come from")

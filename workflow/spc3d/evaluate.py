@@ -46,7 +46,8 @@ def evaluate(recon_dir: str | os.PathLike, scene_dir: str | os.PathLike, out_jso
         per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir)})
     record = {"scene": Path(scene_dir).name, "combination": f"{train['source']}+{train['model']}",
               **{k: train.get(k) for k in ("source", "model", "objective", "seed", "iterations", "train_s",
-                                         "render_s", "capacity", "settings", "frames")},
+                                         "render_s", "capacity", "settings", "frames", "poses", "init",
+                                         "display")},
               "mean": mean_scores(per_view), "per_view": per_view, "conventions": CONVENTIONS}
     io.write_json(out_json, record)
     return record

@@ -27,9 +27,10 @@ from .cameras import Cameras, cameras_to_llff, llff_to_cameras
 
 @dataclass
 class SceneData:
-    """Views of one scene. images: (N, H, W, 3) float32 sRGB in [0, 1]; names: file stems."""
+    """Views of one scene. images: (N, H, W, 3) float32 sRGB in [0, 1] (None when read without them:
+    see :func:`read_scene`); names: file stems."""
 
-    images: np.ndarray
+    images: np.ndarray | None
     cameras: Cameras
     names: list[str]
     depths: np.ndarray | None = None  # (N, H, W) float32, when known
@@ -181,10 +182,19 @@ def write_scene(out_dir: str | os.PathLike, scene: SceneData, record: dict) -> N
                                             "height": scene.cameras.height, "width": scene.cameras.width})
 
 
-def read_scene(scene_dir: str | os.PathLike, with_depth: bool = False) -> SceneData:
-    """Read a canonical scene folder written by :func:`write_scene`."""
+def read_scene(scene_dir: str | os.PathLike, with_depth: bool = False, with_images: bool = True) -> SceneData:
+    """Read a canonical scene folder written by :func:`write_scene`.
+
+    ``with_images=False`` reads the cameras and view names only (``images`` is None): what every
+    consumer that must not see the ground truth (non-oracle sources, renderers) asks for.
+    """
     scene_dir = Path(scene_dir)
-    data = load_llff(scene_dir, factor=1)
+    if with_images:
+        data = load_llff(scene_dir, factor=1)
+    else:
+        files, poses_bounds = llff_contents(scene_dir, 1)
+        h, w, _ = io.image_shape(files[0])
+        data = SceneData(None, llff_to_cameras(poses_bounds, h, w), [f.stem for f in files])
     meta_path = scene_dir / "scene.json"
     data.meta = io.read_json(meta_path) if meta_path.exists() else {}
     if with_depth and (scene_dir / "depth").is_dir():

@@ -1,13 +1,16 @@
 """Stage-2 image sources: what a reconstructor of a scene is trained on.
 
-    gt         ground-truth RGB views (the oracle upper bound)
-    none       the raw binary SPC frame 0 as a 0/1 image (the paper's single-stage baselines)
-    mle        the K-frame maximum-likelihood flux, tone-mapped to sRGB (physics baseline)
-    bernoulli  the binary frames themselves, fitted through the SPAD likelihood (beyond the paper)
-    <method>   a stage-1 translator's output folder (issue 4), images named like the scene's views
+    gt           ground-truth RGB views (the oracle upper bound)
+    none         the raw binary SPC frame 0 as a 0/1 image (the paper's single-stage baselines)
+    mle[-kK]     the MLE flux of K frames per view at the metered display gain (physics baseline)
+    bernoulli[-kK]  K binary frames per view themselves, fitted through the SPAD likelihood
+    <method>     a stage-1 translator's output folder, images named like the scene's views
 
 Every source yields targets aligned with the scene's cameras; only training views are returned
-(every 8th view is held out for evaluation, see :func:`spc3d.cameras.split_views`).
+(every 8th view is held out for evaluation, see :func:`spc3d.cameras.split_views`). Only ``gt``
+reads the scene's images: the others see the frames, q, T, dcr and what was learnt on the training
+scenes (the display gain of mle / bernoulli comes from :mod:`spc3d.exposure`, not from the
+simulator's flux scale, which was set from the ground truth).
 """
 
 from __future__ import annotations
@@ -21,11 +24,13 @@ import torch
 
 from . import io, llff, spc
 from .cameras import split_views
+from .exposure import read_gain
 from .reconstruct.objectives import BernoulliObjective
 from .reconstruct.train import Views
 from .simulate import read_spc_record
+from .workflow import split_source
 
-IMAGE_SOURCES = {"gt": ("scene", "images"), "none": ("spc", "binary"), "mle": ("spc", "mle_srgb")}
+IMAGE_SOURCES = {"gt": ("scene", "images"), "none": ("spc", "binary")}
 FRAME_SOURCES = ("bernoulli",)
 
 
@@ -39,20 +44,32 @@ class Source:
 
 
 def load_source(name: str, scene_dir: str | os.PathLike, spc_dir: str | os.PathLike | None = None,
-                image_dir: str | os.PathLike | None = None, frames: int = 1) -> Source:
+                image_dir: str | os.PathLike | None = None, frames: int = 1,
+                display_dir: str | os.PathLike | None = None) -> Source:
     """Training views of ``scene_dir`` from source ``name``.
 
     ``image_dir`` overrides where an image source is read (stage-1 outputs); ``frames`` is the
-    number of binary frames the bernoulli source uses (1 = the paper's setting).
+    number of binary frames per view the bernoulli source uses (1 = the paper's setting);
+    ``display_dir``: the metered MLE folder of that budget (``results/mle/{scene}/k{K}``), whose
+    images the mle source trains on and whose gain the bernoulli source's likelihood uses.
     """
-    scene = llff.read_scene(scene_dir)
+    base, _ = split_source(name)
+    scene = llff.read_scene(scene_dir, with_images=base == "gt")
     train, _ = split_views(len(scene.names))
     names = [scene.names[i] for i in train]
     cams = scene.cameras.subset(train)
-    if name in FRAME_SOURCES:
-        targets, objective = bit_fractions(Path(spc_dir), names, frames), bernoulli_objective(Path(spc_dir))
+    if base in FRAME_SOURCES:
+        if display_dir is None:
+            raise ValueError(f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames}): "
+                             f"its gain turns rendered intensity into flux without the ground truth")
+        targets = bit_fractions(Path(spc_dir), names, frames)
+        objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir))
     else:
-        folder = Path(image_dir) if image_dir else _image_folder(name, Path(scene_dir), spc_dir)
+        if base == "mle" and image_dir is None:
+            if display_dir is None:
+                raise ValueError(f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames})")
+            image_dir = Path(display_dir) / "images"
+        folder = Path(image_dir) if image_dir else _image_folder(base, Path(scene_dir), spc_dir)
         targets, objective = np.stack([_read_view(folder, n, cams) for n in names]), None
     return Source(Views(torch.as_tensor(targets, dtype=torch.float32), cams, names), objective, name)
 
@@ -86,9 +103,9 @@ def bit_fractions(spc_dir: Path, names: list[str], frames: int) -> np.ndarray:
     return np.stack(out)
 
 
-def bernoulli_objective(spc_dir: Path) -> BernoulliObjective:
-    """The SPAD likelihood with the physics the frames were simulated with (spc.json)."""
-    rec = read_spc_record(spc_dir)
-    p = rec["params"]
-    return BernoulliObjective(flux_scale=rec["flux_scale"], q=p["q"], exposure_s=p["exposure_s"],
+def bernoulli_objective(spc_dir: Path, gain: float) -> BernoulliObjective:
+    """The SPAD likelihood with the camera's q, T and dcr (spc.json) and the metered display gain:
+    rendered linear intensity l means flux gain * l (the simulator's flux scale is not used)."""
+    p = read_spc_record(spc_dir)["params"]
+    return BernoulliObjective(flux_scale=gain, q=p["q"], exposure_s=p["exposure_s"],
                               dark_count_rate=p["dark_count_rate"])

@@ -37,9 +37,15 @@ log = logging.getLogger(__name__)
 def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source: str, model: str,
                 settings: dict, seed: int = 0, spc_dir: str | os.PathLike | None = None,
                 image_dir: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
-                frames: int = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None,
-                policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None) -> dict:
+                frames: int | None = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None,
+                policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None,
+                display_dir: str | os.PathLike | None = None, init_setting: str | None = None) -> dict:
     """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
+
+    ``frames``: binary frames per view the source consumes (its photon budget K, recorded; the
+    bernoulli source fits that many; None for the oracle ``gt``). ``display_dir``: the metered MLE
+    folder of that budget (mle and bernoulli sources, :mod:`spc3d.exposure`).
+    ``init_setting``: the config's ``stage2.init``, recorded beside what was actually done.
 
     ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
     initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
@@ -53,15 +59,17 @@ def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source
     if threads:
         torch.set_num_threads(threads)
     seed_everything(seed)
-    src = load_source(source, scene_dir, spc_dir, image_dir, frames)
+    src = load_source(source, scene_dir, spc_dir, image_dir, frames or 1, display_dir)
     points, init = initial_points(points_dir)
     trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
     log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
     meta = {"model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"), "seed": seed,
-            "settings": dataclasses.asdict(cfg), "frames": frames if source == "bernoulli" else None, "init": init}
+            "settings": dataclasses.asdict(cfg), "frames": frames, "poses": "ground truth (the scene's cameras)",
+            "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},
+            "display": display_record(display_dir)}
     ckpt = Checkpoint(checkpoint, fingerprint("reconstruct", meta, input_digests or {
         "scene": digest_path(scene_dir), "spc": digest_path(spc_dir), "images": digest_path(image_dir),
-        "points": digest_path(points_dir)})) if checkpoint else None
+        "points": digest_path(points_dir), "display": digest_path(display_dir)})) if checkpoint else None
     result = run(trainer, iterations, ckpt, policy, desc=f"{source}+{model}",
                  postfix=lambda stats: {k: v for k, v in trainer.capacity().items() if isinstance(v, int)})
     record = {**{k: v for k, v in result.items() if k != "final"},
@@ -69,6 +77,14 @@ def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source
               "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()}}
     render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
     return record | {"render_s": render_s}
+
+
+def display_record(display_dir) -> dict | None:
+    """The metered display gain a row used (mle / bernoulli), for its record."""
+    if display_dir is None:
+        return None
+    rec = io.read_json(Path(display_dir) / "display.json")
+    return {k: rec[k] for k in ("K", "gain", "level", "rule")}
 
 
 def initial_points(points_dir) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
@@ -85,7 +101,7 @@ def initial_points(points_dir) -> tuple[tuple[np.ndarray, np.ndarray] | None, st
 
 def write_renders(trainer, scene_dir, out_dir, record: dict) -> float:
     """Render every held-out view into ``out_dir/renders`` and write ``train.json``, atomically."""
-    scene = llff.read_scene(scene_dir)
+    scene = llff.read_scene(scene_dir, with_images=False)
     _, test = split_views(len(scene.names))
     t0 = time.perf_counter()
     with io.atomic_path(out_dir, is_dir=True) as tmp:

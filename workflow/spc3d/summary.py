@@ -1,7 +1,8 @@
 """The data summary: one table row and one figure row per scene.
 
 Table (``data_summary.csv`` / ``.md``): origin, size, the SPC exposure (flux scale, mean detection
-rate, saturated fraction), the K-frame MLE's PSNR against the ground truth, and for each COLMAP
+rate, saturated fraction), the K-frame MLE's PSNR against the ground truth at the simulator's exact
+gain (a diagnostic of the simulation; the table rows meter their gain), and for each COLMAP
 input (rgb / binary / average) the registered views and median pose errors.
 Figure (``data_summary.png``): RGB | one binary frame | K-frame average | MLE flux estimate, for
 the first test view of each scene.
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import io
+from . import io, spc
 from .simulate import read_spc_record
 
 
@@ -26,7 +27,7 @@ def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role
            "layout/path": meta.get("layout") or meta.get("path"), "views": meta["views"],
            "size": f"{meta['width']}x{meta['height']}", "K": rec["params"]["frames"],
            "flux_scale": rec["flux_scale"], "detection_rate": rec["mean_detection_rate"],
-           "saturated": rec["mean_saturated_fraction"], "mle_psnr_db": rec["mean_mle_psnr_db"]}
+           "saturated": rec["mean_saturated_fraction"], "mle_psnr_exact_gain_db": rec["mean_mle_psnr_exact_gain_db"]}
     for name, d in colmap_dirs.items():
         row |= colmap_columns(name, io.read_json(d / "pose_error.json"))
     return row
@@ -51,10 +52,12 @@ def write_tables(df: pd.DataFrame, csv_path: str | os.PathLike, md_path: str | o
 
 
 def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray]]:
-    """(view name, [rgb, binary, average, mle_srgb]) of the scene's first view (a test view)."""
+    """(view name, [rgb, binary, average, MLE at the exact gain]) of the scene's first view (a test view)."""
     view = sorted((scene_dir / "images").glob("*.png"))[0].stem
-    paths = [scene_dir / "images" / f"{view}.png"] + [spc_dir / k / f"{view}.png" for k in ("binary", "average", "mle_srgb")]
-    return view, [io.read_rgb(p) for p in paths]
+    paths = [scene_dir / "images" / f"{view}.png"] + [spc_dir / k / f"{view}.png" for k in ("binary", "average")]
+    flux = io.read_image(spc_dir / "mle" / f"{view}.exr")
+    mle = spc.linear_to_srgb(np.clip(flux / read_spc_record(spc_dir)["flux_scale"], 0.0, 1.0))
+    return view, [io.read_rgb(p) for p in paths] + [mle]
 
 
 def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: int) -> None:
@@ -64,7 +67,7 @@ def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: in
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    titles = ["RGB (ground truth)", "one binary frame", f"{K}-frame average", f"MLE flux ({K} frames)"]
+    titles = ["RGB (ground truth)", "one binary frame", f"{K}-frame average", f"MLE flux ({K} frames, exact gain)"]
     fig, axes = plt.subplots(len(scenes), 4, figsize=(12, 2.4 * len(scenes) + 0.4), squeeze=False)
     for r, (scene_dir, spc_dir) in enumerate(scenes):
         view, panels = figure_panels(scene_dir, spc_dir)

@@ -1,12 +1,17 @@
-"""Paper-layout tables generated from ``metrics.json`` files (mean ± std over scenes and seeds).
+"""Paper-layout tables generated from ``metrics.json`` files (mean ± std over runs, with n).
 
 A table spec is a list of rows ``(label, source, stage-2 family, paper (PSNR, SSIM, LPIPS) or None,
 role)``; the family ``nerf`` resolves to the configured NeRF variant (``nerf`` or ``nerf-grid``),
-whose name appears in the row. Best and second-best values per column (among the non-oracle rows
-that have results) are marked bold and italic from the numbers themselves. The paper's values sit
-in adjacent columns; the paper does not name its LPIPS backbone, so both of ours are shown.
+whose name appears in the row. Physics rows (``mle``, ``bernoulli``) of other frame budgets that
+were run are appended. Every row states its photon budget K (binary frames per view, read from
+the records; "–" for the ground-truth oracle) and its poses, and the rows sit in three blocks:
+the main block (the smallest K, the paper's setting), multi-frame references (larger K), and the
+oracle rows. Best and second-best values per column are marked bold and italic from the numbers,
+**only among rows with the same K** (never the oracle). n counts the runs (scenes × seeds) behind
+a row; with n = 1 no spread is shown. The paper's values sit in adjacent columns (it does not name
+its LPIPS backbone, so both of ours are shown).
 
-Outputs: ``{stem}.csv`` (numbers), ``{stem}.md`` and ``{stem}.tex`` (formatted).
+Outputs: ``{stem}.csv`` (numbers), ``{stem}.md``, ``{stem}.tex`` and ``{stem}.html`` (formatted).
 """
 
 from __future__ import annotations
@@ -18,9 +23,16 @@ import numpy as np
 import pandas as pd
 
 from . import io
+from .workflow import LABELS, split_source
 
 METRICS = {"psnr": ("PSNR↑", True), "ssim": ("SSIM↑", True), "lpips_alex": ("LPIPS-alex↓", False),
            "lpips_vgg": ("LPIPS-vgg↓", False)}
+# What every caption says about the protocol (the rule for the physics rows' display gain included).
+PROTOCOL = ("K = binary frames per view a row consumed; ranks (bold best, italic second) only among rows of "
+            "equal K; oracle rows read the ground truth and are not ranked. No other row reads the evaluation "
+            "scene's ground truth: the MLE and SPAD-likelihood rows display their flux at a gain metered from "
+            "their own frames (mean flux / k, k fitted on the training scenes). Poses: ground truth for every "
+            "row. Mean ± std over n runs (scenes × seeds).")
 
 # Paper Table 2 (single-stage), then the rows this project adds.
 SINGLE_STAGE = [
@@ -29,7 +41,7 @@ SINGLE_STAGE = [
     ("Pix2PixHD + NeRF", "pix2pixhd", "nerf", (22.70, 0.6843, 0.4949), "paper"),
     ("Pix2PixHD + 3DGS", "pix2pixhd", "3dgs", (22.21, 0.6772, 0.4251), "paper"),
     ("3DGS, SPAD likelihood on binary (single stage)", "bernoulli", "3dgs", None, "ours"),
-    ("MLE of K frames + 3DGS", "mle", "3dgs", None, "ours"),
+    ("MLE + 3DGS (physics, no training)", "mle", "3dgs", None, "ours"),
     ("Oracle: ground-truth RGB + NeRF", "gt", "nerf", None, "oracle"),
     ("Oracle: ground-truth RGB + 3DGS", "gt", "3dgs", None, "oracle"),
 ]
@@ -46,10 +58,11 @@ TWO_STAGE = [
     ("Restormer + 3DGS", "restormer", "3dgs", (19.2733, 0.4325, 0.6063), "paper"),
     ("Diffusion (DiffBIR stand-in) + NeRF", "diffusion", "nerf", (19.353, 0.6103, 0.5009), "paper"),
     ("Diffusion (DiffBIR stand-in) + 3DGS", "diffusion", "3dgs", (17.195, 0.41825, 0.47815), "paper"),
-    ("MLE of K frames + 3DGS (physics, no training)", "mle", "3dgs", None, "ours"),
+    ("MLE + 3DGS (physics, no training)", "mle", "3dgs", None, "ours"),
     ("Oracle: ground-truth RGB + NeRF", "gt", "nerf", None, "oracle"),
     ("Oracle: ground-truth RGB + 3DGS", "gt", "3dgs", None, "oracle"),
 ]
+PHYSICS = ("mle", "bernoulli")  # sources whose other frame budgets are appended to both tables
 
 
 # A standalone page per table (the HTML report shows it in its main panel).
@@ -60,61 +73,109 @@ table {{ border-collapse: collapse; }} th, td {{ border: 1px solid #ccc; padding
 td:first-child, th:first-child {{ text-align: left; }} th {{ background: #f0f0f0; }}
 </style></head><body><h3>{caption}</h3>
 {table}
-<p>Best in bold, second in italics (from the numbers; oracle rows are not ranked). Mean ± std over scenes and seeds.</p>
+<p>{protocol}</p>
 </body></html>
 """
 
 
 def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
-    """One row per metrics.json: scene, combination, seed and the mean metrics."""
+    """One row per metrics.json: scene, combination, seed, K, 3DGS initialisation and the mean metrics."""
     rows = []
     for path in metrics_files:
         rec = io.read_json(path)
+        init = rec.get("init")
         rows.append({"scene": rec["scene"], "combination": rec["combination"], "seed": rec.get("seed"),
+                     "K": rec.get("frames"), "init": init.get("used") if isinstance(init, dict) else init,
                      **{k: rec["mean"][k] for k in METRICS}})
-    return pd.DataFrame(rows, columns=["scene", "combination", "seed", *METRICS])
+    return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "init", *METRICS])
 
 
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean, std and count per combination over scenes and seeds."""
-    g = df.groupby("combination")[list(METRICS)]
-    out = g.mean().add_suffix("_mean").join(g.std(ddof=0).add_suffix("_std")).join(g.size().rename("runs"))
+    """Mean, std (ddof 0) and n per combination over scenes and seeds, with its K and initialisation."""
+    g = df.groupby("combination")
+    out = g[list(METRICS)].mean().add_suffix("_mean").join(g[list(METRICS)].std(ddof=0).add_suffix("_std"))
+    out = out.join(g.size().rename("runs"))
+    out["K"] = g["K"].agg(lambda k: _one(k, "K"))
+    out["init"] = g["init"].agg(lambda v: "; ".join(sorted({str(x).split(" (")[0] for x in v if x is not None}))
+                                or None)
     return out
 
 
-def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
-    """Numeric table in the spec's row order (NaN where a combination has no results yet)."""
+def _one(values: pd.Series, what: str):
+    distinct = {None if pd.isna(v) else int(v) for v in values}
+    if len(distinct) > 1:
+        raise ValueError(f"one combination with different {what} across its runs: {sorted(distinct, key=str)}")
+    return distinct.pop()
+
+
+def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str) -> list:
+    """Spec rows for physics combinations that ran but are not in ``spec`` (other frame budgets)."""
+    listed = {f"{src}+{nerf_variant if fam == 'nerf' else fam}" for _, src, fam, *_ in spec}
     rows = []
-    for label, source, family, paper, role in spec:
+    for combo in summary.index:
+        source, _, model = combo.partition("+")
+        if combo not in listed and split_source(source)[0] in PHYSICS:
+            label = f"{LABELS[split_source(source)[0]]} + {model.upper() if model == '3dgs' else model}"
+            rows.append((label, source, model, None, "ours"))
+    return rows
+
+
+def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
+    """Numeric table: the spec's rows (and other-budget physics rows) in blocks main | references | oracle."""
+    rows = []
+    for label, source, family, paper, role in spec + extra_rows(summary, spec, nerf_variant):
         model = nerf_variant if family == "nerf" else family
         combo = f"{source}+{model}"
         have = combo in summary.index
+        K = summary.loc[combo, "K"] if have else None
         row = {"approach": label + (f" [{model}]" if family == "nerf" else ""), "combination": combo, "role": role,
+               "K": K, "poses": "ground truth", "init": summary.loc[combo, "init"] if have else None,
                "runs": int(summary.loc[combo, "runs"]) if have else 0}
         for k in METRICS:
             row[f"{k}_mean"] = summary.loc[combo, f"{k}_mean"] if have else np.nan
             row[f"{k}_std"] = summary.loc[combo, f"{k}_std"] if have else np.nan
         row.update(dict(zip(("paper_psnr", "paper_ssim", "paper_lpips"), paper or (np.nan,) * 3)))
         rows.append(row)
-    return pd.DataFrame(rows)
+    df = pd.DataFrame(rows)
+    if df.empty:
+        return df
+    df["block"] = [block(r, k, df) for r, k in zip(df["role"], df["K"])]
+    return df.sort_values("block", kind="stable").reset_index(drop=True)
+
+
+def block(role: str, K, df: pd.DataFrame) -> int:
+    """0: the main block (the smallest K present), 1: multi-frame references, 2: oracle rows."""
+    if role == "oracle":
+        return 2
+    ks = [k for k in df["K"] if k is not None and not pd.isna(k)]
+    return 1 if ks and K is not None and not pd.isna(K) and K > min(ks) else 0
 
 
 def ranks(df: pd.DataFrame, key: str, higher_better: bool) -> pd.Series:
-    """1 = best, 2 = second among non-oracle rows with a value; 0 otherwise."""
-    vals = df[key].where(df["role"] != "oracle")
-    order = vals.rank(ascending=not higher_better, method="min")
-    return order.where(order <= 2, 0).fillna(0).astype(int)
+    """1 = best, 2 = second among non-oracle rows of the same K that have a value; 0 otherwise."""
+    out = pd.Series(0, index=df.index)
+    ranked = df[(df["role"] != "oracle") & df[key].notna()]
+    for _, group in ranked.groupby(ranked["K"].astype("Int64").astype(str)):
+        order = group[key].rank(ascending=not higher_better, method="min")
+        out[group.index] = order.where(order <= 2, 0).astype(int)
+    return out
 
 
 def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
-    """Display strings: mean ± std (best / second marked), paper values alongside."""
-    out = pd.DataFrame({"Approach": df["approach"], "combination": df["combination"], "runs": df["runs"]})
+    """Display strings: mean ± std (best / second within equal K marked; no ± when n = 1), K, n."""
+    label = [a if n == 0 else f"{a} (oracle, no photons)" if role == "oracle" else f"{a} (K = {k_text(k)})"
+             for a, k, n, role in zip(df["approach"], df["K"], df["runs"], df["role"])]
+    out = pd.DataFrame({"Approach": label, "combination": df["combination"], "K": [k_text(k) for k in df["K"]],
+                        "poses": df["poses"], "n": df["runs"]})
+    if df["combination"].str.endswith("+3dgs").any():  # where each 3DGS started (stage2.init, as done)
+        out["3DGS init"] = [i if c.endswith("+3dgs") and isinstance(i, str) else "–"
+                            for c, i in zip(df["combination"], df["init"])]
     for k, (title, higher) in METRICS.items():
         r = ranks(df, f"{k}_mean", higher)
         digits = 2 if k == "psnr" else 4
         cells = []
-        for mean, std, rank in zip(df[f"{k}_mean"], df[f"{k}_std"], r):
-            text = "–" if np.isnan(mean) else f"{mean:.{digits}f} ± {std:.{digits}f}"
+        for mean, std, n, rank in zip(df[f"{k}_mean"], df[f"{k}_std"], df["runs"], r):
+            text = "–" if np.isnan(mean) else f"{mean:.{digits}f}" + (f" ± {std:.{digits}f}" if n > 1 else "")
             cells.append(bold(text) if rank == 1 else italic(text) if rank == 2 else text)
         out[title] = cells
     for k, title in (("paper_psnr", "paper PSNR"), ("paper_ssim", "paper SSIM"), ("paper_lpips", "paper LPIPS")):
@@ -124,32 +185,35 @@ def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
     return out
 
 
+def k_text(K) -> str:
+    return "–" if K is None or pd.isna(K) else str(int(K))
+
+
 def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None:
     """``stem``.csv (numbers), .md, .tex and .html (formatted) atomically."""
     stem = Path(stem)
     io.write_text(stem.with_suffix(".csv"), df.to_csv(index=False, float_format="%.6g"))
     md = formatted(df, lambda s: f"**{s}**", lambda s: f"*{s}*")
-    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + "\n")
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + f"\n\n{PROTOCOL}\n")
     tex = formatted(df, lambda s: f"\\textbf{{{s}}}", lambda s: f"\\textit{{{s}}}")
     tex = tex.map(lambda s: s.replace("±", "$\\pm$").replace("↑", "$\\uparrow$").replace("↓", "$\\downarrow$")
                   .replace("–", "--") if isinstance(s, str) else s)
-    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=caption, escape=False))
+    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {PROTOCOL}", escape=False))
     html = formatted(df, lambda s: f"<b>{s}</b>", lambda s: f"<i>{s}</i>").to_html(index=False, escape=False)
-    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html))
+    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=PROTOCOL))
 
 
 def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
     """Paper Table 2 layout (+ this project's rows) from the given metrics files."""
     df = table(summarise(collect(metrics_files)), SINGLE_STAGE, nerf_variant)
-    write_table(df, stem, "Single-stage vs two-stage (paper Table 2 layout); mean ± std over scenes and seeds")
+    write_table(df, stem, "Single-stage vs two-stage (paper Table 2 layout)")
     return df
 
 
 def two_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
     """Paper Table 1 layout (+ this project's rows) from the given metrics files."""
     df = table(summarise(collect(metrics_files)), TWO_STAGE, nerf_variant)
-    write_table(df, stem, "Two-stage: stage-1 translator + stage-2 reconstructor (paper Table 1 layout); "
-                          "mean ± std over scenes and seeds")
+    write_table(df, stem, "Two-stage: stage-1 translator + stage-2 reconstructor (paper Table 1 layout)")
     return df
 
 
@@ -158,21 +222,25 @@ def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> 
     rows = []
     for path in stage1_files:
         rec = io.read_json(path)
-        rows.append({"scene": rec["scene"], "combination": rec["source"], **{k: rec["mean"][k] for k in METRICS}})
-    summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", *METRICS]))
-    spec = [(labels.get(src, src), src, "image", None, "oracle" if src == "gt" else "ours")
+        rows.append({"scene": rec["scene"], "combination": rec["source"], "K": rec.get("frames"), "init": None,
+                     **{k: rec["mean"][k] for k in METRICS}})
+    summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", "K", "init", *METRICS]))
+    spec = [(labels.get(split_source(src)[0], src), src, "image", None, "oracle" if src == "gt" else "ours")
             for src in summary.sort_values("psnr_mean", ascending=False).index]
     df = table(summary.rename(index=lambda c: f"{c}+image"), spec, "image")
-    df["combination"] = [src for _, src, *_ in spec]
+    df["combination"] = [c.removesuffix("+image") for c in df["combination"]]
     write_table(df, stem, "Stage 1 alone: translated held-out views vs ground truth, before 3D")
     return df
 
 
 def write_all_tables(metrics_files: list[str], stage1_files: list[str], folder: str | os.PathLike,
-                     nerf_variant: str, labels: dict[str, str]) -> None:
-    """single_stage.*, two_stage.* and stage1.* in ``folder``."""
+                     nerf_variant: str, labels: dict[str, str] = LABELS) -> None:
+    """single_stage.*, two_stage.*, stage1.* and the findings (findings.md / .json / .html) in ``folder``."""
+    from .findings import write_findings
+
     folder = Path(folder)
     single_stage_table(metrics_files, folder / "single_stage", nerf_variant)
     two_stage_table(metrics_files, folder / "two_stage", nerf_variant)
     if stage1_files:
         stage1_table(stage1_files, folder / "stage1", labels)
+    write_findings(metrics_files, folder / "findings", nerf_variant)

@@ -89,22 +89,49 @@ def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") 
 # not import torch; a test keeps the two equal) and the stage-2 sources that need no stage 1.
 STAGE1_METHODS = ("pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion")
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
+# Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
+# the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
+BUDGET_SOURCES = ("mle", "bernoulli")
 # How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
 LABELS = {"pix2pixhd": "Pix2PixHD", "pix2pix": "Pix2Pix", "cyclegan": "CycleGAN", "restormer": "Restormer",
-          "diffusion": "Diffusion (DiffBIR stand-in)", "mle": "MLE of K frames", "none": "binary frame (no stage 1)",
+          "diffusion": "Diffusion (DiffBIR stand-in)", "mle": "MLE", "none": "binary frame (no stage 1)",
           "gt": "ground truth", "bernoulli": "SPAD likelihood on binary"}
 
 
-def resolve_combinations(combinations: list[str], nerf_variant: str) -> list[str]:
+def split_source(source: str) -> tuple[str, int | None]:
+    """("mle", 16) for "mle-k16"; (source, None) without a frame suffix."""
+    base, sep, k = source.partition("-k")
+    if sep and k.isdigit() and int(k) >= 1:
+        return base, int(k)
+    return source, None
+
+
+def source_frames(source: str, stage1_frames: int, stage2_frames: int) -> int | None:
+    """Binary frames per view a source consumes (its photon budget K); None for the oracle ``gt``."""
+    base, k = split_source(source)
+    if base == "gt":
+        return None
+    if base == "none":
+        return 1
+    if base in STAGE1_METHODS:
+        return stage1_frames
+    return k or stage2_frames
+
+
+def resolve_combinations(combinations: list[str], nerf_variant: str, where: str = "stage2.combinations") -> list[str]:
     """``source+model`` names with the family ``nerf`` resolved to the configured NeRF variant."""
     out = []
     for combo in combinations:
         source, sep, model = combo.partition("+")
         if not sep or not source or model not in ("3dgs", "nerf", "nerf-grid"):
-            raise ConfigError(f"stage2.combinations: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
-        if source not in PLAIN_SOURCES + STAGE1_METHODS:
-            raise ConfigError(f"stage2.combinations: {combo!r} has unknown source {source!r}; use one of "
+            raise ConfigError(f"{where}: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
+        base, k = split_source(source)
+        if base not in PLAIN_SOURCES + STAGE1_METHODS or (source != base and k is None):
+            raise ConfigError(f"{where}: {combo!r} has unknown source {source!r}; use one of "
                               f"{list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}")
+        if k is not None and base not in BUDGET_SOURCES:
+            raise ConfigError(f"{where}: {combo!r}: only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' "
+                              f"(translators use stage1.frames, 'none' is one frame, 'gt' none)")
         out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
     return list(dict.fromkeys(out))
 
@@ -113,6 +140,13 @@ def stage1_sources(combinations: list[str]) -> list[str]:
     """The stage-1 methods the combinations need (in registry order)."""
     used = {c.partition("+")[0] for c in combinations}
     return [m for m in STAGE1_METHODS if m in used]
+
+
+def display_budgets(combinations: list[str], stage2_frames: int) -> list[int]:
+    """The frame budgets K whose metered display gain the combinations need (mle / bernoulli rows)."""
+    ks = {source_frames(c.partition("+")[0], 1, stage2_frames) for c in combinations
+          if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES}
+    return sorted(ks)
 
 
 def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:

@@ -22,7 +22,7 @@ import dataclasses
 
 from ..augment import split_count
 from ..training import build_config
-from .knobs import PLAIN_SOURCES, check_setting, split_combination, used_knobs
+from .knobs import METERED, PLAIN_SOURCES, check_setting, split_combination, used_knobs
 
 # The translator's main width (``width`` knob) per stage-1 method.
 WIDTH_KEYS = {"pix2pixhd": "ngf", "pix2pix": "ngf", "cyclegan": "ngf", "restormer": "dim", "diffusion": "base_channels"}
@@ -42,9 +42,10 @@ def resolve_point(base: dict, setting: dict, combo: str) -> dict:
     stage1 = source not in PLAIN_SOURCES
     if stage1 and not base.get("translator"):
         raise ValueError(f"{combo}: source {source!r} is a stage-1 method but no translator settings were given")
-    train_scenes = {n: scale_spec(s, knobs.get("res")) for n, s in base["train_scenes"].items()} if stage1 else {}
-    if stage1 and not train_scenes:
-        raise ValueError(f"{combo}: a stage-1 source needs training scenes (tradeoff.train_scenes is empty)")
+    trained = stage1 or source in METERED  # translators learn from them; metered rows fit their display level
+    train_scenes = {n: scale_spec(s, knobs.get("res")) for n, s in base["train_scenes"].items()} if trained else {}
+    if trained and not train_scenes:
+        raise ValueError(f"{combo}: source {source!r} needs training scenes (tradeoff.train_scenes is empty)")
     if base["scene_name"] in train_scenes:
         raise ValueError(f"{combo}: scene {base['scene_name']!r} is both evaluated and trained on; keep them apart")
     spc = spc_settings(base["spc"], knobs, base["seed"])
@@ -52,7 +53,7 @@ def resolve_point(base: dict, setting: dict, combo: str) -> dict:
             "used_knobs": used_knobs(combo), "scene_name": base["scene_name"], "scene": scene,
             "train_scenes": train_scenes, "spc": spc,
             "frames": source_frames(base, source, knobs, spc),
-            "augment": augment_settings(base["augment"], list(train_scenes)),
+            "augment": augment_settings(base["augment"], list(train_scenes) if stage1 else []),
             "translator": translator_settings(base["translator"], source, knobs, scene) if stage1 else None,
             "stage2": stage2_settings(base["stage2"]["settings"], model, knobs)}
 
@@ -81,13 +82,13 @@ def spc_settings(spc: dict, knobs: dict, seed: int) -> dict:
 
 def source_frames(base: dict, source: str, knobs: dict, spc: dict) -> int | None:
     """Binary frames the source uses: K if given, else the config's value for that source."""
-    if source in ("gt", "none"):
-        return None
+    if source == "gt":
+        return None  # the oracle: no photons
+    if source == "none":
+        return 1  # frame 0
     if "K" in knobs:
         return knobs["K"]
-    if source == "mle":
-        return spc["physics"]["frames"]
-    return base["stage2"]["frames"] if source == "bernoulli" else base["translator"]["frames"]
+    return base["stage2"]["frames"] if source in METERED else base["translator"]["frames"]
 
 
 def augment_settings(augment: dict, train_names: list[str]) -> dict:

@@ -26,6 +26,8 @@ KNOBS: dict[str, tuple[type, str]] = {
 }
 # Stage-2 sources that need no translator (spc3d.workflow.PLAIN_SOURCES; a test keeps them equal).
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
+# Sources whose display gain is metered with a level fitted on the training scenes (spc3d.exposure).
+METERED = ("mle", "bernoulli")
 MODELS = ("3dgs", "nerf", "nerf-grid")
 
 

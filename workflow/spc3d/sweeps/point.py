@@ -50,11 +50,12 @@ from ..simulate import simulate_scene
 from ..spc import SPCParams
 from ..stage2 import reconstruct
 from .budget import resolve_point
+from .knobs import METERED
 from .plan import scene_inputs
 
 log = logging.getLogger(__name__)
 STAGES = ("prepare", "simulate", "augment", "train", "translate", "reconstruct", "evaluate")
-STAGE1_IMAGES = {"mle": ("spc", "mle_srgb"), "none": ("spc", "binary")}  # sources scored before 3D
+STAGE1_IMAGES = {"mle": ("display", "images"), "none": ("spc", "binary")}  # sources scored before 3D
 TRANSLATOR_KEYS = ("parameters", "train_s", "settings", "train", "pairs", "peak_rss_mb")  # kept from train.json
 
 
@@ -114,10 +115,11 @@ def run_point(out_dir: str | os.PathLike, combo: str, setting: dict, base: dict,
     scene_dir, spc_dir = prepare_and_simulate(plan, work, times)
     model_record, image_dir = run_stage1(plan, work, lpips_dir, threads, times, resume) if plan["translator"] \
         else (None, None)
+    display_dir = meter_display(plan, work, times) if plan["source"] in METERED else None
     with timed(times, "reconstruct"):
         recon = reconstruct(scene_dir, out / "recon", plan["source"], plan["model"], plan["stage2"], plan["seed"],
-                            spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"] or 1, threads=threads,
-                            **resume.kwargs("reconstruct"))
+                            spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"], threads=threads,
+                            display_dir=display_dir, **resume.kwargs("reconstruct"))
     with timed(times, "evaluate"):
         scores = evaluate(out / "recon", scene_dir, work / "eval.json", lpips_dir=lpips_dir)
         stage1 = score_source(plan, work, image_dir, lpips_dir)
@@ -152,6 +154,18 @@ def prepare_and_simulate(plan: dict, work: Path, times: dict) -> tuple[Path, Pat
     return work / "scenes" / names[0], work / "spc" / names[0]
 
 
+def meter_display(plan: dict, work: Path, times: dict) -> Path:
+    """The metered MLE display of the evaluation scene at the point's K (level fitted on its training scenes)."""
+    from ..exposure import calibrate_display, write_display
+
+    with timed(times, "simulate"):
+        train = list(plan["train_scenes"])
+        calibrate_display([work / "scenes" / n for n in train], [work / "spc" / n for n in train], plan["frames"],
+                          work / "display.json")
+        write_display(work / "spc" / plan["scene_name"], work / "display.json", plan["frames"], work / "display")
+    return work / "display"
+
+
 def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict,
                resume: Resume = Resume(None, {})) -> tuple[dict, Path]:
     """Augment the training scenes, train the translator, translate the evaluation scene."""
@@ -184,7 +198,8 @@ def score_source(plan: dict, work: Path, image_dir: Path | None, lpips_dir) -> d
     source, name = plan["source"], plan["scene_name"]
     if image_dir is None and source not in STAGE1_IMAGES:
         return None
-    folder = image_dir or work / STAGE1_IMAGES[source][0] / name / STAGE1_IMAGES[source][1]
+    kind, sub = STAGE1_IMAGES.get(source, (None, None))
+    folder = image_dir or (work / "display" / sub if kind == "display" else work / kind / name / sub)
     return score_images(folder, work / "scenes" / name, work / "stage1.json", source, lpips_dir=lpips_dir)["mean"]
 
 

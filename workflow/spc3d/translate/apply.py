@@ -37,7 +37,7 @@ def translate_scene(model_dir: str | os.PathLike, spc_dir: str | os.PathLike, sc
     if threads:
         torch.set_num_threads(threads)
     method, model = load_translator(model_dir)
-    names = llff.read_scene(scene_dir).names
+    names = llff.read_scene(scene_dir, with_images=False).names
     times = []
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         (Path(tmp) / "images").mkdir(parents=True)
@@ -55,8 +55,13 @@ def translate_scene(model_dir: str | os.PathLike, spc_dir: str | os.PathLike, sc
 
 
 def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out_json: str | os.PathLike,
-                 source: str, lpips_dir: str | os.PathLike | None = None) -> dict:
-    """PSNR / SSIM / LPIPS of a source's held-out views (before any 3D) against the ground truth."""
+                 source: str, lpips_dir: str | os.PathLike | None = None, frames: int | None = None,
+                 seed: int | None = None) -> dict:
+    """PSNR / SSIM / LPIPS of a source's held-out views (before any 3D) against the ground truth.
+
+    ``frames``: binary frames per view the source consumed (its photon budget K; None for ground
+    truth), ``seed``: the run's seed; both go into the record, for the tables.
+    """
     scene = llff.read_scene(scene_dir)
     _, test = split_views(len(scene.names))
     per_view = {}
@@ -67,7 +72,7 @@ def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out
             raise FileNotFoundError(f"{pred_path} is missing: source {source!r} has no image for view {name}")
         per_view[name] = score_view(io.read_rgb(pred_path), io.read_rgb(Path(scene_dir) / "images" / f"{name}.png"),
                                     lpips_dir)
-    record = {"scene": Path(scene_dir).name, "source": source, "stage": 1, "views": per_view,
-              "mean": mean_scores(list(per_view.values()))}
+    record = {"scene": Path(scene_dir).name, "source": source, "stage": 1, "frames": frames, "seed": seed,
+              "views": per_view, "mean": mean_scores(list(per_view.values()))}
     io.write_json(out_json, record)
     return record

@@ -1,0 +1,6 @@
+"""Adapter: rule mle_display -> spc3d.exposure.write_display."""
+from spc3d.exposure import write_display
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    write_display(snakemake.input.spc, snakemake.input.calibration, int(snakemake.wildcards.K), snakemake.output[0])

@@ -1,0 +1,141 @@
+"""Display exposure of the physics rows without ground truth: average metering, fitted on training scenes.
+
+The maximum-likelihood flux φ̂ of a view (photons/s, :func:`spc3d.spc.mle_flux`) must be divided
+by a gain g to become displayable linear light. The exact gain is the scene's ``flux_scale``, but
+the simulator set that from the scene's ground-truth images: a row that used it would read the
+evaluation ground truth (an oracle). A real SPAD user has the frames, q, T, dcr and the training
+scenes, so the MLE and SPAD-likelihood rows use
+
+    g = mean(φ̂ over every pixel, channel and view of the scene's first K frames) / k
+
+the average-metering rule of a camera's auto exposure: the scene's mean estimated flux is shown at
+linear level k. The level k is fitted once on the *training* scenes (where ground truth is known),
+with the same estimator and the same K, to minimise their sRGB mean squared error
+(:func:`fit_level`); it is the only number the rule learns, like the translators learn brightness
+from the same scenes. The SPAD-likelihood objective uses the same g to turn rendered linear
+intensity into flux (:class:`spc3d.reconstruct.objectives.BernoulliObjective`).
+
+Files: ``calibrate_display`` writes ``results/calibration/display-k{K}.json``; ``write_display``
+writes a scene's ``results/mle/{scene}/k{K}/`` (``images/*.png`` and ``display.json``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import io, llff, spc
+from .simulate import params_from_record, read_spc_record
+
+RULE = ("display gain g = mean MLE flux of the scene's first K frames (all views) / k; k fitted on the "
+        "training scenes (same K) to minimise their sRGB MSE")
+LEVEL_RANGE = (1e-3, 1.0)  # linear display levels searched for k (1e-3: almost black; 1: full white)
+
+
+def mle_views(spc_dir: str | os.PathLike, K: int) -> tuple[list[str], np.ndarray]:
+    """(view names, (N, H, W, 3) float32 MLE flux of each view's first ``K`` frames)."""
+    spc_dir = Path(spc_dir)
+    params = params_from_record(read_spc_record(spc_dir))
+    if K > params.frames:
+        raise ValueError(f"K = {K} frames asked of {spc_dir}, which stores K = {params.frames} per view")
+    names, out = [], []
+    for path in sorted((spc_dir / "frames").glob("*.npz")):
+        bits = spc.unpack_frames(*io.load_frames(path))[:K]
+        out.append(spc.mle_flux(bits.sum(0, dtype=np.int64), K, params).astype(np.float32))
+        names.append(path.stem)
+    if not names:
+        raise FileNotFoundError(f"{spc_dir / 'frames'} holds no .npz frames (run spc_simulate first)")
+    return names, np.stack(out)
+
+
+def display_srgb(phi: np.ndarray, gain: float) -> np.ndarray:
+    """sRGB in [0, 1] of flux ``phi`` shown at ``gain`` (linear = phi / gain, clipped to [0, 1])."""
+    return spc.linear_to_srgb(np.clip(phi / gain, 0.0, 1.0)).astype(np.float32)
+
+
+def metered_gain(phi: np.ndarray, level: float) -> float:
+    """The average-metering gain: mean flux shown at linear ``level`` (a floor keeps it positive:
+    a scene with no detection at all gets the dark-count-free unit gain)."""
+    mean = float(np.mean(phi, dtype=np.float64))
+    return mean / level if mean > 0 else 1.0
+
+
+def _scene_error(phi: np.ndarray, gt: np.ndarray, level: float) -> float:
+    return float(np.mean((display_srgb(phi, metered_gain(phi, level)) - gt) ** 2, dtype=np.float64))
+
+
+def fit_level(phis: list[np.ndarray], gts: list[np.ndarray]) -> tuple[float, list[float]]:
+    """The level k minimising the summed sRGB MSE of ``phis`` metered at k against ``gts``, and each
+    scene's own best level (a diagnostic: how much the scenes disagree). Golden-section search on
+    log k over :data:`LEVEL_RANGE` (the error is unimodal in k: too dark, right, too bright)."""
+    if not phis or len(phis) != len(gts):
+        raise ValueError(f"fit_level: need matching non-empty lists of flux stacks and ground truths, got "
+                         f"{len(phis)} and {len(gts)}")
+
+    def best(error) -> float:
+        lo, hi = math.log(LEVEL_RANGE[0]), math.log(LEVEL_RANGE[1])
+        r = (math.sqrt(5) - 1) / 2
+        a, b = hi - r * (hi - lo), lo + r * (hi - lo)
+        fa, fb = error(math.exp(a)), error(math.exp(b))
+        for _ in range(60):  # the bracket shrinks by 0.618 per step: 60 steps reach ~1e-12 of its width
+            if fa < fb:
+                hi, b, fb = b, a, fa
+                a = hi - r * (hi - lo)
+                fa = error(math.exp(a))
+            else:
+                lo, a, fa = a, b, fb
+                b = lo + r * (hi - lo)
+                fb = error(math.exp(b))
+        return math.exp((lo + hi) / 2)
+
+    level = best(lambda k: sum(_scene_error(p, g, k) for p, g in zip(phis, gts)))
+    return level, [best(lambda k, p=p, g=g: _scene_error(p, g, k)) for p, g in zip(phis, gts)]
+
+
+def calibrate_display(scene_dirs: list[str], spc_dirs: list[str], K: int, out_json: str | os.PathLike) -> dict:
+    """Fit the display level on training scenes (ground truth + their frames); write ``out_json``."""
+    t0 = time.perf_counter()
+    if not scene_dirs:
+        raise ValueError("the display level of the mle / bernoulli rows is fitted on the training scenes, but none "
+                         "was given (scenes.train is empty)")
+    phis, gts = [], []
+    for scene_dir, spc_dir in zip(scene_dirs, spc_dirs):
+        names, phi = mle_views(spc_dir, K)
+        scene = llff.read_scene(scene_dir)
+        order = [scene.names.index(n) for n in names]
+        phis.append(phi)
+        gts.append(scene.images[order])
+    level, per_scene = fit_level(phis, gts)
+    record = {"K": K, "level": level, "rule": RULE, "training_scenes": [Path(d).name for d in scene_dirs],
+              "per_scene_level": dict(zip((Path(d).name for d in scene_dirs), per_scene)),
+              "wall_s": round(time.perf_counter() - t0, 3)}
+    io.write_json(out_json, record)
+    return record
+
+
+def write_display(spc_dir: str | os.PathLike, calibration: str | os.PathLike, K: int,
+                  out_dir: str | os.PathLike) -> dict:
+    """A scene's MLE images of its first ``K`` frames at the metered gain (no ground truth read)."""
+    t0 = time.perf_counter()
+    cal = io.read_json(calibration)
+    if cal["K"] != K:
+        raise ValueError(f"{calibration} was fitted for K = {cal['K']}, not K = {K}")
+    names, phi = mle_views(spc_dir, K)
+    gain = metered_gain(phi, cal["level"])
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        for name, view in zip(names, phi):
+            io.write_image(tmp / "images" / f"{name}.png", display_srgb(view, gain))
+        record = {"scene": Path(spc_dir).name, "K": K, "gain": gain, "level": cal["level"],
+                  "mean_flux": float(np.mean(phi, dtype=np.float64)), "rule": RULE, "calibration": str(calibration),
+                  "views": len(names), "wall_s": round(time.perf_counter() - t0, 3)}
+        io.write_json(tmp / "display.json", record)
+    return record
+
+
+def read_gain(display_dir: str | os.PathLike) -> float:
+    """The metered gain a scene's rows at one K use (``display.json`` of :func:`write_display`)."""
+    return float(io.read_json(Path(display_dir) / "display.json")["gain"])
