@@ -125,7 +125,7 @@ def evaluate_claims(df: pd.DataFrame, nerf: str) -> list[dict]:
     for who, text, pairs in claims(set(k1["combination"]), nerf):
         comps = [compare(k1, a, b) for a, b in pairs]
         scored = [c for c in comps if c.mean is not None]
-        closest = min(scored, key=lambda c: c.low) if scored else None
+        closest = min(scored, key=lambda c: c.low) if scored else max(comps, key=lambda c: c.n, default=None)
         results.append({"claim": text, "by": who, "verdict": verdict(comps),
                         "closest": closest.__dict__ if closest else None,
                         "comparisons": [c.__dict__ | {"verdict": c.verdict} for c in comps],
@@ -140,13 +140,17 @@ def markdown(results: list[dict]) -> str:
              f"excludes 0, else INCONCLUSIVE. A 'best' claim shows its closest competitor. Rows of equal K only.", "",
              "| claim | by | verdict | closest comparison | Δ PSNR (dB) | 95 % interval | n |", "|---|---|---|---|---|---|---|"]
     for r in results:
-        c = r["closest"]
-        if c is None:
-            lines.append(f"| {r['claim']} | {r['by']} | {r['verdict']} | rows missing | – | – | 0 |")
-            continue
-        lines.append(f"| {r['claim']} | {r['by']} | **{r['verdict']}** | {c['better']} vs {c['worse']} | "
-                     f"{c['mean']:+.2f} | [{c['low']:+.2f}, {c['high']:+.2f}] | {c['n']} |")
+        lines.append(f"| {r['claim']} | {r['by']} | **{r['verdict']}** | " + " | ".join(_cells(r["closest"])) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _cells(c: dict | None) -> list[str]:
+    """(comparison, difference, interval, n) of a claim's decisive comparison, or why there is none."""
+    if c is None:
+        return ["rows not in this run", "–", "–", "0"]
+    if c["mean"] is None:
+        return [f"{c['better']} vs {c['worse']}: too few paired units (< {MIN_UNITS})", "–", "–", str(c["n"])]
+    return [f"{c['better']} vs {c['worse']}", f"{c['mean']:+.2f}", f"[{c['low']:+.2f}, {c['high']:+.2f}]", str(c["n"])]
 
 
 def write_findings(metrics_files: list[str], stem: str | os.PathLike, nerf_variant: str) -> list[dict]:
@@ -161,11 +165,8 @@ def write_findings(metrics_files: list[str], stem: str | os.PathLike, nerf_varia
 
 
 def _html(results: list[dict]) -> str:
-    rows = "".join(
-        f"<tr><td>{r['claim']}</td><td>{r['by']}</td><td><b>{r['verdict']}</b></td>"
-        + (f"<td>{c['better']} vs {c['worse']}</td><td>{c['mean']:+.2f}</td><td>[{c['low']:+.2f}, {c['high']:+.2f}]"
-           f"</td><td>{c['n']}</td>" if (c := r["closest"]) else "<td>rows missing</td><td>–</td><td>–</td><td>0</td>")
-        + "</tr>" for r in results)
+    rows = "".join(f"<tr><td>{r['claim']}</td><td>{r['by']}</td><td><b>{r['verdict']}</b></td>"
+                   + "".join(f"<td>{cell}</td>" for cell in _cells(r["closest"])) + "</tr>" for r in results)
     return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>Findings</title><style>body{font-family:"
             "sans-serif;font-size:13px;margin:12px}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
             "padding:3px 6px}</style></head><body><h3>Findings: the claims, decided from the numbers</h3><table>"
