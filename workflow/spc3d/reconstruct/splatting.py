@@ -5,6 +5,12 @@ the scene extent, decayed exponentially over the run; SH DC 2.5e-3 (rest / 20), 
 scales 5e-3, rotations 1e-3. The active SH degree rises by one every ``sh_interval`` iterations,
 but only while it still pays: if the mean loss over the last interval did not drop by at least
 0.5 % against the interval before, the degree stays (capacity follows the scene).
+
+Training stops with a FloatingPointError naming the iteration when the loss is not finite (a
+NaN target, say: it would turn every Gaussian and Adam moment into NaN) or when no Gaussian is
+finite any more (checked every ``densify_every`` iterations; non-finite Gaussians are never
+drawn and get zero gradient). A camera the projection rejects (non-finite pose or intrinsics)
+raises its CameraError with the camera's index.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from torch import Tensor
 
 from ..cameras import Cameras
 from .densify import DensityControl
+from .splat.project import CameraError
 from .gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
 from ..metrics import psnr
 from .train import Views
@@ -55,21 +62,31 @@ class SplatTrainer:
             if group["name"] == "means":
                 group["lr"] = means_lr(it, self.cfg, self.extent)
         i = int(self.rng.integers(len(self.views.cameras)))
-        out = self.model.render(self.views.cameras, i, self.background, self.cfg.backend)
+        out = self._render(self.views.cameras, i)
         out["proj"].means2d.retain_grad()
         loss = self.objective.loss(out["image"], self.views.targets[i])
+        value = loss.item()
+        if not math.isfinite(value):  # it would turn every Gaussian and Adam moment into NaN
+            raise FloatingPointError(
+                f"3DGS training stopped at iteration {it}: the loss on training view {i} is {value} "
+                f"({int(torch.isfinite(out['image']).all(-1).sum())} of {out['image'][..., 0].numel()} pixels "
+                f"rendered finite, target finite: {bool(torch.isfinite(self.views.targets[i]).all())}, "
+                f"{int(self.finite_gaussians().sum())} of {len(self.model)} Gaussians finite)")
+        if it % self.cfg.densify_every == 0 and not self.finite_gaussians().any():
+            raise FloatingPointError(f"3DGS training stopped at iteration {it}: none of the {len(self.model)} "
+                                     "Gaussians has finite parameters any more")
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
         self.control.observe(out["proj"].means2d, out["proj"].radii, self.views.cameras.height,
                              self.views.cameras.width)
         self.opt.step()
         self.control.step(it, self.model, self.opt)
-        self.losses = self.losses[-(self.cfg.sh_interval - 1):] + [loss.item()]  # one interval is all it needs
+        self.losses = self.losses[-(self.cfg.sh_interval - 1):] + [value]  # one interval is all it needs
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).
         rgb = self.objective.name == "rgb"
-        return {"loss": loss.item(), "psnr": psnr(out["image"].clamp(0, 1), self.views.targets[i]) if rgb else math.nan}
+        return {"loss": value, "psnr": psnr(out["image"].clamp(0, 1), self.views.targets[i]) if rgb else math.nan}
 
     def maybe_raise_degree(self) -> None:
         """Raise the SH degree while the loss still improves by >= 0.5 % per interval."""
@@ -78,9 +95,25 @@ class SplatTrainer:
             self.model.active_degree += 1
         self.degree_loss = recent
 
+    def _render(self, cams: Cameras, i: int) -> dict:
+        """``model.render`` of view i; a camera the projection rejects is named by its index."""
+        try:
+            return self.model.render(cams, i, self.background, self.cfg.backend)
+        except CameraError as e:
+            msg = str(e).removeprefix("camera: ")
+            raise CameraError(f"camera {i} (of {len(cams)}): {msg}") from None
+
+    def finite_gaussians(self) -> Tensor:
+        """(N,) bool: the Gaussians whose parameters are all finite (the others are never drawn)."""
+        ok = torch.ones(len(self.model), dtype=torch.bool)
+        for n in PARAM_NAMES:
+            fin = torch.isfinite(getattr(self.model, n).detach())
+            ok &= fin.flatten(1).all(1) if fin.dim() > 1 else fin
+        return ok
+
     @torch.no_grad()
     def render(self, cams: Cameras, i: int) -> Tensor:
-        out = self.model.render(cams, i, self.background, self.cfg.backend)
+        out = self._render(cams, i)
         return self.objective.to_srgb(out["image"])
 
     def capacity(self) -> dict:

@@ -49,6 +49,16 @@ projection forward + backward ~0.5 ms, loss and autograd ~0.3 ms, each parallel 
 step with scalar float64 kernels, 11-15 ms with 16-lane row kernels, 4.2-5.0 ms before the
 G cache and the alias-check-free tile buffers of :mod:`.native_simd`.
 
+Any input values (numba does not check bounds, so this is what keeps the kernels in bounds): the
+set-up draws a Gaussian only if its centre, conic, opacity, colour and depth are finite, its
+radius is > 0 and its opacity can reach 1/255; anything else gets an empty box before any float
+becomes an integer (a NaN converted to int64 is INT64_MIN: it once sent a tile index far outside
+its array, SIGSEGV). Boxes are clamped to the image again in integers, so every tile index, list
+length and G-cache row derives from in-image boxes; the kernels' exponent arithmetic maps NaN
+(overflowing conics) to "skip". Non-finite Gaussians are thus absent: zero gradient, no effect on
+the others. Sizes and shapes are checked (ValueError), as is a finite background; cameras are
+checked by the projections (:class:`.project.CameraError`).
+
 Densification: the view-space positional gradient of 3DGS is ``means2d.grad`` (in pixels; call
 ``means2d.retain_grad()`` before ``backward``); nothing extra is returned.
 
@@ -88,12 +98,14 @@ def _row_step(a, b, c, decay, pmin, dx, dy, g_next, e_next, in_run):
     forward and backward kernels walk identical pixel sequences, so they get identical G.
     """
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-    if power > 0.0 or power < pmin:  # alpha < 1/255 for sure (or a non-PSD conic): skip
+    if not pmin <= power <= 0.0:  # alpha < 1/255 for sure, a non-PSD conic, or NaN (overflow): skip
         return 0.0, 0.0, 0.0, False
     if not in_run:
         g_next = math.exp(power)
         e_next = math.exp(-0.5 * a * (2.0 * dx + 1.0) - b * dy)
-    return g_next, g_next * e_next, e_next * decay, True
+    g, e = g_next * e_next, e_next * decay
+    # the run goes on only while the recurrence stays finite (it overflows for extreme conics)
+    return g_next, g, e, (abs(g) < np.inf) & (abs(e) < np.inf)
 
 
 @njit(inline="always")
@@ -316,11 +328,13 @@ class _RasterizeNative(torch.autograd.Function):
         # float32 RGB: the SIMD kernels of native_simd; anything else: the float64 kernels here
         f32 = colors.dtype == torch.float32 and colors.shape[1] == 3
         dt = np.float32 if f32 else np.float64
+        cols, bg = _np(colors, dt), _np(background.reshape(-1), dt)
+        if not math.isfinite(bg.sum()) and not np.isfinite(bg).all():  # the sum: a faster test
+            raise ValueError(f"rasterize_native: the background must be finite, got {bg.tolist()}")
         gs, boxes, *lists = prepare_tiles(means2d.detach().numpy(), conics.detach().numpy(),
                                           opacities.detach().numpy(), depths.detach().numpy(), radii.numpy(),
-                                          height, width, dt, sort=not f32)
+                                          height, width, dt, sort=not f32, colors=cols)
         tiles_x = -(-width // TILE)
-        cols, bg = _np(colors, dt), _np(background.reshape(-1), dt)
         ctx.sizes = (height, width, tiles_x)
         ctx.dtypes = (means2d.dtype, conics.dtype, opacities.dtype, colors.dtype, background.dtype)
         if f32:
@@ -353,8 +367,14 @@ def rasterize_native(
 
     means2d (N, 2), conics (N, 3), opacities (N,), colors (N, C), depths (N,), radii (N,) int,
     background (C,). Returns image (H, W, C) and alpha (H, W) in the dtype of ``colors``.
+    Any values are safe: a Gaussian with a non-finite input is not drawn and gets zero gradient;
+    wrong shapes, sizes < 1 or a non-finite background raise a ValueError.
     """
     if means2d.device.type != "cpu":
         raise ValueError(f"rasterize_native runs on CPU tensors, got means2d on {means2d.device}; "
                          "use backend='reference' (any device) or move the tensors to the CPU")
+    # sizes and the other shapes: prepare_tiles
+    if colors.dim() != 2 or background.numel() != colors.shape[1]:
+        raise ValueError(f"colors {tuple(colors.shape)} and background {tuple(background.shape)}: expected (N, C) "
+                         "and C values")
     return _RasterizeNative.apply(means2d, conics, opacities, colors, background, depths, radii, height, width)

@@ -12,6 +12,10 @@ Gaussians, both split over torch's threads, and a sort per tile:
    float32 rounding in the kernels can never put a composited pair outside it. On the
    benchmark scene this cuts the Gaussian-pixel pairs to 63 % and the tile records to 85 %;
    pairs outside the tight box are exactly those both rasterizers skip, so outputs are unchanged.
+   A Gaussian that cannot be drawn (radius <= 0, alpha < 1/255 everywhere, or any non-finite
+   input) gets the empty box (0, -1, 0, -1) before the float -> int conversion, and boxes are
+   clamped to the image again in integers: every tile index, list length and cache size below
+   derives from in-image boxes, whatever the input values.
    The same pass counts each chunk's records per tile, the 4x4 blocks the boxes touch (the size
    of the float32 kernels' per-pair cache) and the depth sort keys.
 2. counting-sort binning into TILE x TILE tiles, each chunk of Gaussians into its own slots of
@@ -71,8 +75,50 @@ def gather_columns(a, c0, n, buf, row):
 
 
 @njit(inline="always")
-def _record_and_box(mx, my, a, b, c, op, r, height, width, margin, with_decay):
-    """One Gaussian's record (8-tuple, see RECORD) and box (x0, x1, y0, y1 as floats), branch-free."""
+def _finite(x):
+    """x is neither NaN nor ±inf (branch-free, vectorisable)."""
+    return abs(x) < np.inf
+
+
+@njit(inline="always")
+def _all_finite(flat, lo, hi):
+    """flat[lo:hi] (1-D, contiguous) holds no NaN or ±inf (an and-reduction: vectorised)."""
+    ok = True
+    for i in range(lo, hi):
+        ok &= abs(flat[i]) < np.inf
+    return ok
+
+
+@njit(cache=True, nogil=True)
+def all_finite(a, b):
+    """Neither 1-D array holds a NaN or ±inf (one vectorised pass: ~6 us for 30k RGB colours and
+    depths, where the same test per 256-Gaussian chunk took ~60 us)."""
+    return _all_finite(a, 0, len(a)) & _all_finite(b, 0, len(b))
+
+
+@njit(inline="always")
+def mark_non_finite(colors, n_ch, depths, c0, n, buf, row, check):
+    """buf[row, j] = 0 if Gaussian c0 + j has a finite depth and colour (colors: (N * n_ch,)
+    contiguous, depths (N,) contiguous), else NaN, for j < n; ``check`` False (``all_finite``
+    said so): all 0 without looking."""
+    for j in range(CHUNK):
+        buf[row, j] = 0.0
+    if not check:
+        return
+    for j in range(n):
+        if not (_all_finite(colors, (c0 + j) * n_ch, (c0 + j + 1) * n_ch) and abs(depths[c0 + j]) < np.inf):
+            buf[row, j] = np.nan
+
+
+@njit(inline="always")
+def _record_and_box(mx, my, a, b, c, op, r, rest, height, width, margin, with_decay):
+    """One Gaussian's record (8-tuple, see RECORD) and box (x0, x1, y0, y1 as floats), branch-free.
+
+    The box is empty, (0, -1, 0, -1), unless the Gaussian can be drawn: radius > 0, an opacity
+    that can reach 1/255, and finite centre, conic and opacity (so no NaN or inf ever reaches the
+    float -> int conversion of the box, which would be undefined, nor a kernel). Its corners are
+    then finite floats inside [0, size] / [-1, size - 1]. ``rest``: 0 where the Gaussian's other
+    inputs (colour, depth) are finite (see ``mark_non_finite``)."""
     # lowest exponent with alpha >= 1/255: log(1 / (255 op)) minus a rounding margin (the exact
     # test follows in the kernel); POWER_MIN as the reference's clamp; op <= 0: never (1 > 0)
     pmin = max(-math.log(op / ALPHA_MIN) - margin, POWER_MIN) if op > 0.0 else 1.0
@@ -83,9 +129,13 @@ def _record_and_box(mx, my, a, b, c, op, r, height, width, margin, with_decay):
     ext_y = min(r, math.sqrt(max(kappa * a / det, 0.0)) + BOX_PAD) if pd else r
     x0, x1 = _pixel_range(mx, ext_x, width)
     y0, y1 = _pixel_range(my, ext_y, height)
-    never = (r <= 0.0) | (pmin > 0.0) | ~((abs(mx) < np.inf) & (abs(my) < np.inf))
+    # r > 0, pmin <= 0 rather than "not <= 0", "not > 0": NaN compares false, so culls too
+    drawn = (r > 0.0) & (r < np.inf) & (pmin <= 0.0) & _finite(mx) & _finite(my) & _finite(a) & _finite(b) \
+        & _finite(c) & _finite(op) & _finite(x0) & _finite(x1) & _finite(y0) & _finite(y1) & (rest == 0.0)
     decay = math.exp(-a) if with_decay else 0.0
-    return (mx, my, a, b, c, op, pmin, decay), (x0, x0 - 1.0 if never else x1, y0, y1)
+    # one select per corner (a select of the tuple made LLVM branch: the set-up took 8 % longer)
+    return (mx, my, a, b, c, op, pmin, decay), ((x0 if drawn else 0.0), (x1 if drawn else -1.0),
+                                                (y0 if drawn else 0.0), (y1 if drawn else -1.0))
 
 
 @njit(inline="always")
@@ -101,16 +151,17 @@ def _depth_key(bits, nbytes):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _records_and_boxes(means2d, conics, opacities, radii, bits, height, width, tiles_x, margin, counter, total, gs,
-                       boxes, keys, counts, blocks):
+def _records_and_boxes(means2d, conics, opacities, radii, colors, n_ch, depths, check, bits, height, width, tiles_x,
+                       margin, counter, total, gs, boxes, keys, counts, blocks):
     """The chunks of CHUNK of the ``total`` Gaussians this worker takes (``next_chunk``) into gs
     (N, 8), boxes (N, 4) int64 (x0, x1, y0, y1 inclusive; empty: x1 < x0) and keys (N,)
     (``_depth_key`` of bits, the depths' IEEE bits as signed ints); opacities and radii as
-    (N, 1). Chunk c's records per tile into counts[c] (chunks, tiles), its 4x4 blocks (summed
-    over tiles: blocks are tile-aligned) into blocks[c]. ``decay``
-    (gs[:, 7]) only where gs is float64 (the float32 kernels do not use it). Vectorised over
-    chunks of local columns."""
-    inp, out = np.empty((7, CHUNK)), np.empty((12, CHUNK))
+    (N, 1). Gaussians with a non-finite input get an empty box: they are in no tile list (colors
+    (N * n_ch,) and depths (N,), both contiguous, are only looked at where ``check``). Chunk c's
+    records per tile into counts[c] (chunks, tiles), its 4x4 blocks (summed over tiles: blocks
+    are tile-aligned) into blocks[c]. ``decay`` (gs[:, 7]) only where gs is float64 (the float32
+    kernels do not use it). Vectorised over chunks of local columns."""
+    inp, out = np.empty((8, CHUNK)), np.empty((12, CHUNK))
     with_decay = gs.itemsize == 8
     while True:
         c0, n = next_chunk(counter, total, CHUNK)
@@ -119,9 +170,10 @@ def _records_and_boxes(means2d, conics, opacities, radii, bits, height, width, t
         c = c0 // CHUNK
         gather_columns(radii, c0, n, inp, gather_columns(opacities, c0, n, inp, gather_columns(
             conics, c0, n, inp, gather_columns(means2d, c0, n, inp, 0))))
+        mark_non_finite(colors, n_ch, depths, c0, n, inp, 7, check)
         for j in range(CHUNK):  # the vectorised loop (a full chunk: stale columns are ignored)
             rec, box = _record_and_box(inp[0, j], inp[1, j], inp[2, j], inp[3, j], inp[4, j], inp[5, j], inp[6, j],
-                                       height, width, margin, with_decay)
+                                       inp[7, j], height, width, margin, with_decay)
             out[0, j], out[1, j], out[2, j], out[3, j], out[4, j], out[5, j], out[6, j], out[7, j] = rec
             out[8, j], out[9, j], out[10, j], out[11, j] = box
         n_blocks = 0  # summed locally: neighbouring chunks' blocks[c] share a cache line
@@ -129,7 +181,10 @@ def _records_and_boxes(means2d, conics, opacities, radii, bits, height, width, t
             g = c0 + j
             for k in range(RECORD):
                 gs[g, k] = out[k, j]
-            x0, x1, y0, y1 = np.int64(out[8, j]), np.int64(out[9, j]), np.int64(out[10, j]), np.int64(out[11, j])
+            # finite here (``_record_and_box``); clamped to the image again, in integers, so that no
+            # input can make a tile index below leave [0, tiles)
+            x0, x1 = max(np.int64(out[8, j]), 0), min(np.int64(out[9, j]), width - 1)
+            y0, y1 = max(np.int64(out[10, j]), 0), min(np.int64(out[11, j]), height - 1)
             boxes[g, 0], boxes[g, 1], boxes[g, 2], boxes[g, 3] = x0, x1, y0, y1
             keys[g] = _depth_key(bits[g], bits.itemsize)
             if x1 < x0 or y1 < y0:
@@ -209,8 +264,39 @@ def sort_tiles(ids, keys, offsets, nbytes):
         sort_tile(ids, keys, offsets[t], offsets[t + 1], nbytes, buf_ids, buf_keys, count)
 
 
+MAX_RECORDS = (1 << 31) - 2  # tile-list entries: the kernels store list positions + 1 as int32
+
+
+def check_sizes(height, width) -> tuple[int, int]:
+    """(height, width) as ints >= 1, or a ValueError naming them."""
+    if type(height) is int and type(width) is int and height > 0 and width > 0:
+        return height, width
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (height, width)) \
+            or height < 1 or width < 1:
+        raise ValueError(f"image size height={height!r}, width={width!r}: both must be integers >= 1")
+    return int(height), int(width)
+
+
+def check_shapes(n: int, **arrays) -> None:
+    """Every array has n rows and the named shape: a ValueError naming the first that does not
+    (the kernels index them by Gaussian and column without bounds checks)."""
+    for name, (a, cols) in arrays.items():
+        shape = a.shape
+        if (shape == (n,)) if cols == 0 else (len(shape) == 2 and shape[0] == n and (cols < 0 or shape[1] == cols)):
+            continue  # the usual case, fast
+        shape = tuple(shape)
+        if cols == 0:  # one value per Gaussian
+            ok = shape in ((n,), (n, 1))
+        else:
+            ok = len(shape) == 2 and shape[0] == n and (cols < 0 or shape[1] == cols)
+        if not ok:
+            want = f"({n},)" if cols == 0 else f"({n}, {cols if cols > 0 else 'C'})"
+            raise ValueError(f"{name} has shape {shape}, expected {want} (N = {n} Gaussians)")
+
+
 def prepare_tiles(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray, depths: np.ndarray,
-                  radii: np.ndarray, height: int, width: int, dtype, sort: bool = True) -> tuple:
+                  radii: np.ndarray, height: int, width: int, dtype, sort: bool = True,
+                  colors: np.ndarray | None = None) -> tuple:
     """(gs (N, 8) ``dtype``, boxes (N, 4) int64, offsets (tiles + 1,), ids (M,) int32, keys (N,)
     int64, key bytes, blocks): tile t lists ids[offsets[t]:offsets[t + 1]], in depth order
     (``sort=False``: in index order, for the caller to ``sort_tile`` by keys), blocks: the
@@ -218,22 +304,37 @@ def prepare_tiles(means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray
 
     Any float dtype and memory layout of the inputs (no copies); depths may be float32 or float64.
     Passes 1 and 2 run on torch's threads, which take chunks of CHUNK Gaussians as they go.
+    Any values: a Gaussian with a non-finite input (colors (N, C) too, when given), radius <= 0
+    or an opacity below 1/255 is in no list; shapes and sizes are checked (ValueError).
     """
     n = len(means2d)
+    height, width = check_sizes(height, width)
+    colors = np.empty((n, 0), np.float32) if colors is None else colors
+    if colors.ndim != 2:
+        raise ValueError(f"colors has shape {colors.shape}, expected ({n}, C) (N = {n} Gaussians)")
+    check_shapes(n, means2d=(means2d, 2), conics=(conics, 3), opacities=(opacities, 0), depths=(depths, 0),
+                 radii=(radii, 0), colors=(colors, -1))
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     gs, boxes, keys = np.empty((n, RECORD), dtype), np.empty((n, 4), np.int64), np.empty(n, np.int64)
     if depths.dtype not in (np.float32, np.float64):
         depths = depths.astype(np.float64)
-    bits = np.ascontiguousarray(depths).view(np.int32 if depths.dtype == np.float32 else np.int64)
+    depths = np.ascontiguousarray(depths).reshape(n)
+    bits = depths.view(np.int32 if depths.dtype == np.float32 else np.int64)
     n_chunks = max(1, -(-n // CHUNK))
     counts, blocks = np.zeros((n_chunks, tiles_x * tiles_y), np.int64), np.zeros(n_chunks, np.int64)
     # margin below log(1/(255 op)): float32 kernels evaluate exp as a polynomial
     margin = 1e-9 if dtype == np.float64 else 1e-4
-    in_chunks(_records_and_boxes, n, (means2d, conics, opacities.reshape(n, 1), radii.reshape(n, 1), bits, height,
-                                      width, tiles_x, margin), (gs, boxes, keys, counts, blocks))
+    flat_colors = np.ascontiguousarray(colors).reshape(-1)
+    check = not all_finite(flat_colors, depths)  # usually all finite: no per-Gaussian test
+    in_chunks(_records_and_boxes, n, (means2d, conics, opacities.reshape(n, 1), radii.reshape(n, 1), flat_colors,
+                                      colors.shape[1], depths, check, bits, height, width, tiles_x, margin),
+              (gs, boxes, keys, counts, blocks))
     starts = np.zeros(counts.size + 1, np.int64)  # first slot per (tile, chunk), tile-major
     starts[1:] = np.cumsum(counts.T)
     offsets = starts[::n_chunks].copy()
+    if offsets[-1] > MAX_RECORDS:
+        raise ValueError(f"prepare_tiles: {offsets[-1]} Gaussian-tile pairs ({n} Gaussians, {height}x{width} "
+                         f"pixels), more than the {MAX_RECORDS} the kernels can index")
     fills = starts[:-1].reshape(-1, n_chunks).T.copy()  # (chunk, tile): the chunk's first slot
     ids = np.empty(offsets[-1], np.int32)
     in_chunks(_bin_chunks, n, (boxes, tiles_x), (fills, ids))

@@ -34,7 +34,7 @@ from torch import Tensor
 
 from .native_prep import CHUNK, gather_columns
 from .native_threads import in_chunks, next_chunk
-from .project import MAX_RADIUS, Projected
+from .project import MAX_RADIUS, Projected, check_camera, check_gaussians
 
 
 @njit(inline="always")
@@ -200,9 +200,12 @@ def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2
                      inp[17, j], inp[18, j])
             m, s, q = (inp[0, j], inp[1, j], inp[2, j]), (inp[3, j], inp[4, j], inp[5, j]), (inp[6, j], inp[7, j],
                                                                                              inp[8, j], inp[9, j])
-            gm, gs, gq = _backward_one(m, s, q, grads, W, cam, near, low_pass)
-            out[0, j], out[1, j], out[2, j], out[3, j], out[4, j], out[5, j] = gm[0], gm[1], gm[2], gs[0], gs[1], gs[2]
-            out[6, j], out[7, j], out[8, j], out[9, j] = gq
+            gm, gs, gq, good = _backward_one(m, s, q, grads, W, cam, near, low_pass)
+            # zero (selects, not a branch) for a Gaussian with non-finite parameters or covariance
+            out[0, j], out[1, j], out[2, j] = (gm[0] if good else 0.0), (gm[1] if good else 0.0), (gm[2] if good else 0.0)
+            out[3, j], out[4, j], out[5, j] = (gs[0] if good else 0.0), (gs[1] if good else 0.0), (gs[2] if good else 0.0)
+            out[6, j], out[7, j] = (gq[0] if good else 0.0), (gq[1] if good else 0.0)
+            out[8, j], out[9, j] = (gq[2] if good else 0.0), (gq[3] if good else 0.0)
         for j in range(n):
             i = c0 + j
             g_means[i, 0], g_means[i, 1], g_means[i, 2] = out[0, j], out[1, j], out[2, j]
@@ -213,7 +216,9 @@ def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2
 @njit(inline="always")
 def _backward_one(m, s, q, grads, W, cam, near, low_pass):
     """One Gaussian's dL/d(mean, scale, quaternion) (3-, 3-, 4-tuples) from its parameters and
-    the output gradients ``grads`` (means2d x, y, conic a, b, c, depth, cov2d a, b, c)."""
+    the output gradients ``grads`` (means2d x, y, conic a, b, c, depth, cov2d a, b, c), and whether
+    they count: False where a parameter or the 2-D covariance (overflow) is not finite, whose
+    gradient would be NaN (such a Gaussian is culled: the caller writes zeros)."""
     ((x, y, z, zs, in_front), (inv_qn, qhat, R), (u_free, v_free, inv_z), (J0, J1), M, (r0, r1),
      (a0, b, c0, det)) = _core(m, s, q, W, cam, near, low_pass)
     g0, g1, g2, g3, g4, g5, g6, g7, g8 = grads
@@ -245,7 +250,14 @@ def _backward_one(m, s, q, grads, W, cam, near, low_pass):
     g_z = g5 + (g_zs if in_front else 0.0)
     g_m = (W[0][0] * g_x + W[1][0] * g_y + W[2][0] * g_z, W[0][1] * g_x + W[1][1] * g_y + W[2][1] * g_z,
            W[0][2] * g_x + W[1][2] * g_y + W[2][2] * g_z)
-    return g_m, g_s, gq
+    good = (det < np.inf) & _finite3(m) & _finite3(s) & _finite3(q) & (abs(q[3]) < np.inf)
+    return g_m, g_s, gq, good
+
+
+@njit(inline="always")
+def _finite3(v):
+    """The first three entries of a tuple are finite (not NaN, not ±inf)."""
+    return (abs(v[0]) < np.inf) & (abs(v[1]) < np.inf) & (abs(v[2]) < np.inf)
 
 
 def _camera_vector(fx, fy, cx, cy, height, width) -> np.ndarray:
@@ -265,7 +277,7 @@ class _ProjectNative(torch.autograd.Function):
     def forward(ctx, means, scales, quats, w2c, cam, near, low_pass, height, width):
         ctx.set_materialize_grads(False)  # depths / cov2d usually get no gradient: no zero tensors
         arrays = tuple(t.detach().cpu().numpy() for t in (means, scales, quats))
-        arrays += (np.ascontiguousarray(w2c.detach().double().cpu().numpy()),)
+        arrays += (w2c,)  # float64 (3, 4), checked (project_gaussians_native)
         n, dt = len(means), arrays[0].dtype
         out = (np.empty((n, 2), dt), np.empty((n, 3), dt), np.empty(n, dt), np.empty((n, 3), dt), np.zeros(n, np.int32))
         in_chunks(_project_forward, n, (*arrays, cam, near, low_pass, height, width), out)
@@ -287,7 +299,14 @@ def project_gaussians_native(
     means: Tensor, scales: Tensor, quats: Tensor, w2c: Tensor, fx: float, fy: float, cx: float, cy: float,
     height: int, width: int, near: float = 0.01, low_pass: float = 0.3,
 ) -> Projected:
-    """Same arguments and outputs as :func:`.project.project_gaussians` (no gradient to w2c)."""
+    """Same arguments and outputs as :func:`.project.project_gaussians` (no gradient to w2c).
+
+    Any parameter values: a Gaussian with a non-finite mean, scale or quaternion (or whose 2-D
+    covariance overflows) is culled (radius 0) and gets zero gradient. A camera with non-finite
+    values, a focal length <= 0 or an empty image raises :class:`.project.CameraError`."""
+    check_gaussians(means, scales, quats)
+    w2c, fx, fy, cx, cy, height, width, near, low_pass = check_camera(w2c, fx, fy, cx, cy, height, width, near,
+                                                                      low_pass)
     cam = _camera_vector(fx, fy, cx, cy, height, width)
     means2d, conics, depths, cov2d, radii = _ProjectNative.apply(means, scales, quats, w2c, cam, near, low_pass,
                                                                  height, width)

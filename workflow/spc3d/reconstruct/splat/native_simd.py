@@ -81,7 +81,7 @@ def _exp2(x):
     with m an integer (r in [-1/2, 1/2], exact), degree-6 Taylor of exp(r ln 2), times 2^-m
     (m <= 29: exact, from its IEEE bits). Exponents arrive in log2 units (the conic is scaled
     once per record), which saves the range reduction and a multiply per lane over exp."""
-    x = min(max(x, _PMIN2), _ZERO)
+    x = min(_ZERO, max(_PMIN2, x))  # this order maps NaN to _PMIN2: m below is always in [0, 29]
     m = np.int32(_HALF - x)
     r = x + F(m)
     p = _ONE + r * (_C1 + r * (_C2 + r * (_C3 + r * (_C4 + r * (_C5 + r * _C6)))))

@@ -15,8 +15,10 @@ needle-thin Gaussians seen edge-on (``a c`` and ``b²`` of 1e20 would otherwise 
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -29,6 +31,60 @@ SH_C3 = (
     -0.4570457994644658, 1.445305721320277, -0.5900435899266435,
 )
 MAX_RADIUS = 1 << 30  # radii are int32; a footprint wider than this is clipped to the image anyway
+
+
+class CameraError(ValueError):
+    """A camera that cannot be rendered (non-finite pose or intrinsics, focal length <= 0, empty
+    image): a caller error, raised before any kernel runs."""
+
+
+def _number(name: str, value, label: str, positive: bool = False, nonnegative: bool = False) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError, RuntimeError):
+        raise CameraError(f"{label}: {name} = {value!r} is not a number") from None
+    if not math.isfinite(v) or (positive and v <= 0) or (nonnegative and v < 0):
+        need = "finite and > 0" if positive else "finite and >= 0" if nonnegative else "finite"
+        raise CameraError(f"{label}: {name} = {v!r}, must be {need}")
+    return v
+
+
+def check_camera(w2c, fx, fy, cx, cy, height, width, near, low_pass, label: str = "camera") -> tuple:
+    """The camera of a projection, checked: (w2c as a float64 numpy (3, 4) array, fx, fy, cx, cy,
+    height, width, near, low_pass, the numbers as floats and the sizes as ints). Raises
+    :class:`CameraError` naming ``label`` and the offending value: a non-finite pose or intrinsic
+    would otherwise render silently (every Gaussian culled) or feed NaN into the kernels."""
+    W = np.array(w2c.detach().cpu().numpy() if isinstance(w2c, Tensor) else w2c, dtype=np.float64)  # a copy
+    try:
+        nums = float(fx), float(fy), float(cx), float(cy), float(near), float(low_pass)
+    except (TypeError, ValueError, RuntimeError):
+        nums = None
+    if (nums is not None and W.shape == (3, 4) and nums[0] > 0 and nums[1] > 0 and nums[4] > 0 and nums[5] >= 0
+            and math.isfinite(sum(nums)) and np.isfinite(W).all() and type(height) is int and type(width) is int
+            and height > 0 and width > 0):  # the usual case, fast (~3 us); else find what is wrong
+        return (W, *nums[:4], height, width, *nums[4:])
+    if W.shape != (3, 4):
+        raise CameraError(f"{label}: w2c has shape {W.shape}, expected (3, 4) (world-to-camera [R | t])")
+    if not np.isfinite(W).all():
+        r, c = np.argwhere(~np.isfinite(W))[0]
+        raise CameraError(f"{label}: w2c (world-to-camera [R | t]) is not finite: {W[r, c]} at row {r}, column {c}")
+    fx, fy = _number("fx", fx, label, positive=True), _number("fy", fy, label, positive=True)
+    cx, cy = _number("cx", cx, label), _number("cy", cy, label)
+    near, low_pass = _number("near", near, label, positive=True), _number("low_pass", low_pass, label, nonnegative=True)
+    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (height, width)) \
+            or height < 1 or width < 1:
+        raise CameraError(f"{label}: image size height={height!r}, width={width!r}, must be integers >= 1")
+    return W, fx, fy, cx, cy, int(height), int(width), near, low_pass
+
+
+def check_gaussians(means: Tensor, scales: Tensor, quats: Tensor) -> None:
+    """means (N, 3), scales (N, 3), quats (N, 4), or a ValueError naming the first that is not."""
+    n = len(means)
+    if means.shape == (n, 3) and scales.shape == (n, 3) and quats.shape == (n, 4):
+        return
+    for name, t, cols in (("means", means, 3), ("scales", scales, 3), ("quats", quats, 4)):
+        if tuple(t.shape) != (n, cols):
+            raise ValueError(f"{name} has shape {tuple(t.shape)}, expected ({n}, {cols}) (N = {n} Gaussians)")
 
 
 class Projected(NamedTuple):
@@ -134,8 +190,12 @@ def project_gaussians(
     quats: (N, 4) wxyz, unnormalised; w2c: (3, 4) world-to-camera [R | t].
     Culled Gaussians (depth < near, non-positive or non-finite determinant, footprint entirely
     outside the image) get radius 0; their other outputs stay finite with finite gradients.
+    A camera with non-finite values, a focal length <= 0 or an empty image raises
+    :class:`CameraError` (a ValueError).
     """
-    w2c = w2c.to(means)
+    check_gaussians(means, scales, quats)
+    _, fx, fy, cx, cy, height, width, near, low_pass = check_camera(w2c, fx, fy, cx, cy, height, width, near, low_pass)
+    w2c = torch.as_tensor(w2c).to(means)
     Rw, tw = w2c[:, :3], w2c[:, 3]
     p_cam = torch.addmm(tw, means, Rw.T)  # (N, 3)
     depth = p_cam[:, 2]

@@ -8,7 +8,9 @@ Semantics (3D Gaussian Splatting, shared exactly by :mod:`.native`):
   ``d = pixel - mean``; pairs with ``power > 0`` or ``alpha < 1/255`` are skipped;
 * Gaussians are composited front to back in ascending depth (ties: lower index first); a
   Gaussian that would bring the transmittance below 1e-4 is not composited and ends the pixel;
-* ``image = Σ colour · alpha · T + T_final · background``, ``alpha_out = 1 - T_final``.
+* ``image = Σ colour · alpha · T + T_final · background``, ``alpha_out = 1 - T_final``;
+* a Gaussian with a non-finite input (centre, conic, opacity, colour, depth, radius) is not
+  drawn: it is as if absent, and gets zero gradient (``drawable``).
 
 Opacities are expected in [0, 1] (the sigmoid of a parameter). ``rasterize_reference`` is the
 "exact pixel pairs" strategy: enumerate each Gaussian's box pixels, drop pairs below 1/255, sort
@@ -29,21 +31,31 @@ T_MIN = 1e-4  # 3DGS: stop compositing a pixel once its transmittance would fall
 POWER_MIN = -20.0  # exp below ~-87 is denormal and 10-30x slower; alpha < 1/255 anyway below -5.6
 
 
+def drawable(means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depths: Tensor) -> Tensor:
+    """(N,) bool: the Gaussians whose inputs are all finite (the others are not drawn)."""
+    with torch.no_grad():
+        n = len(means2d)
+        ok = torch.isfinite(means2d).all(-1) & torch.isfinite(conics).all(-1) & torch.isfinite(colors).all(-1)
+        return ok & torch.isfinite(opacities).reshape(n) & torch.isfinite(depths).reshape(n)
+
+
 def pixel_boxes(means2d: Tensor, radii: Tensor, height: int, width: int) -> Tensor:
     """Inclusive pixel bounds (N, 4) int64 ``x0, x1, y0, y1`` of each 3-sigma square, clipped.
 
     Computed once in float64 and shared by both back-ends so that they cover identical pixels.
-    Empty boxes (culled or off-image) have ``x1 < x0``.
+    Empty boxes (culled, off-image, or a non-finite centre or radius) have ``x1 < x0``.
     """
     with torch.no_grad():
         m, r = means2d.detach().double(), radii.double()
+        drawn = (r > 0) & torch.isfinite(r) & torch.isfinite(m).all(-1)
+        m, r = torch.where(drawn[:, None], m, 0.0), torch.where(drawn, r, 0.0)  # no NaN cast to int64
         # clamps: keep far-off means inside int64 range; results are clipped to the image anyway
         mx, my = m[:, 0].clamp(-1e9, 1e9), m[:, 1].clamp(-1e9, 1e9)
         x0 = torch.ceil(mx - r - 0.5).clamp(0, width)
         x1 = torch.floor(mx + r - 0.5).clamp(-1, width - 1)
         y0 = torch.ceil(my - r - 0.5).clamp(0, height)
         y1 = torch.floor(my + r - 0.5).clamp(-1, height - 1)
-        x1 = torch.where(radii > 0, x1, x0 - 1)  # culled: empty
+        x1 = torch.where(drawn, x1, x0 - 1)  # culled: empty
         return torch.stack([x0, x1, y0, y1], -1).long()
 
 
@@ -114,6 +126,7 @@ def rasterize_reference(
     means2d (N, 2), conics (N, 3), opacities (N,), colors (N, C), depths (N,), radii (N,) int,
     background (C,). Returns image (H, W, C) and alpha (H, W) in the dtype of ``colors``.
     """
+    radii = torch.where(drawable(means2d, conics, opacities, colors, depths), radii, 0)
     gid, pix, seg_start = _sorted_pairs(means2d, conics, opacities, depths, radii, height, width)
     alpha, _ = _pair_alpha(means2d, conics, opacities, gid, pix % width, pix // width)
     log_t = torch.log1p(-alpha)
@@ -134,6 +147,7 @@ def rasterize_dense(
 
     O(N · H · W) memory: for tests on tiny scenes only.
     """
+    radii = torch.where(drawable(means2d, conics, opacities, colors, depths), radii, 0)
     order = torch.argsort(depths.detach(), stable=True)
     n, npix = len(order), height * width
     py, px = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
