@@ -115,14 +115,15 @@ def _cancel_when_checkpointed(env, proc, work: Path, log: Path) -> tuple[str, in
 
 
 def test_smoke_preset_on_slurm_with_a_cancelled_training(cluster, tmp_path, lpips_cache):
-    """The smoke preset's tables for two combinations (about 15 SLURM jobs: 2 CPUs here, and every
-    job starts Snakemake twice), with one translator trained long enough to be cancelled mid-way."""
+    """The smoke preset's tables for one two-stage combination (about a dozen SLURM jobs: 2 CPUs
+    here, and every job starts Snakemake twice), its translator trained long enough to be cancelled
+    mid-way."""
     extra = tmp_path / "extra.yaml"
     extra.write_text(yaml.safe_dump({
         "metrics": {"lpips_source": str(lpips_cache)},
         "checkpoints": {"fraction": 0.1, "minutes": 0},
         "stage1": {"restormer": {"train": {"iterations": LONG}}},
-        "stage2": {"combinations": ["restormer+3dgs", "gt+3dgs"]}}))
+        "stage2": {"combinations": ["restormer+3dgs"]}}))
     configs = [*TABLES, "--configfile", str(SMOKE), str(extra)]
     work, ref = tmp_path / "slurm", tmp_path / "local"
     # The reference runs alongside: uninterrupted, local, one thread (as every SLURM job is).
@@ -165,7 +166,7 @@ def test_smoke_preset_on_slurm_with_a_cancelled_training(cluster, tmp_path, lpip
         assert (work / table).read_text() == (ref / table).read_text(), table
     assert "restormer+3dgs,paper,1," in (work / TABLES[0]).read_text()
     metrics = sorted((ref / "results" / "eval").glob("*/*/metrics.json"))
-    assert len(metrics) == 2
+    assert len(metrics) == 1
     for path in metrics:
         mine = io.read_json(work / path.relative_to(ref))
         assert mine["mean"] == io.read_json(path)["mean"], path
