@@ -35,6 +35,9 @@ def test_metered_display_is_exposure_invariant_and_the_fit_finds_the_known_level
     brighter = 10 * phis[1]
     assert np.array_equal(exposure.display_srgb(brighter, exposure.metered_gain(brighter, level)), shown)
     assert exposure.metered_gain(np.zeros((2, 2)), level) == 1.0  # no detection at all: finite, no NaN
+    # Metering on a biased estimate (half the flux) while showing the true flux: the level absorbs the bias.
+    biased, _ = exposure.fit_level([0.5 * p for p in phis], gts, shown=phis)
+    assert biased == pytest.approx(linear[0].mean() / 2, rel=1e-5)
 
 
 # --- no oracle information outside oracle rows ----------------------------------------------------

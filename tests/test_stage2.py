@@ -48,7 +48,7 @@ def test_bernoulli_source_uses_the_camera_physics_and_the_metered_gain(scene):
     src = load_source("bernoulli-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4,
                       display_dir=scene / "mle" / "k4")
     rec = io.read_json(scene / "spc" / "gallery" / "spc.json")
-    gain = io.read_json(scene / "mle" / "k4" / "display.json")["gain"]
+    gain = io.read_json(scene / "mle" / "k4" / "display.json")["gain_likelihood"]
     assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == gain != rec["flux_scale"]
     assert src.objective.q == rec["params"]["q"] and src.objective.exposure_s == rec["params"]["exposure_s"]
     assert 0.5 < gain / rec["flux_scale"] < 2.0  # metered from the frames, near the simulator's exposure

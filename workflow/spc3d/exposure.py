@@ -9,11 +9,18 @@ scenes, so the MLE and SPAD-likelihood rows use
     g = mean(φ̂ over every pixel, channel and view of the scene's first K frames) / k
 
 the average-metering rule of a camera's auto exposure: the scene's mean estimated flux is shown at
-linear level k. The level k is fitted once on the *training* scenes (where ground truth is known),
+linear level k. The level is fitted once on the *training* scenes (where ground truth is known),
 with the same estimator and the same K, to minimise their sRGB mean squared error
 (:func:`fit_level`); it is the only number the rule learns, like the translators learn brightness
-from the same scenes. The SPAD-likelihood objective uses the same g to turn rendered linear
-intensity into flux (:class:`spc3d.reconstruct.objectives.BernoulliObjective`).
+from the same scenes. Two levels are fitted, because two different fluxes are shown:
+
+    level             the MLE image itself (biased at small K: a pixel firing once in K = 1 frames is
+                      clamped at ln 2 / (qT), so the mean MLE flux underestimates the scene's)
+    level_likelihood  the flux the SPAD likelihood recovers, which is unbiased: on the training
+                      scenes that is their true flux (their exposure times their ground truth)
+
+The SPAD-likelihood objective turns rendered linear intensity into flux with the second gain
+(:class:`spc3d.reconstruct.objectives.BernoulliObjective`).
 
 Files: ``calibrate_display`` writes ``results/calibration/display-k{K}.json``; ``write_display``
 writes a scene's ``results/mle/{scene}/k{K}/`` (``images/*.png`` and ``display.json``).
@@ -64,15 +71,20 @@ def metered_gain(phi: np.ndarray, level: float) -> float:
     return mean / level if mean > 0 else 1.0
 
 
-def _scene_error(phi: np.ndarray, gt: np.ndarray, level: float) -> float:
-    return float(np.mean((display_srgb(phi, metered_gain(phi, level)) - gt) ** 2, dtype=np.float64))
+def _scene_error(phi: np.ndarray, gt: np.ndarray, level: float, shown: np.ndarray | None = None) -> float:
+    """sRGB MSE of ``shown`` (default: ``phi``) displayed at the gain metered from ``phi`` at ``level``."""
+    shown = phi if shown is None else shown
+    return float(np.mean((display_srgb(shown, metered_gain(phi, level)) - gt) ** 2, dtype=np.float64))
 
 
-def fit_level(phis: list[np.ndarray], gts: list[np.ndarray]) -> tuple[float, list[float]]:
-    """The level k minimising the summed sRGB MSE of ``phis`` metered at k against ``gts``, and each
-    scene's own best level (a diagnostic: how much the scenes disagree). Golden-section search on
-    log k over :data:`LEVEL_RANGE` (the error is unimodal in k: too dark, right, too bright)."""
-    if not phis or len(phis) != len(gts):
+def fit_level(phis: list[np.ndarray], gts: list[np.ndarray],
+              shown: list[np.ndarray] | None = None) -> tuple[float, list[float]]:
+    """The level k minimising the summed sRGB MSE against ``gts`` of ``shown`` (default: ``phis``)
+    displayed at the gain metered from ``phis`` at k, and each scene's own best level (a
+    diagnostic: how much the scenes disagree). Golden-section search on log k over
+    :data:`LEVEL_RANGE` (the error is unimodal in k: too dark, right, too bright)."""
+    shown = shown if shown is not None else [None] * len(phis)
+    if not phis or len(phis) != len(gts) or len(shown) != len(phis):
         raise ValueError(f"fit_level: need matching non-empty lists of flux stacks and ground truths, got "
                          f"{len(phis)} and {len(gts)}")
 
@@ -92,8 +104,8 @@ def fit_level(phis: list[np.ndarray], gts: list[np.ndarray]) -> tuple[float, lis
                 fb = error(math.exp(b))
         return math.exp((lo + hi) / 2)
 
-    level = best(lambda k: sum(_scene_error(p, g, k) for p, g in zip(phis, gts)))
-    return level, [best(lambda k, p=p, g=g: _scene_error(p, g, k)) for p, g in zip(phis, gts)]
+    level = best(lambda k: sum(_scene_error(p, g, k, v) for p, g, v in zip(phis, gts, shown)))
+    return level, [best(lambda k, p=p, g=g, v=v: _scene_error(p, g, k, v)) for p, g, v in zip(phis, gts, shown)]
 
 
 def calibrate_display(scene_dirs: list[str], spc_dirs: list[str], K: int, out_json: str | os.PathLike) -> dict:
@@ -102,16 +114,20 @@ def calibrate_display(scene_dirs: list[str], spc_dirs: list[str], K: int, out_js
     if not scene_dirs:
         raise ValueError("the display level of the mle / bernoulli rows is fitted on the training scenes, but none "
                          "was given (scenes.train is empty)")
-    phis, gts = [], []
+    phis, gts, fluxes = [], [], []
     for scene_dir, spc_dir in zip(scene_dirs, spc_dirs):
         names, phi = mle_views(spc_dir, K)
         scene = llff.read_scene(scene_dir)
-        order = [scene.names.index(n) for n in names]
+        gt = scene.images[[scene.names.index(n) for n in names]]
         phis.append(phi)
-        gts.append(scene.images[order])
+        gts.append(gt)
+        fluxes.append(spc.flux_from_srgb(gt, read_spc_record(spc_dir)["flux_scale"]))  # a training scene's truth
     level, per_scene = fit_level(phis, gts)
-    record = {"K": K, "level": level, "rule": RULE, "training_scenes": [Path(d).name for d in scene_dirs],
-              "per_scene_level": dict(zip((Path(d).name for d in scene_dirs), per_scene)),
+    level_likelihood, per_scene_likelihood = fit_level(phis, gts, fluxes)
+    names = [Path(d).name for d in scene_dirs]
+    record = {"K": K, "level": level, "level_likelihood": level_likelihood, "rule": RULE, "training_scenes": names,
+              "per_scene_level": dict(zip(names, per_scene)),
+              "per_scene_level_likelihood": dict(zip(names, per_scene_likelihood)),
               "wall_s": round(time.perf_counter() - t0, 3)}
     io.write_json(out_json, record)
     return record
@@ -130,12 +146,15 @@ def write_display(spc_dir: str | os.PathLike, calibration: str | os.PathLike, K:
         for name, view in zip(names, phi):
             io.write_image(tmp / "images" / f"{name}.png", display_srgb(view, gain))
         record = {"scene": Path(spc_dir).name, "K": K, "gain": gain, "level": cal["level"],
-                  "mean_flux": float(np.mean(phi, dtype=np.float64)), "rule": RULE, "calibration": str(calibration),
-                  "views": len(names), "wall_s": round(time.perf_counter() - t0, 3)}
+                  "gain_likelihood": metered_gain(phi, cal["level_likelihood"]),
+                  "level_likelihood": cal["level_likelihood"], "mean_flux": float(np.mean(phi, dtype=np.float64)),
+                  "rule": RULE, "calibration": str(calibration), "views": len(names),
+                  "wall_s": round(time.perf_counter() - t0, 3)}
         io.write_json(tmp / "display.json", record)
     return record
 
 
-def read_gain(display_dir: str | os.PathLike) -> float:
-    """The metered gain a scene's rows at one K use (``display.json`` of :func:`write_display`)."""
-    return float(io.read_json(Path(display_dir) / "display.json")["gain"])
+def read_gain(display_dir: str | os.PathLike, likelihood: bool = False) -> float:
+    """The metered gain of a scene's rows at one K (``display.json`` of :func:`write_display`): the
+    MLE image's, or (``likelihood``) the one for the flux the SPAD likelihood recovers."""
+    return float(io.read_json(Path(display_dir) / "display.json")["gain_likelihood" if likelihood else "gain"])

@@ -63,7 +63,7 @@ def load_source(name: str, scene_dir: str | os.PathLike, spc_dir: str | os.PathL
             raise ValueError(f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames}): "
                              f"its gain turns rendered intensity into flux without the ground truth")
         targets = bit_fractions(Path(spc_dir), names, frames)
-        objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir))
+        objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir, likelihood=True))
     else:
         if base == "mle" and image_dir is None:
             if display_dir is None:

@@ -84,7 +84,7 @@ def display_record(display_dir) -> dict | None:
     if display_dir is None:
         return None
     rec = io.read_json(Path(display_dir) / "display.json")
-    return {k: rec[k] for k in ("K", "gain", "level", "rule")}
+    return {k: rec[k] for k in ("K", "gain", "level", "gain_likelihood", "level_likelihood", "rule")}
 
 
 def initial_points(points_dir) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
