@@ -17,7 +17,15 @@ class ConfigError(ValueError):
 
 @contextlib.contextmanager
 def logged(log_path: str):
-    """Send stdout, stderr and ``logging`` of a rule script to its log file; log the wall time."""
+    """Send stdout, stderr and ``logging`` of a rule script to its log file; log the wall time.
+
+    Every rule script enters here, so this is also where the job's process is set up: freed
+    memory is kept for reuse (:func:`spc3d.runtime.keep_freed_memory`: without it the large
+    tensors of every training step are faulted in, and zero-filled by the kernel, afresh).
+    """
+    from .runtime import keep_freed_memory
+
+    keep_freed_memory()
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w", buffering=1) as f, contextlib.redirect_stdout(f), contextlib.redirect_stderr(f):
         logging.basicConfig(stream=f, level=logging.INFO, force=True,
