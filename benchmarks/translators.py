@@ -1,0 +1,109 @@
+"""Speed of one training step of every stage-1 translator at the default (CPU-sized) settings.
+
+    python benchmarks/translators.py [--batch 4 --crop 64 --threads 1,2 --steps 6 --rounds 3]
+                                     [--methods pix2pixhd,pix2pix,...] [--allocator keep|default]
+
+Each method is built with its ``Config()`` defaults (what config.yaml's empty blocks select; the
+VGG loss of pix2pixHD gets random weights of the right shapes, which cost the same) and trained
+on one fixed batch: ``--batch`` binary crops (Bernoulli bits of a smooth image) and their RGB
+targets, ``--crop`` pixels square. For every torch thread count the methods take turns in
+``--rounds`` rounds of ``--steps`` consecutive steps (one untimed step first in each round), so
+all see the same load from other jobs. Printed per method and thread count: the median steps/s
+of the rounds, the CPU seconds per step (user + system of the whole process over the timed
+steps, all threads; steadier than wall time on a shared machine) and the share of it spent in the
+kernel. ``--allocator keep`` (the default) sets up the process as a workflow job is set up
+(:func:`spc3d.runtime.keep_freed_memory`); ``default`` leaves glibc's malloc as it is.
+The last line, ``steps_per_s_1thread: method=value ...``, is machine-readable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import time
+
+import numpy as np
+import torch
+
+from spc3d import lpips_net
+from spc3d.translate import TRANSLATORS
+
+
+def make_batch(batch: int, crop: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    """(binary, rgb): (B, 3, crop, crop) Bernoulli bits of a smooth random image, and that image."""
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.rand(batch, 3, 4, 4, generator=g)
+    rgb = torch.nn.functional.interpolate(coarse, size=(crop, crop), mode="bilinear", align_corners=False)
+    binary = torch.bernoulli(0.2 + 0.6 * rgb, generator=g)
+    return binary, rgb
+
+
+def build(method: str, seed: int = 0):
+    """The method's Translator with Config() defaults on the CPU (seeded)."""
+    torch.manual_seed(seed)
+    module = TRANSLATORS[method]
+    rng = np.random.default_rng(seed)
+    vgg = {k: (0.01 * rng.standard_normal(s)).astype(np.float32) for k, s in lpips_net.expected_shapes("vgg").items()}
+    return module.Translator(module.Config(), torch.device("cpu"), vgg)
+
+
+def cpu_seconds() -> tuple[float, float]:
+    """(user, system) CPU seconds of this process so far, all threads."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime, r.ru_stime
+
+
+def measure(models: dict, batch: tuple, steps: int, rounds: int) -> dict[str, dict]:
+    """Per method: median steps/s over the rounds, CPU seconds per step, kernel share of that."""
+    rates = {m: [] for m in models}
+    cpu = {m: [0.0, 0.0] for m in models}
+    for _ in range(rounds):
+        for method, model in models.items():
+            model.train_step(*batch)  # untimed: caches and allocator after the previous method
+            u0, s0 = cpu_seconds()
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                model.train_step(*batch)
+            rates[method].append(steps / (time.perf_counter() - t0))
+            u1, s1 = cpu_seconds()
+            cpu[method][0] += u1 - u0
+            cpu[method][1] += s1 - s0
+    n = steps * rounds
+    return {m: {"steps_per_s": statistics.median(rates[m]), "cpu_s": sum(cpu[m]) / n,
+                "sys_share": cpu[m][1] / max(sum(cpu[m]), 1e-12)} for m in models}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--crop", type=int, default=64)
+    ap.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
+    ap.add_argument("--steps", type=int, default=6, help="timed steps per round")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--methods", default=",".join(TRANSLATORS), help="comma-separated methods")
+    ap.add_argument("--allocator", choices=("keep", "default"), default="keep",
+                    help="keep: as a workflow job (freed memory reused); default: glibc's own behaviour")
+    args = ap.parse_args()
+    if args.allocator == "keep":
+        from spc3d.runtime import keep_freed_memory
+
+        keep_freed_memory()
+    methods = args.methods.split(",")
+    batch = make_batch(args.batch, args.crop)
+    results = {}
+    for threads in (int(t) for t in args.threads.split(",")):
+        torch.set_num_threads(threads)
+        models = {m: build(m) for m in methods}  # fresh models: every thread count starts alike
+        results[threads] = measure(models, batch, args.steps, args.rounds)
+    print(f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, torch {torch.__version__}")
+    print(f"{'method':<10} {'threads':>7} {'steps/s':>8} {'CPU s/step':>11} {'kernel':>7}")
+    for threads, rows in results.items():
+        for m, r in rows.items():
+            print(f"{m:<10} {threads:>7} {r['steps_per_s']:>8.2f} {r['cpu_s']:>11.3f} {100 * r['sys_share']:>6.1f}%")
+    one = results.get(1, {})
+    print("steps_per_s_1thread: " + " ".join(f"{m}={r['steps_per_s']:.2f}" for m, r in one.items()))
+
+
+if __name__ == "__main__":
+    main()
