@@ -88,14 +88,16 @@ def test_bootstrap_interval_on_known_answers():
     const = np.full(20, 1.5)
     assert bootstrap(const) == pytest.approx((1.5, 1.5, 1.5))
     rng = np.random.default_rng(3)
-    hits, widths = 0, []
-    for trial in range(200):
-        x = rng.normal(0.7, 1.0, 40)
-        mean, lo, hi = bootstrap(x, n_boot=2000, seed=trial)
-        hits += lo <= 0.7 <= hi
-        widths.append(hi - lo)
-    assert 0.9 <= hits / 200 <= 0.99  # a 95 % interval covers the true mean about 95 % of the time
-    assert np.mean(widths) == pytest.approx(2 * 1.96 / np.sqrt(40), rel=0.1)  # ~ the normal-theory width
+    for n, trials in ((40, 200), (5, 400)):  # large and small samples: the interval keeps its coverage
+        hits, widths = 0, []
+        for trial in range(trials):
+            x = rng.normal(0.7, 1.0, n)
+            mean, lo, hi = bootstrap(x, n_boot=2000, seed=trial)
+            hits += lo <= 0.7 <= hi
+            widths.append(hi - lo)
+        assert 0.9 <= hits / trials <= 0.99, (n, hits / trials)  # ~95 % of intervals cover the true mean
+        t = {40: 2.023, 5: 2.776}[n]  # Student t quantiles: the normal-theory width
+        assert np.mean(widths) == pytest.approx(2 * t / np.sqrt(n), rel=0.2), n
     with pytest.raises(ValueError, match="finite paired differences"):
         bootstrap(np.array([1.0, np.inf]))
 
