@@ -8,9 +8,10 @@ VGG loss of pix2pixHD gets random weights of the right shapes, which cost the sa
 on one fixed batch: ``--batch`` binary crops (Bernoulli bits of a smooth image) and their RGB
 targets, ``--crop`` pixels square. For every torch thread count the methods take turns in
 ``--rounds`` rounds of ``--steps`` consecutive steps (one untimed step first in each round), so
-all see the same load from other jobs. Printed per method and thread count: the median steps/s
-of the rounds, the CPU seconds per step (user + system of the whole process over the timed
-steps, all threads; steadier than wall time on a shared machine) and the share of it spent in the
+all see the same load from other jobs. Printed per method and thread count, medians over the
+rounds: steps/s, CPU seconds per step (user + system of the whole process, all threads; steadier
+than wall time on a shared machine, but with 2 threads on a busy machine it counts OpenMP
+workers spinning while they wait for a descheduled partner) and the share of it spent in the
 kernel. ``--allocator keep`` (the default) sets up the process as a workflow job is set up
 (:func:`spc3d.runtime.keep_freed_memory`); ``default`` leaves glibc's malloc as it is.
 The last line, ``steps_per_s_1thread: method=value ...``, is machine-readable.
@@ -19,6 +20,7 @@ The last line, ``steps_per_s_1thread: method=value ...``, is machine-readable.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import statistics
 import time
@@ -55,9 +57,8 @@ def cpu_seconds() -> tuple[float, float]:
 
 
 def measure(models: dict, batch: tuple, steps: int, rounds: int) -> dict[str, dict]:
-    """Per method: median steps/s over the rounds, CPU seconds per step, kernel share of that."""
-    rates = {m: [] for m in models}
-    cpu = {m: [0.0, 0.0] for m in models}
+    """Per method, medians over the rounds: steps/s, CPU seconds per step, kernel share of those."""
+    rounds_of = {m: [] for m in models}  # (steps/s, user s, system s) per round
     for _ in range(rounds):
         for method, model in models.items():
             model.train_step(*batch)  # untimed: caches and allocator after the previous method
@@ -65,13 +66,14 @@ def measure(models: dict, batch: tuple, steps: int, rounds: int) -> dict[str, di
             t0 = time.perf_counter()
             for _ in range(steps):
                 model.train_step(*batch)
-            rates[method].append(steps / (time.perf_counter() - t0))
+            wall = time.perf_counter() - t0
             u1, s1 = cpu_seconds()
-            cpu[method][0] += u1 - u0
-            cpu[method][1] += s1 - s0
-    n = steps * rounds
-    return {m: {"steps_per_s": statistics.median(rates[m]), "cpu_s": sum(cpu[m]) / n,
-                "sys_share": cpu[m][1] / max(sum(cpu[m]), 1e-12)} for m in models}
+            rounds_of[method].append((steps / wall, (u1 - u0) / steps, (s1 - s0) / steps))
+    out = {}
+    for m, rows in rounds_of.items():
+        rate, user, system = (statistics.median(col) for col in zip(*rows))
+        out[m] = {"steps_per_s": rate, "cpu_s": user + system, "sys_share": system / max(user + system, 1e-12)}
+    return out
 
 
 def main() -> None:
@@ -96,7 +98,8 @@ def main() -> None:
         torch.set_num_threads(threads)
         models = {m: build(m) for m in methods}  # fresh models: every thread count starts alike
         results[threads] = measure(models, batch, args.steps, args.rounds)
-    print(f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, torch {torch.__version__}")
+    print(f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, torch {torch.__version__}, "
+          f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}, load average {os.getloadavg()[0]:.1f}")
     print(f"{'method':<10} {'threads':>7} {'steps/s':>8} {'CPU s/step':>11} {'kernel':>7}")
     for threads, rows in results.items():
         for m, r in rows.items():

@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import TranslatorBase, from_signed, to_signed
+from .base import TranslatorBase, adam, from_signed, to_signed
 from .networks import (
     GANLoss,
     ImagePool,
@@ -81,8 +81,8 @@ class Translator(TranslatorBase):
         self.gan = GANLoss(cfg.gan_mode)
         self.pool_A, self.pool_B = ImagePool(cfg.pool_size), ImagePool(cfg.pool_size)
         betas = (cfg.beta1, cfg.beta2)
-        self.opt_G = torch.optim.Adam([*self.G.parameters(), *self.F.parameters()], lr=cfg.lr, betas=betas)
-        self.opt_D = torch.optim.Adam([*self.D_A.parameters(), *self.D_B.parameters()], lr=cfg.lr, betas=betas)
+        self.opt_G = adam([*self.G.parameters(), *self.F.parameters()], self.device, lr=cfg.lr, betas=betas)
+        self.opt_D = adam([*self.D_A.parameters(), *self.D_B.parameters()], self.device, lr=cfg.lr, betas=betas)
 
     def modules(self) -> dict[str, nn.Module]:
         return {"G": self.G, "F": self.F, "D_A": self.D_A, "D_B": self.D_B}
@@ -101,8 +101,11 @@ class Translator(TranslatorBase):
         check_multiple(binary, self.multiple, "cyclegan")
         check_multiple(rgb, self.multiple, "cyclegan")
         a, b = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
-        fake_b, fake_a = self.G(a), self.F(b)  # (B, 3, h, w) each
-        terms = self._generator_terms(a, b, fake_a, fake_b)
+        if self.cfg.lambda_identity > 0 and self._batchable(a, b):  # G(b) and F(a) ride along in one pass
+            (fake_b, idt_b), (fake_a, idt_a) = self._each(self.G, a, b), self._each(self.F, b, a)
+        else:
+            fake_b, fake_a, idt_b, idt_a = self.G(a), self.F(b), None, None  # (B, 3, h, w) each
+        terms = self._generator_terms(a, b, fake_a, fake_b, idt_a, idt_b)
         loss_g = sum(terms.values())
         self.opt_G.zero_grad(set_to_none=True)
         loss_g.backward()
@@ -110,23 +113,42 @@ class Translator(TranslatorBase):
         d_terms = self._step_D(a, b, fake_a.detach(), fake_b.detach())
         return {"loss": float(loss_g.detach()), **{k: float(v.detach()) for k, v in terms.items()}, **d_terms}
 
-    def _generator_terms(self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor) -> dict[str, Tensor]:
-        """Adversarial, cycle and identity terms of the joint generator objective (D frozen)."""
+    def _batchable(self, *batches: Tensor) -> bool:
+        """Whether the networks may take these batches in one pass, with the same outputs: they treat
+        every sample on its own (instance norm or none; batch norm pools its statistics, and its
+        running statistics depend on the order of the calls) and the image sizes agree."""
+        return self.cfg.norm != "batch" and len({t.shape[1:] for t in batches}) == 1
+
+    def _each(self, net: nn.Module, *batches: Tensor) -> list[Tensor]:
+        """``[net(t) for t in batches]``, as one pass over their concatenation when
+        :meth:`_batchable`: fewer, larger convolutions."""
+        if not self._batchable(*batches):
+            return [net(t) for t in batches]
+        return list(net(torch.cat(batches)).split([t.shape[0] for t in batches]))
+
+    def _generator_terms(self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor, idt_a: Tensor | None,
+                         idt_b: Tensor | None) -> dict[str, Tensor]:
+        """Adversarial, cycle and identity terms of the joint generator objective (D frozen);
+        ``idt_a`` / ``idt_b``: F(a) / G(b) when already computed, else computed here, last."""
         cfg = self.cfg
         set_requires_grad([self.D_A, self.D_B], False)
         terms = {"G_GAN": self.gan(self.D_B(fake_b), True), "F_GAN": self.gan(self.D_A(fake_a), True),
                  "cycle_A": cfg.lambda_A * F.l1_loss(self.F(fake_b), a),
                  "cycle_B": cfg.lambda_B * F.l1_loss(self.G(fake_a), b)}
         if cfg.lambda_identity > 0:
-            terms["idt_G"] = cfg.lambda_identity * cfg.lambda_B * F.l1_loss(self.G(b), b)
-            terms["idt_F"] = cfg.lambda_identity * cfg.lambda_A * F.l1_loss(self.F(a), a)
+            idt_b = self.G(b) if idt_b is None else idt_b
+            idt_a = self.F(a) if idt_a is None else idt_a
+            terms["idt_G"] = cfg.lambda_identity * cfg.lambda_B * F.l1_loss(idt_b, b)
+            terms["idt_F"] = cfg.lambda_identity * cfg.lambda_A * F.l1_loss(idt_a, a)
         set_requires_grad([self.D_A, self.D_B], True)
         return terms
 
     def _step_D(self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor) -> dict[str, float]:
         """Update D_A and D_B on real images and pooled generated ones; returns their losses."""
-        loss_a = 0.5 * (self.gan(self.D_A(a), True) + self.gan(self.D_A(self.pool_A.query(fake_a)), False))
-        loss_b = 0.5 * (self.gan(self.D_B(b), True) + self.gan(self.D_B(self.pool_B.query(fake_b)), False))
+        real_a, pooled_a = self._each(self.D_A, a, self.pool_A.query(fake_a))
+        real_b, pooled_b = self._each(self.D_B, b, self.pool_B.query(fake_b))
+        loss_a = 0.5 * (self.gan(real_a, True) + self.gan(pooled_a, False))
+        loss_b = 0.5 * (self.gan(real_b, True) + self.gan(pooled_b, False))
         self.opt_D.zero_grad(set_to_none=True)
         (loss_a + loss_b).backward()
         self.opt_D.step()

@@ -34,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import TranslatorBase, from_signed, pad_to_multiple, to_signed
+from .base import TranslatorBase, adam, from_signed, pad_to_multiple, to_signed
 
 
 @dataclass(frozen=True)
@@ -334,7 +334,7 @@ class Translator(TranslatorBase):
         cond_ch = 6 if cfg.cleaned_condition else 3
         self.net = UNet(cfg, in_ch=3 + cond_ch).to(self.device)
         self.ema = EMA(self.net, cfg.ema_decay, cfg.ema_warmup).to(self.device)
-        self.opt = torch.optim.Adam(self.net.parameters(), lr=cfg.lr, betas=tuple(cfg.adam_betas))
+        self.opt = adam(self.net.parameters(), self.device, lr=cfg.lr, betas=tuple(cfg.adam_betas))
 
     def modules(self) -> dict[str, nn.Module]:
         return {"net": self.net, "ema": self.ema}

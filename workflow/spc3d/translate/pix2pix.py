@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .base import PairedGANBase, to_signed
+from .base import PairedGANBase, adam, to_signed
 from .networks import (
     GANLoss,
     ImagePool,
@@ -67,8 +67,8 @@ class Translator(PairedGANBase):
         self.gan = GANLoss(cfg.gan_mode)
         self.pool = ImagePool(cfg.pool_size)
         betas = (cfg.beta1, cfg.beta2)
-        self.opt_G = torch.optim.Adam(self.G.parameters(), lr=cfg.lr, betas=betas)
-        self.opt_D = torch.optim.Adam(self.D.parameters(), lr=cfg.lr, betas=betas)
+        self.opt_G = adam(self.G.parameters(), self.device, lr=cfg.lr, betas=betas)
+        self.opt_D = adam(self.D.parameters(), self.device, lr=cfg.lr, betas=betas)
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
         """One D step then one G step on a paired batch; binary, rgb: (B, 3, h, w) in [0, 1],

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import PairedGANBase, to_signed
+from .base import PairedGANBase, adam, to_signed
 from .networks import (
     GANLoss,
     ImagePool,
@@ -32,10 +32,8 @@ from .networks import (
     ResnetGenerator,
     VGGLoss,
     check_multiple,
-    conditional_d_step,
     init_weights,
     norm_layer,
-    set_requires_grad,
 )
 
 
@@ -134,8 +132,8 @@ class Translator(PairedGANBase):
         self.gan = GANLoss("lsgan")
         self.pool = ImagePool(cfg.pool_size)
         betas = (cfg.beta1, cfg.beta2)
-        self.opt_G = torch.optim.Adam(self.G.parameters(), lr=cfg.lr, betas=betas)
-        self.opt_D = torch.optim.Adam(self.D.parameters(), lr=cfg.lr, betas=betas)
+        self.opt_G = adam(self.G.parameters(), self.device, lr=cfg.lr, betas=betas)
+        self.opt_D = adam(self.D.parameters(), self.device, lr=cfg.lr, betas=betas)
 
     def _vgg_loss(self, cfg: Config, vgg_weights: dict | None) -> VGGLoss | None:
         if not cfg.vgg_loss:
@@ -147,31 +145,50 @@ class Translator(PairedGANBase):
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
         """One G step then one D step on a paired batch (reference order); binary, rgb:
-        (B, 3, h, w) in [0, 1], h, w multiples of ``multiple``. ``loss`` is the G objective."""
+        (B, 3, h, w) in [0, 1], h, w multiples of ``multiple``. ``loss`` is the G objective.
+
+        D is not updated between the two steps, so each of its passes serves both: the real pass
+        (feature-matching targets for G, as in the reference) and, without an image pool, the fake
+        pass (G's adversarial and feature-matching terms, D's fake loss). Each backward names the
+        parameters it is for, so G's leaves D's gradients alone and D's does not enter G. Same
+        losses and updates as separate passes with D frozen for G, bit for bit; two D passes
+        instead of four (~10 % of a CPU step). With ``norm: batch`` D's running statistics see
+        two batches per step instead of four (D never runs in eval mode; G's are unaffected).
+        """
         self.train(True)
         check_multiple(binary, self.multiple, "pix2pixhd")
         x, y = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
         fake = self.G(x)  # (B, 3, h, w) in [-1, 1]
-        terms = self._generator_terms(x, y, fake)
+        pred_real = self.D(torch.cat([x, y], 1), features=True)  # num_D lists of n_layers+2 maps
+        pred_fake = self.D(torch.cat([x, fake], 1), features=True)
+        terms = self._generator_terms(y, fake, pred_fake, pred_real)
         loss_g = sum(terms.values())
+        shared = self.cfg.pool_size == 0  # D's fake loss reuses pred_fake (kept through G's backward)
         self.opt_G.zero_grad(set_to_none=True)
-        loss_g.backward()
+        loss_g.backward(inputs=list(self.G.parameters()), retain_graph=shared)
         self.opt_G.step()
-        d_terms = conditional_d_step(self.D, self.opt_D, self.gan, self.pool, x, y, fake)
+        if not shared:
+            pred_fake = self.D(self.pool.query(torch.cat([x, fake.detach()], 1)), features=True)
+        d_terms = self._step_D(pred_fake, pred_real)
         return {"loss": float(loss_g.detach()), **{k: float(v.detach()) for k, v in terms.items()}, **d_terms}
 
-    def _generator_terms(self, x: Tensor, y: Tensor, fake: Tensor) -> dict[str, Tensor]:
-        """GAN, feature-matching and VGG terms of the generator objective (D frozen)."""
-        set_requires_grad([self.D], False)
-        pred_fake = self.D(torch.cat([x, fake], 1), features=True)  # num_D lists of n_layers+2 maps
+    def _generator_terms(self, y: Tensor, fake: Tensor, pred_fake: list, pred_real: list) -> dict[str, Tensor]:
+        """GAN, feature-matching and VGG terms of the generator objective; ``pred_fake`` / ``pred_real``:
+        D's stage outputs on (x, fake) and (x, y), the latter only as constant targets."""
         terms = {"G_GAN": self.gan(pred_fake, True)}
         if self.cfg.feat_match:
-            with torch.no_grad():
-                pred_real = self.D(torch.cat([x, y], 1), features=True)
             weight = self.cfg.lambda_feat * 4.0 / (self.cfg.n_layers_D + 1) / self.cfg.num_D
-            terms["G_feat"] = weight * sum(F.l1_loss(f, r) for pf, pr in zip(pred_fake, pred_real)
+            terms["G_feat"] = weight * sum(F.l1_loss(f, r.detach()) for pf, pr in zip(pred_fake, pred_real)
                                            for f, r in zip(pf[:-1], pr[:-1]))
         if self.vgg is not None:
             terms["G_VGG"] = self.cfg.lambda_feat * self.vgg(fake, y)
-        set_requires_grad([self.D], True)
         return terms
+
+    def _step_D(self, pred_fake: list, pred_real: list) -> dict[str, float]:
+        """0.5 * (LSGAN(D(x, fake), fake) + LSGAN(D(x, y), real)) from D's outputs; one Adam step of D."""
+        loss_fake, loss_real = self.gan(pred_fake, False), self.gan(pred_real, True)
+        loss = 0.5 * (loss_fake + loss_real)
+        self.opt_D.zero_grad(set_to_none=True)
+        loss.backward(inputs=list(self.D.parameters()))
+        self.opt_D.step()
+        return {"D": float(loss.detach()), "D_real": float(loss_real.detach()), "D_fake": float(loss_fake.detach())}

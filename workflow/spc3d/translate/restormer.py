@@ -35,7 +35,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .. import io
-from .base import TranslatorBase, pad_to_multiple
+from .base import TranslatorBase, adam, pad_to_multiple
 
 
 @dataclass(frozen=True)
@@ -274,8 +274,8 @@ class Translator(TranslatorBase):
         self.cfg = cfg
         self.device = torch.device(device)
         self.net = Restormer(cfg).to(self.device)
-        self.opt = torch.optim.AdamW(self.net.parameters(), lr=cfg.lr, betas=tuple(cfg.betas),
-                                     weight_decay=cfg.weight_decay)
+        self.opt = adam(self.net.parameters(), self.device, adamw=True, lr=cfg.lr, betas=tuple(cfg.betas),
+                        weight_decay=cfg.weight_decay)
 
     def modules(self) -> dict[str, nn.Module]:
         return {"net": self.net}
