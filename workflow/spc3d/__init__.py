@@ -8,6 +8,7 @@ Modules
 io        image and binary-frame files (OpenImageIO, packed ``.npz``), atomic writes
 cameras   the one internal camera convention and conversions to/from LLFF and COLMAP
 llff      reading LLFF folders (``images*/`` + ``poses_bounds.npy``)
+colmap_scene  reading COLMAP-format scenes (``images/`` + ``sparse/0/``, binary or text models)
 scenes    procedural forward-facing captures written in the LLFF layout
 spc       the SPC photon physics: 1-bit frames, exposure calibration, flux estimates
 augment   zoom / rotation / shear / flip augmentation of training views

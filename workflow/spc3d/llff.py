@@ -10,19 +10,26 @@ folder at the working resolution, whose ``hwf`` already matches its ``images/``:
     images/{name}.png     sRGB, 8 bit
     depth/{name}.exr      ground-truth depth along the camera z axis (built-in scenes only)
     poses_bounds.npy      N x 17, LLFF convention
+    intrinsics.npy        N x 4 fx, fy, cx, cy in pixels of the ``hwf`` size; only when LLFF's one
+                          focal and centred principal point cannot hold them (e.g. COLMAP scenes)
     scene.json            provenance: source, resolution, seed, settings, wall time
+
+``intrinsics.npy`` may sit in any LLFF folder: like ``hwf`` it refers to the size written in
+``poses_bounds.npy`` and is rescaled to the images loaded. Folders without it read as plain LLFF.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from . import io
 from .cameras import Cameras, cameras_to_llff, llff_to_cameras
+
+INTRINSICS_FILE = "intrinsics.npy"  # optional, beside poses_bounds.npy (see the module docstring)
 
 
 @dataclass
@@ -55,7 +62,7 @@ def load_llff(root: str | os.PathLike, factor: int = 8, width: int | None = None
     """Load an LLFF folder at ``factor``, then area-downscale to ``width`` (aspect kept) if given."""
     files, poses_bounds = llff_contents(root, factor)
     images = read_views(files)
-    cams = llff_to_cameras(poses_bounds, images.shape[1], images.shape[2])
+    cams = llff_cameras(root, poses_bounds, images.shape[1], images.shape[2])
     scene = SceneData(images, cams, [f.stem for f in files], meta={"source": str(root), "factor": factor})
     return resize_scene(scene, width) if width else scene
 
@@ -64,8 +71,8 @@ def llff_contents(root: str | os.PathLike, factor: int) -> tuple[list[Path], np.
     """The image files at ``factor`` and the checked ``poses_bounds`` of an LLFF folder.
 
     Cheap (no image is decoded), so the workflow calls it at parse time too: a folder whose poses
-    are not finite, whose bounds are not 0 < near < far, or whose image count differs from its
-    pose count is refused before any job runs.
+    are not finite, whose bounds are not 0 < near < far, whose image count differs from its
+    pose count, or whose ``intrinsics.npy`` (optional) is malformed is refused before any job runs.
     """
     root = Path(root)
     folder = image_folder(root, factor)
@@ -83,7 +90,49 @@ def llff_contents(root: str | os.PathLike, factor: int) -> tuple[list[Path], np.
             f"{folder} holds {len(files)} images but {pb_path} has {len(poses_bounds)} poses; they must match"
         )
     check_image_headers(files)
+    read_intrinsics(root, poses_bounds)
     return files, poses_bounds
+
+
+def read_intrinsics(root: str | os.PathLike, poses_bounds: np.ndarray) -> np.ndarray | None:
+    """The checked ``intrinsics.npy`` of an LLFF folder (N x 4 fx, fy, cx, cy, for the ``hwf``
+    size of ``poses_bounds``), or None when the folder has none."""
+    path = Path(root) / INTRINSICS_FILE
+    if not path.is_file():
+        return None
+    try:
+        intr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"cannot read {path}: {e} (expected a .npy array, N x 4 fx, fy, cx, cy)") from None
+    if intr.shape != (len(poses_bounds), 4) or not np.issubdtype(intr.dtype, np.number):
+        raise ValueError(f"{path}: array of shape {intr.shape} ({intr.dtype}); expected {len(poses_bounds)} x 4 "
+                         f"numbers (fx, fy, cx, cy per view of poses_bounds.npy)")
+    bad = np.flatnonzero(~np.isfinite(intr).all(axis=1) | (intr[:, :2] <= 0).any(axis=1))
+    if bad.size:
+        raise ValueError(f"{path}: view(s) {_first(bad)} have non-finite intrinsics or a focal length <= 0")
+    return intr.astype(np.float64)
+
+
+def llff_cameras(root: str | os.PathLike, poses_bounds: np.ndarray, height: int, width: int) -> Cameras:
+    """Cameras of an LLFF folder for images of (height, width): ``poses_bounds``, with the
+    folder's ``intrinsics.npy`` (rescaled from the ``hwf`` size like the focal) replacing the
+    ``hwf`` focal and centred principal point when present."""
+    cams = llff_to_cameras(poses_bounds, height, width)
+    intr = read_intrinsics(root, poses_bounds)
+    if intr is None:
+        return cams
+    h0, w0 = poses_bounds[:, 4], poses_bounds[:, 9]  # per view: h, w of the pose's 5th column (hwf)
+    sx, sy = width / w0, height / h0
+    return replace(cams, intrinsics=intr * np.stack([sx, sy, sx, sy], axis=1))
+
+
+def needs_intrinsics_file(cams: Cameras) -> bool:
+    """Whether LLFF's one focal per view and centred principal point would lose part of
+    ``cams.intrinsics`` (beyond round-off: 1e-9 relative)."""
+    fx, fy, cx, cy = cams.intrinsics.T
+    tol = 1e-9 * max(cams.width, cams.height)
+    return bool((np.abs(fy - fx) > 1e-9 * np.abs(fx)).any() or (np.abs(cx - cams.width / 2) > tol).any()
+                or (np.abs(cy - cams.height / 2) > tol).any())
 
 
 def check_poses_bounds(pb: np.ndarray, path) -> None:
@@ -171,13 +220,18 @@ def area_matrix(n_in: int, n_out: int) -> np.ndarray:
 
 
 def write_scene(out_dir: str | os.PathLike, scene: SceneData, record: dict) -> None:
-    """Write the canonical scene folder atomically (built as a temporary folder, then renamed)."""
+    """Write the canonical scene folder atomically (built as a temporary folder, then renamed).
+
+    ``intrinsics.npy`` is written only when ``poses_bounds.npy`` cannot hold the intrinsics
+    (see :func:`needs_intrinsics_file`)."""
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for i, name in enumerate(scene.names):
             io.write_image(tmp / "images" / f"{name}.png", scene.images[i])
             if scene.depths is not None:
                 io.write_image(tmp / "depth" / f"{name}.exr", scene.depths[i][:, :, None])
         io.save_npy(tmp / "poses_bounds.npy", cameras_to_llff(scene.cameras))
+        if needs_intrinsics_file(scene.cameras):
+            io.save_npy(tmp / INTRINSICS_FILE, scene.cameras.intrinsics)
         io.write_json(tmp / "scene.json", {**scene.meta, **record, "views": len(scene.names),
                                             "height": scene.cameras.height, "width": scene.cameras.width})
 
@@ -194,7 +248,7 @@ def read_scene(scene_dir: str | os.PathLike, with_depth: bool = False, with_imag
     else:
         files, poses_bounds = llff_contents(scene_dir, 1)
         h, w, _ = io.image_shape(files[0])
-        data = SceneData(None, llff_to_cameras(poses_bounds, h, w), [f.stem for f in files])
+        data = SceneData(None, llff_cameras(scene_dir, poses_bounds, h, w), [f.stem for f in files])
     meta_path = scene_dir / "scene.json"
     data.meta = io.read_json(meta_path) if meta_path.exists() else {}
     if with_depth and (scene_dir / "depth").is_dir():
