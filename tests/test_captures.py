@@ -1,0 +1,549 @@
+"""Captured SPAD data: photon-cube formats, CFA sensors, the masked likelihood, hot pixels, and the
+simulated export read back as a capture."""
+import gzip
+
+import numpy as np
+import pytest
+import torch
+
+from spc3d import captures, hot_pixels, io, photon_cubes, sensors, spc
+from spc3d.reconstruct.objectives import BernoulliObjective
+from spc3d.metrics import psnr
+from spc3d.scenes import render_scene, write_builtin_scene
+from spc3d.simulate import simulate_scene
+
+BAYER = ("RGGB", "BGGR", "GRBG", "GBRG")
+OBJ = BernoulliObjective(flux_scale=2000.0, q=0.45, exposure_s=1e-3, dark_count_rate=100.0)
+
+
+def random_cube(shape=(5, 7, 13), p=0.3, seed=0):
+    return np.random.default_rng(seed).random(shape) < p
+
+
+def cube_name(fmt):
+    return "view" if fmt == "png" else f"view.{fmt}"
+
+
+# --------------------------------------------------------------------------------------------
+# photon-cube formats
+
+
+@pytest.mark.parametrize("fmt", photon_cubes.FORMATS)
+@pytest.mark.parametrize("width", [16, 13])
+@pytest.mark.parametrize("bitorder", photon_cubes.BITORDERS)
+def test_every_format_round_trips_exactly(tmp_path, fmt, width, bitorder):
+    cube = random_cube((4, 6, width))
+    path = photon_cubes.write_cube(tmp_path / cube_name(fmt), cube, bitorder=bitorder)
+    assert photon_cubes.cube_format(path) == fmt
+    back = photon_cubes.read_cube(path, width=width, bitorder=bitorder)
+    assert back.dtype == bool and np.array_equal(back, cube)
+    assert np.array_equal(photon_cubes.read_cube(path, width=width, bitorder=bitorder, max_frames=2), cube[:2])
+
+
+def test_npy_layout_is_packbits_along_the_width(tmp_path):
+    """Big bit order (the SwissSPAD2 .npy layout): pixel 8j is the top bit of byte j of its row."""
+    cube = np.zeros((1, 2, 11), bool)
+    cube[0, 0, 0] = cube[0, 1, 9] = True
+    photon_cubes.write_cube(tmp_path / "a.npy", cube)
+    photon_cubes.write_cube(tmp_path / "b.npy", cube, bitorder="little")
+    big, little = np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy")
+    assert big.dtype == np.uint8 and big.shape == (1, 2, 2)
+    assert big[0].tolist() == [[0x80, 0], [0, 0x40]] and little[0].tolist() == [[0x01, 0], [0, 0x02]]
+    assert np.array_equal(big, np.packbits(cube, axis=-1))
+    with gzip.open(photon_cubes.write_cube(tmp_path / "c.npy.gz", cube)) as f:  # gzip of the same .npy
+        assert np.array_equal(np.load(f), big)
+
+
+def test_odd_width_drops_the_padding_bits(tmp_path):
+    packed = np.full((2, 3, 2), 0xFF, np.uint8)  # a sensor that leaves garbage in the padding
+    io.save_npy(tmp_path / "x.npy", packed)
+    assert photon_cubes.read_cube(tmp_path / "x.npy", width=13).shape == (2, 3, 13)
+    assert photon_cubes.read_cube(tmp_path / "x.npy").shape == (2, 3, 16)  # no width: all bits
+    with pytest.raises(ValueError, match=r"x.npy: width=20 does not fit rows of 2 bytes.*\[9, 16\]"):
+        photon_cubes.read_cube(tmp_path / "x.npy", width=20)
+
+
+@pytest.mark.parametrize("name", ["f.npy", "f.npy.gz"])
+def test_fortran_ordered_npy_is_read_too(tmp_path, name):
+    cube = random_cube((3, 4, 16))
+    packed = np.asfortranarray(np.packbits(cube, axis=-1))
+    with (gzip.open if name.endswith(".gz") else open)(tmp_path / name, "wb") as f:
+        np.lib.format.write_array(f, packed)
+    assert np.array_equal(photon_cubes.read_cube(tmp_path / name), cube)
+    assert np.array_equal(photon_cubes.read_cube(tmp_path / name, max_frames=2), cube[:2])
+
+
+def test_gzip_is_streamed_and_deterministic(tmp_path):
+    cube = random_cube((30, 8, 24))
+    a = photon_cubes.write_cube(tmp_path / "a.npy.gz", cube).read_bytes()
+    b = photon_cubes.write_cube(tmp_path / "a.npy.gz", cube).read_bytes()
+    assert a == b  # no time stamp in the gzip header
+    assert np.array_equal(photon_cubes.read_cube(tmp_path / "a.npy.gz", max_frames=3), cube[:3])
+
+
+def test_png_frames_are_single_channel_0_255_in_natural_order(tmp_path):
+    cube = random_cube((11, 5, 6))
+    folder = photon_cubes.write_cube(tmp_path / "v", cube)
+    files = photon_cubes.png_frames(folder)
+    assert [f.name for f in files[:2]] == ["0000.png", "0001.png"]
+    assert io.read_image(files[3]).shape == (5, 6, 1) and set(np.unique(io.read_image(files[3]) * 255)) <= {0, 255}
+    for k, f in enumerate(files):  # unpadded names: 2.png before 10.png
+        f.rename(folder / f"f{k}.png")
+    assert np.array_equal(photon_cubes.read_cube(folder), cube)
+
+
+@pytest.mark.parametrize("make,message", [
+    (lambda p: np.save(p / "c.npy", np.zeros((2, 3, 4), np.float32)),
+     r"c.npy: holds a float32 .*expected uint8 \(K, H, ceil\(W/8\)\)"),
+    (lambda p: np.save(p / "c.npy", np.zeros((3, 4), np.uint8)), r"c.npy: holds a uint8 array of shape \(3, 4\)"),
+    (lambda p: np.save(p / "c.npy", np.zeros((2, 3, 4), bool)), r"c.npy: .*bool.*unpacked cube"),
+    (lambda p: (p / "c.npy").write_bytes(b"\x93NUMPY garbage"), r"cannot read photon cube .*c.npy"),
+    (lambda p: (p / "c.npy.gz").write_bytes(b"not gzip at all"), r"c.npy.gz: .*gzip"),
+    (lambda p: (p / "c.npz").write_bytes(b"nope"), r"c.npz"),
+    (lambda p: (p / "c.tif").write_bytes(b"x"), r"c.tif: unknown photon-cube format"),
+])
+def test_bad_files_name_the_file_and_the_expectation(tmp_path, make, message):
+    make(tmp_path)
+    path = next(p for p in tmp_path.iterdir())
+    with pytest.raises(ValueError, match=message):
+        photon_cubes.read_cube(path)
+
+
+def test_truncated_gzip_and_npy_are_named(tmp_path):
+    data = photon_cubes.write_cube(tmp_path / "c.npy.gz", random_cube((20, 16, 32), 0.5)).read_bytes()
+    (tmp_path / "c.npy.gz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=r"c.npy.gz: .*truncated"):
+        photon_cubes.read_cube(tmp_path / "c.npy.gz")
+    raw = photon_cubes.write_cube(tmp_path / "d.npy", random_cube((20, 16, 32))).read_bytes()
+    (tmp_path / "d.npy").write_bytes(raw[:-100])
+    with pytest.raises(ValueError, match=r"d.npy"):
+        photon_cubes.read_cube(tmp_path / "d.npy")
+
+
+def test_bad_png_frames_are_named(tmp_path):
+    (tmp_path / "ragged").mkdir()
+    io.write_image(tmp_path / "ragged" / "0.png", np.zeros((4, 5, 1)))
+    io.write_image(tmp_path / "ragged" / "1.png", np.zeros((4, 6, 1)))
+    with pytest.raises(ValueError, match=r"ragged/1.png: frame is 6x4 .* but 0.png is 5x4"):
+        photon_cubes.read_cube(tmp_path / "ragged")
+    (tmp_path / "gray").mkdir()
+    io.write_image(tmp_path / "gray" / "0.png", np.full((4, 5, 1), 0.5))
+    with pytest.raises(ValueError, match=r"gray/0.png: 20 pixels are neither 0 nor full scale .*128.0/255"):
+        photon_cubes.read_cube(tmp_path / "gray")
+    (tmp_path / "rgb").mkdir()
+    io.write_image(tmp_path / "rgb" / "0.png", np.zeros((4, 5, 3)))
+    with pytest.raises(ValueError, match=r"rgb/0.png: 3 channels; a binary frame is a single-channel"):
+        photon_cubes.read_cube(tmp_path / "rgb")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match="empty: no PNG frames"):
+        photon_cubes.read_cube(tmp_path / "empty")
+    with pytest.raises(FileNotFoundError, match="nothere.npy does not exist"):
+        photon_cubes.read_cube(tmp_path / "nothere.npy")
+
+
+def test_simulator_rgb_npz_and_bad_writes_are_explained(tmp_path):
+    io.save_frames(tmp_path / "rgb.npz", *spc.pack_frames(random_cube((2, 3, 4, 3))))
+    with pytest.raises(ValueError, match=r"rgb.npz: frames of shape \(2, 3, 4, 3\).*export_simulated"):
+        photon_cubes.read_cube(tmp_path / "rgb.npz")
+    with pytest.raises(ValueError, match=r"w.npy: got uint8 .*non-empty bool \(K, H, W\)"):
+        photon_cubes.write_cube(tmp_path / "w.npy", np.zeros((2, 3, 4), np.uint8))
+    with pytest.raises(ValueError, match=r"fmt='npz' needs a name ending in .npz"):
+        photon_cubes.write_cube(tmp_path / "w.npy", random_cube(), fmt="npz")
+    with pytest.raises(ValueError, match="bitorder='middle'"):
+        photon_cubes.write_cube(tmp_path / "w.npy", random_cube(), bitorder="middle")
+
+
+# --------------------------------------------------------------------------------------------
+# CFA patterns and masks
+
+
+@pytest.mark.parametrize("name", BAYER + ("RGBW",))
+def test_named_patterns_lay_out_their_letters_row_by_row(name):
+    mask = sensors.cfa_mask(sensors.cfa_pattern(name), 5, 7)  # odd sizes: the tile is cropped
+    assert mask.shape == (5, 7, 3) and mask.dtype == np.float32
+    letters = sensors.BAYER[name]
+    for y in range(5):
+        for x in range(7):
+            assert tuple(mask[y, x]) == sensors._SEES[letters[y % 2][x % 2]]
+
+
+def test_rgbw_white_is_the_sum_or_the_mean_of_the_channels():
+    assert sensors.cfa_mask(sensors.cfa_pattern("RGBW"), 2, 2)[1, 0].tolist() == [1, 1, 1]
+    mean = sensors.cfa_mask(sensors.cfa_pattern("RGBW", white="mean"), 2, 2)
+    np.testing.assert_allclose(mean[1, 0], [1 / 3] * 3)
+    assert mean[0, 0].tolist() == [1, 0, 0]  # single-channel pixels keep weight 1
+    labels, names = sensors.cfa_pattern("RGBW").classes()
+    assert names == ["R", "G", "B", "W"] and labels.tolist() == [[0, 1], [3, 2]]
+    with pytest.raises(ValueError, match="white='max'"):
+        sensors.cfa_pattern("RGBW", white="max")
+
+
+def test_mono_sees_luminance_weights_that_sum_to_one():
+    mono = sensors.cfa_pattern("mono")
+    mask = sensors.cfa_mask(mono, 3, 4)
+    np.testing.assert_allclose(mask[..., :], np.broadcast_to(sensors.LUMINANCE, (3, 4, 3)), rtol=1e-6)
+    gray = np.full((3, 4, 3), 0.25)
+    np.testing.assert_allclose(sensors.mosaic(gray, mono), 0.25, rtol=1e-12)  # gray: same flux as one channel
+    assert mono.classes()[1] == ["P"] and mono.to_json() == "mono"
+
+
+def test_pattern_from_a_tile_image_or_array(tmp_path):
+    tile = np.array([[[1, 0, 0], [0, 1, 0]], [[0, 1, 0], [0, 0, 1]]], np.float32)
+    io.write_image(tmp_path / "cfa.png", tile)
+    from_png = sensors.cfa_pattern(str(tmp_path / "cfa.png"))
+    from_list = sensors.cfa_pattern((tile * 255).astype(int).tolist())
+    for p in (from_png, from_list):
+        assert np.array_equal(sensors.cfa_mask(p, 4, 6), sensors.cfa_mask(sensors.cfa_pattern("RGGB"), 4, 6))
+    assert from_list.to_json() == (tile * 255).astype(int).tolist()
+    quad = np.ones((2, 4, 3)) * 255  # a 2x4 tile: W everywhere but one R pixel
+    quad[0, 1] = [255, 0, 0]
+    assert sensors.cfa_mask(sensors.cfa_pattern(quad), 2, 8)[0, 5].tolist() == [1, 0, 0]
+
+
+@pytest.mark.parametrize("tile,message", [
+    (np.full((2, 2, 3), 128), "values other than 0 and 255"),
+    (np.array([[[255, 0, 0], [0, 0, 0]]]), r"pixel \(row 0, column 1\) is black"),
+    (np.zeros((2, 2)), r"shape \(2, 2\); expected \(th, tw, 3\)"),
+])
+def test_bad_tiles_are_explained(tile, message):
+    with pytest.raises(ValueError, match=message):
+        sensors.cfa_pattern(tile)
+
+
+def test_unknown_pattern_name_lists_the_names():
+    with pytest.raises(ValueError, match="RGGB, BGGR, GRBG, GBRG, RGBW, mono"):
+        sensors.cfa_pattern("XYZ")
+
+
+# --------------------------------------------------------------------------------------------
+# mosaics and demosaicing
+
+
+@pytest.mark.parametrize("name", BAYER)
+def test_mosaic_frames_keep_the_bit_of_the_channel_each_pixel_sees(name):
+    frames = random_cube((3, 4, 6, 3), 0.5)
+    raw = sensors.mosaic_frames(frames, sensors.cfa_pattern(name))
+    idx = sensors.pure_channel(sensors.cfa_pattern(name), 4, 6)
+    for y in range(4):
+        for x in range(6):
+            assert np.array_equal(raw[:, y, x], frames[:, y, x, idx[y, x]])
+
+
+def test_white_pixels_are_not_made_from_channel_bits():
+    with pytest.raises(ValueError, match=r"pixel \(row 1, column 0\) sees weights \[1.0, 1.0, 1.0\].*simulate_m"):
+        sensors.mosaic_frames(random_cube((2, 4, 4, 3)), sensors.cfa_pattern("RGBW"))
+
+
+def test_simulated_mosaic_fires_at_the_rate_of_the_weighted_flux():
+    params = spc.SPCParams(frames=4000, exposure_s=1e-4, dark_count_rate=100.0)
+    phi = np.broadcast_to([2000.0, 5000.0, 1000.0], (4, 4, 3))
+    bits = sensors.simulate_mosaic(phi, sensors.cfa_pattern("RGBW"), params, np.random.default_rng(1))
+    expected = spc.detection_probability(np.array([2000.0, 5000.0, 8000.0, 1000.0]), params)  # R G W(sum) B
+    got = [bits[:, y::2, x::2].mean() for y, x in ((0, 0), (0, 1), (1, 0), (1, 1))]
+    np.testing.assert_allclose(got, expected, atol=0.012)  # 16000 draws per class: sd <= 0.004
+
+
+@pytest.mark.parametrize("name", BAYER + ("RGBW",))
+def test_demosaic_of_a_flat_colour_returns_the_colour(name):
+    colour = np.array([0.6, 0.3, 0.1])
+    pattern = sensors.cfa_pattern(name)
+    flat = np.broadcast_to(colour, (9, 12, 3))
+    plane = sensors.mosaic(flat, pattern)
+    np.testing.assert_allclose(sensors.demosaic_bilinear(plane, pattern), flat, rtol=1e-12)
+    valid = np.ones((9, 12), bool)
+    valid[4, 5] = valid[0, 0] = False  # masked pixels are filled from neighbours of their colour
+    np.testing.assert_allclose(sensors.demosaic_bilinear(plane, pattern, valid), flat, rtol=1e-12)
+
+
+def test_mono_demosaic_is_the_luminance_as_gray():
+    mono = sensors.cfa_pattern("mono")
+    colour = np.array([0.6, 0.3, 0.1])
+    plane = sensors.mosaic(np.broadcast_to(colour, (5, 6, 3)), mono)
+    luminance = float(colour @ np.array(sensors.LUMINANCE))
+    np.testing.assert_allclose(sensors.demosaic_bilinear(plane, mono), luminance, rtol=1e-12)
+
+
+def test_bayer_demosaic_is_classic_bilinear():
+    rng = np.random.default_rng(2)
+    plane = rng.random((8, 8))
+    rgb = sensors.demosaic_bilinear(plane, sensors.cfa_pattern("RGGB"))
+    y, x = 4, 4  # an R site
+    assert rgb[y, x, 0] == plane[y, x]
+    assert rgb[y, x, 1] == pytest.approx(plane[[y - 1, y + 1, y, y], [x, x, x - 1, x + 1]].mean())
+    assert rgb[y, x, 2] == pytest.approx(plane[[y - 1, y - 1, y + 1, y + 1], [x - 1, x + 1, x - 1, x + 1]].mean())
+    assert rgb[y, x + 1, 0] == pytest.approx((plane[y, x] + plane[y, x + 2]) / 2)  # R at a G site of an R row
+
+
+def test_average_demosaic_and_channel_stack():
+    pattern = sensors.cfa_pattern("RGBW")
+    cube = random_cube((6, 4, 6), 0.4)
+    np.testing.assert_allclose(sensors.demosaic_average(cube, pattern),
+                               sensors.demosaic_bilinear(cube.mean(0), pattern))
+    valid = np.ones((4, 6), bool)
+    valid[1, 1] = False
+    stack, names = sensors.channel_stack(cube.mean(0), pattern, valid)
+    assert names == ["R", "G", "B", "W", "valid"] and stack.shape == (4, 6, 5)
+    assert stack[0, 0, 0] == pytest.approx(cube.mean(0)[0, 0]) and stack[0, 0, 1:4].tolist() == [0, 0, 0]
+    assert stack[1, 1].tolist() == [0, 0, 0, 0, 0]  # a masked B pixel: no value, mask 0
+    assert (stack[..., :4] != 0).sum(-1).max() <= 1  # each pixel fills at most its own class
+
+
+def test_mosaic_mle_fills_hot_pixels_and_demosaics():
+    params = spc.SPCParams(frames=200, exposure_s=1e-4, dark_count_rate=0.0)
+    pattern = sensors.cfa_pattern("RGGB")
+    phi = np.broadcast_to([3000.0, 6000.0, 1500.0], (8, 10, 3))
+    S = np.round(spc.detection_probability(sensors.mosaic(phi, pattern), params) * 200).astype(int)
+    hot = np.zeros((8, 10), bool)
+    hot[3, 4] = hot[4, 4] = True
+    S[hot] = 200  # saturated: would read as ln(400)/(qT)
+    flux = sensors.mosaic_mle(S, 200, params, pattern, hot)
+    assert flux[3, 4] == pytest.approx(flux[3, 2]) and flux[4, 4] == pytest.approx(flux[4, 2])  # same colour
+    rgb = sensors.mle_rgb(S, 200, params, pattern, hot)
+    np.testing.assert_allclose(rgb, np.broadcast_to(phi, rgb.shape), rtol=0.05)  # S rounded to counts
+
+
+# --------------------------------------------------------------------------------------------
+# the masked SPAD likelihood
+
+
+def fractions(shape, seed=3, dtype=torch.float64):
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(shape, generator=g, dtype=dtype), torch.rand(shape, generator=g, dtype=dtype) * 0.5
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_all_ones_rgb_mask_equals_bernoulli_objective(dtype):
+    pred, target = fractions((12, 16, 3), dtype=dtype)
+    ones = torch.ones(12, 16, 3, dtype=torch.bool)
+    assert torch.equal(sensors.channel_bernoulli_loss(OBJ, pred, target, ones), OBJ.loss(pred, target))
+    assert torch.equal(sensors.channel_bernoulli_loss(OBJ, pred, target), OBJ.loss(pred, target))
+    rays, bits = pred.reshape(-1, 3), target.reshape(-1, 3)  # a ray batch, as the NeRF trainer passes
+    assert torch.equal(sensors.channel_bernoulli_loss(OBJ, rays, bits, torch.ones(3, dtype=torch.bool)),
+                       OBJ.loss(rays, bits))
+
+
+@pytest.mark.parametrize("name", BAYER)
+def test_bayer_mosaic_likelihood_is_the_one_hot_channel_likelihood(name):
+    pattern = sensors.cfa_pattern(name)
+    pred, target = fractions((6, 8, 3))
+    w = torch.from_numpy(sensors.cfa_mask(pattern, 6, 8)).double()
+    raw = (target * w).sum(-1)  # the fraction each pixel measured, in its own channel
+    mosaic_loss = sensors.mosaic_bernoulli_loss(OBJ, pred, raw, w)
+    channel_loss = sensors.channel_bernoulli_loss(OBJ, pred, target, w > 0)
+    torch.testing.assert_close(mosaic_loss, channel_loss, rtol=1e-14, atol=0)
+
+
+def test_white_pixel_rate_is_the_sum_of_the_channels():
+    pred, _ = fractions((1, 1, 3))
+    target = torch.tensor([[0.4]], dtype=torch.float64)
+    w = torch.ones(1, 1, 3, dtype=torch.float64)
+    expected = OBJ.loss(pred.sum(-1, keepdim=True), target[..., None])
+    torch.testing.assert_close(sensors.mosaic_bernoulli_loss(OBJ, pred, target, w), expected, rtol=1e-14, atol=0)
+    half = sensors.mosaic_bernoulli_loss(OBJ, pred, target, w / 3)  # white="mean": the channels' mean
+    torch.testing.assert_close(half, OBJ.loss(pred.mean(-1, keepdim=True), target[..., None]), rtol=1e-14, atol=0)
+
+
+def test_masked_pixels_get_no_gradient_and_do_not_count():
+    pattern = sensors.cfa_pattern("RGGB")
+    pred, target = fractions((6, 8, 3))
+    raw = target[..., 0]
+    w = torch.from_numpy(sensors.cfa_mask(pattern, 6, 8)).double()
+    valid = torch.ones(6, 8, dtype=torch.bool)
+    valid[2, 3] = False
+    pred.requires_grad_(True)
+    loss = sensors.mosaic_bernoulli_loss(OBJ, pred, raw, w, valid)
+    loss.backward()
+    assert torch.all(pred.grad[2, 3] == 0)  # the hot pixel
+    assert torch.all(pred.grad[w == 0] == 0) and torch.all(pred.grad[(w > 0) & valid[..., None]] != 0)
+    other = raw.clone()
+    other[2, 3] = 1.0  # whatever the hot pixel fired, the loss is the same
+    assert torch.equal(sensors.mosaic_bernoulli_loss(OBJ, pred, other, w, valid), loss)
+    ref = sensors.mosaic_bernoulli_loss(OBJ, pred[valid], raw[valid], w[valid])  # the valid pixels alone
+    torch.testing.assert_close(loss, ref, rtol=1e-14, atol=0)
+    assert torch.isfinite(loss) and sensors.mosaic_bernoulli_loss(OBJ, pred, raw, w, torch.zeros_like(valid)) == 0
+
+
+def test_packed_target_objective_matches_the_function():
+    pattern = sensors.cfa_pattern("RGBW")
+    pred, target = fractions((6, 8, 3))
+    raw = target[..., 1]
+    w = torch.from_numpy(sensors.cfa_mask(pattern, 6, 8)).double()
+    valid = torch.rand(6, 8, generator=torch.Generator().manual_seed(0)) > 0.2
+    packed = sensors.pack_mosaic_target(raw, w, valid)
+    obj = sensors.MosaicBernoulliObjective(OBJ)
+    assert packed.shape == (6, 8, 5)
+    assert torch.equal(obj.loss(pred, packed), sensors.mosaic_bernoulli_loss(OBJ, pred, raw, w, valid))
+    i = torch.tensor([0, 5, 17, 40])  # a ray batch gathers targets with their weights
+    assert torch.equal(obj.loss(pred.reshape(-1, 3)[i], packed.reshape(-1, 5)[i]),
+                       sensors.mosaic_bernoulli_loss(OBJ, pred.reshape(-1, 3)[i], raw.reshape(-1)[i],
+                                                     w.reshape(-1, 3)[i], valid.reshape(-1)[i]))
+
+
+# --------------------------------------------------------------------------------------------
+# hot pixels
+
+
+def plant(shape, count, seed):
+    rng = np.random.default_rng(seed)
+    hot = np.zeros(shape, bool)
+    hot.flat[rng.choice(hot.size, count, replace=False)] = True
+    return hot
+
+
+def frames_from_p(p, frames, seed):
+    """(frames, H, W) bool with per-pixel firing probability p (H, W)."""
+    return np.random.default_rng(seed).random((frames,) + p.shape) < p
+
+
+def with_hot(p, hot, lam_t_hot=1.0):
+    """Add a hot pixel's dark counts (lam_t_hot detections per frame) to firing probabilities p."""
+    return np.where(hot, 1.0 - (1.0 - p) * np.exp(-lam_t_hot), p)
+
+
+@pytest.mark.parametrize("pattern", [None, "RGGB"])
+def test_clean_flat_field_has_no_hot_pixels(pattern):
+    p = np.full((64, 96), 0.2)
+    if pattern:  # R, G, B at very different levels: only same-colour neighbours may be compared
+        p = sensors.mosaic(np.broadcast_to([0.3, 0.08, 0.02], (64, 96, 3)), sensors.cfa_pattern(pattern))
+    counts, k = hot_pixels.count_ones([frames_from_p(p, 200, 0), frames_from_p(p, 200, 1)])
+    hot, rec = hot_pixels.detect_hot_pixels(counts, k, pattern and sensors.cfa_pattern(pattern))
+    assert k == 400 and rec["count"] == 0 and not hot.any()
+
+
+@pytest.mark.parametrize("pattern", [None, "RGGB"])
+def test_planted_hot_pixels_are_found_on_a_textured_scene(pattern):
+    h, w = 64, 96
+    yy, xx = np.mgrid[0:h, 0:w]
+    texture = 0.15 + 0.1 * np.sin(xx / 5.0) * np.cos(yy / 7.0) + 0.1 * (xx / w)  # smooth, in [0, 0.35]
+    rgb = np.stack([texture, 0.5 * texture, 0.2 + 0 * texture], -1)
+    cfa = sensors.cfa_pattern(pattern) if pattern else sensors.cfa_pattern("mono")
+    params = spc.SPCParams(exposure_s=1e-4, dark_count_rate=0)
+    p = spc.detection_probability(sensors.mosaic(rgb, cfa) * 1e4, params)
+    planted = plant((h, w), 30, 5)
+    views = [frames_from_p(with_hot(np.roll(p, 3 * v, axis=1), planted), 100, v) for v in range(4)]
+    counts, k = hot_pixels.count_ones(views)  # the scene moves between views, the hot pixels do not
+    hot, rec = hot_pixels.detect_hot_pixels(counts, k, sensors.cfa_pattern(pattern) if pattern else None)
+    assert (hot & planted).sum() == 30 and (hot & ~planted).sum() == 0
+    assert rec["count"] == 30 and {tuple(x) for x in rec["positions"]} == {tuple(x) for x in np.argwhere(planted)}
+    assert min(rec["rates"]) > max(rec["neighbour_rates"]) and min(rec["z"]) > rec["threshold"]
+
+
+@pytest.mark.parametrize("name", ["mono", "RGGB"])
+def test_planted_hot_pixels_on_a_rendered_scene_summed_over_views(name):
+    """Sharp texture (the built-in courtyard): four views of 100 frames, summed."""
+    scene = render_scene("courtyard", 72, 96, 4, 1, 0)
+    cfa, params = sensors.cfa_pattern(name), spc.SPCParams()
+    planted = plant((72, 96), 25, 0)
+    clean, cubes = [], []
+    for v, srgb in enumerate(scene.images):
+        p = spc.detection_probability(sensors.mosaic(spc.flux_from_srgb(srgb, 1.5e4), cfa), params)
+        u = np.random.default_rng(v).random((100,) + p.shape)
+        clean.append(u < p)
+        cubes.append(u < with_hot(p, planted))
+    pattern = None if name == "mono" else cfa
+    assert not hot_pixels.detect_hot_pixels(*hot_pixels.count_ones(clean), pattern)[0].any()
+    assert np.array_equal(hot_pixels.detect_hot_pixels(*hot_pixels.count_ones(cubes), pattern)[0], planted)
+
+
+def test_hot_pixels_in_the_dark_are_found():
+    """At ~0.5 counts per pixel a log-rate z-score has no usable spread; the stabilised one has."""
+    planted = plant((40, 40), 10, 7)
+    counts, k = hot_pixels.count_ones([frames_from_p(with_hot(np.full((40, 40), 0.002), planted, 0.3), 250, 3)])
+    hot, rec = hot_pixels.detect_hot_pixels(counts, k)
+    assert np.array_equal(hot, planted)
+
+
+def test_hot_pixel_inputs_and_maps(tmp_path):
+    with pytest.raises(ValueError, match=r"counts span \[0, 9\]; ones among 5 frames"):
+        hot_pixels.detect_hot_pixels(np.arange(10).reshape(2, 5), 5)
+    with pytest.raises(ValueError, match="window=4"):
+        hot_pixels.detect_hot_pixels(np.zeros((4, 4), int), 5, window=4)
+    hot = plant((6, 7), 4, 0)
+    for name in ("hot.png", "hot.npy"):
+        hot_pixels.write_hot_pixel_map(tmp_path / name, hot)
+        assert np.array_equal(hot_pixels.read_hot_pixel_map(tmp_path / name, (6, 7)), hot)
+    with pytest.raises(ValueError, match=r"hot.png: 7x6 \(WxH\) but the sensor is 8x6"):
+        hot_pixels.read_hot_pixel_map(tmp_path / "hot.png", (6, 8))
+
+
+# --------------------------------------------------------------------------------------------
+# export of a simulated scene -> capture folder -> read_capture
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sim")
+    write_builtin_scene("courtyard", root / "scene", height=24, width=30, views=3, supersample=1, seed=0)
+    params = spc.SPCParams(frames=24)
+    simulate_scene(root / "scene", root / "spc", params, target_detection=0.3, seed=4)
+    return root
+
+
+@pytest.mark.parametrize("fmt", photon_cubes.FORMATS)
+def test_export_then_read_capture_round_trips(simulated, tmp_path, fmt):
+    out = tmp_path / "cap"
+    bitorder = "little" if fmt == "npy" else "big"
+    rec = captures.export_simulated(simulated / "spc", out, "GRBG", fmt, bitorder, scene_dir=simulated / "scene")
+    assert rec["width"] == 30 and rec["height"] == 24 and rec["frames"] == 24 and rec["cfa"] == "GRBG"
+    names, cubes, sensor = captures.read_capture(out)
+    assert names == ["image000", "image001", "image002"] and sensor.format == fmt and sensor.bitorder == bitorder
+    spc_rec = io.read_json(simulated / "spc" / "spc.json")
+    assert sensor.params == spc.SPCParams(**{**spc_rec["params"], "mode": "bernoulli"})
+    for name, cube in zip(names, cubes):
+        frames = spc.unpack_frames(*io.load_frames(simulated / "spc" / "frames" / f"{name}.npz"))
+        assert np.array_equal(cube, sensors.mosaic_frames(frames, sensor.cfa))  # the simulated bits, exactly
+    refs = captures.reference_images(out, names)
+    assert refs.shape == (3, 24, 30, 3) and (out / "poses_bounds.npy").is_file()
+    assert captures.read_capture(out, max_frames=5)[2].params.frames == 5
+
+
+def test_exported_rgbw_and_mono_draw_white_pixels_afresh(simulated, tmp_path):
+    with pytest.raises(ValueError, match="give scene_dir"):
+        captures.export_simulated(simulated / "spc", tmp_path / "x", "RGBW")
+    assert not (tmp_path / "x").exists()
+    captures.export_simulated(simulated / "spc", tmp_path / "rgbw", "RGBW", "npz", scene_dir=simulated / "scene")
+    names, cubes, sensor = captures.read_capture(tmp_path / "rgbw")
+    frames = spc.unpack_frames(*io.load_frames(simulated / "spc" / "frames" / f"{names[0]}.npz"))
+    bits, single = sensors.channel_bits(frames, sensor.cfa)
+    assert np.array_equal(cubes[0][:, single], bits[:, single]) and sensor.cfa.name == "RGBW"
+    w_rate, rgb_rate = cubes[0][:, ~single].mean(), cubes[0][:, single].mean()
+    assert w_rate > rgb_rate  # W pixels collect the sum of the channels
+    captures.export_simulated(simulated / "spc", tmp_path / "mono", "mono", "png", scene_dir=simulated / "scene")
+    assert captures.read_capture(tmp_path / "mono")[2].cfa.name == "mono"
+
+
+def test_captured_route_recovers_the_views_like_the_simulated_one(simulated, tmp_path):
+    captures.export_simulated(simulated / "spc", tmp_path / "cap", "RGGB", "npy.gz", scene_dir=simulated / "scene")
+    names, cubes, sensor = captures.read_capture(tmp_path / "cap")
+    scale = io.read_json(simulated / "spc" / "spc.json")["flux_scale"]
+    gt = captures.reference_images(tmp_path / "cap", names)
+    for i, cube in enumerate(cubes):
+        rgb = sensors.mle_rgb(cube.sum(0), len(cube), sensor.params, sensor.cfa) / scale
+        simulated_bits = spc.unpack_frames(*io.load_frames(simulated / "spc" / "frames" / f"{names[i]}.npz"))
+        full = spc.mle_srgb(simulated_bits.sum(0), 24, scale, sensor.params)  # all three channels per pixel
+        # a third of the measurements, interpolated: about as good at K = 24 (measured: +0.1 dB)
+        assert psnr(spc.linear_to_srgb(np.clip(rgb, 0, 1)), gt[i]) > psnr(full, gt[i]) - 2
+
+
+def test_bad_captures_name_the_file_and_key(simulated, tmp_path):
+    captures.export_simulated(simulated / "spc", tmp_path / "cap", "RGGB", "npy")
+    sensor_json = tmp_path / "cap" / "sensor.json"
+    rec = io.read_json(sensor_json)
+    io.write_json(sensor_json, {k: v for k, v in rec.items() if k != "q"})
+    with pytest.raises(ValueError, match=r"sensor.json: missing keys \['q'\]"):
+        captures.read_capture(tmp_path / "cap")
+    io.write_json(sensor_json, {**rec, "q": 2.0})
+    with pytest.raises(ValueError, match=r"sensor.json: q=2.0: quantum efficiency"):
+        captures.read_capture(tmp_path / "cap")
+    io.write_json(sensor_json, {**rec, "frames": 99})
+    with pytest.raises(ValueError, match=r"image000.npy: 24 frames of 30x24 .*sensor.json says 99 frames"):
+        captures.read_capture(tmp_path / "cap")
+    io.write_json(sensor_json, {**rec, "width": 40})
+    with pytest.raises(ValueError, match=r"image000.npy: width=40 does not fit rows of 4 bytes"):
+        captures.read_capture(tmp_path / "cap")
+    io.write_json(sensor_json, {**rec, "format": "png"})
+    with pytest.raises(FileNotFoundError, match=r"frames: no views in format 'png'"):
+        captures.read_capture(tmp_path / "cap")
+    io.write_json(sensor_json, {**rec, "cfa": "cfa.png"})
+    with pytest.raises(FileNotFoundError, match=r"cfa names cfa.png, which is not in"):
+        captures.read_capture(tmp_path / "cap")
