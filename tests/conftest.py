@@ -75,6 +75,9 @@ class InterruptAt:
             raise Interrupted(f"interrupted at iteration {it}")
         return self.trainer.step(it)
 
+    def should_stop(self):
+        return bool(getattr(self.trainer, "should_stop", lambda: False)())
+
     def state(self):
         return self.trainer.state()
 

@@ -102,7 +102,10 @@ CASES = [
     Case("more-frames-than-simulated", r"stage1\.frames = 8: more than the spc\.frames = 4",
          {"stage1": {"frames": 8}}),
     Case("no-training-pairs", r"augment\.count = 0: the translators .* need at least one augmented pair",
-         {"augment": {"count": 0}}),
+         {"augment": {"count": 0}, "stage1": {"data": "fixed"}}),
+    Case("stage1-data-mode", r"stage1\.data = 'onlin': use one of \['fixed', 'online'\]", {"stage1": {"data": "onlin"}}),
+    Case("validation-typo", r"stage1\.diffusion\.validation: unknown setting\(s\) \['evry'\]; did you mean 'every'",
+         {"stage1": {"diffusion": {"validation": {"evry": 50}}}}),
     Case("stage1-without-train-scenes", r"scenes\.train is empty", {"scenes": {"train": []}}),
     # --- files the config names --------------------------------------------------------------------
     Case("missing-pretrained-weights", r"stage1\.restormer\.checkpoint: .*/missing\.pth does not exist",

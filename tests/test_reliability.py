@@ -11,7 +11,7 @@ Then the same command (after `snakemake --unlock` where Snakemake itself was kil
 training from its last checkpoint, at a checkpoint boundary, and the scores equal those of an
 uninterrupted run with the same seed on one thread (--cores 1) bit for bit; nothing temporary
 (``*.tmp``) and no checkpoint lock is left under results/. The upstream outputs (scenes, SPC data,
-pairs, LPIPS weights) are built once per test session and copied. Also: a kill while the SPC data
+LPIPS weights) are built once per test session and copied. Also: a kill while the SPC data
 is written, and same-seed determinism of stage 2 in-process.
 """
 import contextlib
@@ -45,7 +45,9 @@ TRADEOFF_TABLE = "iters\tres\n100\t64\n"
 # Smoke preset plus trainings of ~2 s each (long enough to kill one after its first checkpoint).
 KILL_CONFIG = {
     "checkpoints": {"fraction": FRACTION, "minutes": 0},
-    "stage1": {"pix2pix": {"train": {"iterations": 200}}, "restormer": {"train": {"iterations": 60}},
+    # online samples (their RNG resumed) and validation (its state resumed), never stopped early
+    "stage1": {"data": "online", "validation": {"every": 10, "patience": 0},
+               "pix2pix": {"train": {"iterations": 200}}, "restormer": {"train": {"iterations": 60}},
                "diffusion": {"train": {"iterations": 100}}},
     "stage2": {"combinations": ["gt+3dgs", "gt+nerf", "gt+nerf-grid"], "nerf_variant": "nerf",
                "3dgs": {"iterations": 100, "densify_from": 10, "densify_until": 80, "densify_every": 10,
@@ -56,7 +58,7 @@ KILL_CONFIG = {
     "tradeoff": {"combinations": ["gt+3dgs"]},
 }
 UPSTREAM = ["results/cache/lpips/lpips_v0.1_alex.npz", "results/cache/lpips/lpips_v0.1_vgg.npz",
-            "results/spc/courtyard", "results/augment/tabletop"]
+            "results/spc/courtyard", "results/spc/tabletop"]
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,8 @@ resolve_paths(config, workflow.basedir)
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
 from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, display_budgets, llff_input_files, resolve_combinations,
-                            scene_specs, source_frames, split_source, stage1_sources, translator_settings)
+                            scene_specs, source_frames, split_source, stage1_sources, translator_settings,
+                            translator_validation)
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -170,6 +171,28 @@ def get_translator_pretrained(wildcards):
     """Published weights the method starts from (an input: replacing the file retrains it); none by default."""
     path = get_translator_settings(wildcards).get("checkpoint")
     return [path] if path else []
+
+
+def get_translator_data(wildcards):
+    """The training data of a translator: the augmented pairs (stage1.data: fixed) and, for online
+    samples or validation (on their held-out views), the training scenes and their SPC folders."""
+    stage1, inputs = config["stage1"], {}
+    if stage1["data"] == "fixed":
+        inputs["pairs"] = expand("results/augment/{scene}{rep}", scene=TRAIN_SCENES, rep=wildcards.rep)
+    if stage1["data"] == "online" or get_translator_validation(wildcards)["every"] > 0:
+        inputs["scenes"] = expand("results/scenes/{scene}", scene=TRAIN_SCENES)
+        inputs["spc"] = expand("results/spc/{scene}{rep}", scene=TRAIN_SCENES, rep=wildcards.rep)
+    return inputs
+
+
+def get_translator_validation(wildcards):
+    """stage1.validation, overridden by the method's own 'validation' block."""
+    return translator_validation(config["stage1"], wildcards.method)
+
+
+def get_augment_ranges(wildcards):
+    """The augmentation ranges online samples draw from (the augment block without its count)."""
+    return {k: v for k, v in config["augment"].items() if k != "count"}
 
 
 def get_translator_checkpoint(wildcards):

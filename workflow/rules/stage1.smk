@@ -1,11 +1,12 @@
-# Stage 1: train the translators on the augmented pairs, apply them to the evaluation scenes,
+# Stage 1: train the translators on the training scenes, apply them to the evaluation scenes,
 # and score their images (and the training-free MLE / binary images) before any 3D.
 
 
 rule train_translator:
-    """Train one stage-1 method on the augmented (binary, RGB) pairs of every training scene."""
+    """Train one stage-1 method on the training scenes (fixed pairs or online samples), validated
+    on their held-out views."""
     input:
-        pairs=expand("results/augment/{scene}{{rep}}", scene=TRAIN_SCENES),
+        unpack(get_translator_data),
         vgg=LPIPS_WEIGHTS["vgg"],
         pretrained=get_translator_pretrained,
     output:
@@ -20,6 +21,9 @@ rule train_translator:
         settings=get_translator_settings,
         train=get_translator_train,
         frames=config["stage1"]["frames"],
+        data=config["stage1"]["data"],
+        augment=get_augment_ranges,
+        validation=get_translator_validation,
         seed=get_seed,
         checkpoint=get_translator_checkpoint,
         policy=config["checkpoints"],

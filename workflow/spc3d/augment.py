@@ -1,13 +1,15 @@
 """LLFF-style augmentation of training views (the paper's zoom, rotation, shear and flip).
 
-Each sample picks a view of a training scene and one random affine map about the image centre,
+Each sample picks a training view of a training scene (not one of its held-out views, every 8th:
+they validate stage 1) and one random affine map about the image centre,
 
     A = C · Flip · Rot(θ) · Shear(γ) · Zoom(s) · C⁻¹,   s log-uniform, θ, γ uniform, flip with p,
 
 warped in linear light (so edges blend as light does) with reflected borders (no black corners
 that a translator would learn), saved as 8-bit sRGB. The SPC frames of the pair are simulated
 from exactly that saved image with the scene's flux scale, so pairs are pixel-aligned and at the
-scene's photon level. Everything is deterministic by (seed, scene, sample index).
+scene's photon level. Everything is deterministic by (seed, scene, sample index). The same maps
+(:func:`sample_params`, :func:`warp_linear`) draw stage 1's online batches (:mod:`spc3d.translate.online`).
 
 Output (``results/augment/{scene}/``): ``rgb/{i:05d}.png``, ``frames/{i:05d}.npz`` (K packed
 frames), ``binary/{i:05d}.png`` (frame 0) and ``augment.json`` (every sample's parameters).
@@ -26,6 +28,7 @@ from skimage.transform import AffineTransform, warp
 from tqdm import tqdm
 
 from . import io, llff, spc
+from .cameras import split_views
 from .simulate import params_from_record, read_spc_record
 
 log = logging.getLogger(__name__)
@@ -73,11 +76,25 @@ def affine_matrix(p: dict, height: int, width: int) -> np.ndarray:
     return c @ flip @ core @ c_inv
 
 
+def warp_linear(linear: np.ndarray, p: dict, window: tuple[int, int, int, int] | None = None) -> np.ndarray:
+    """Warp a linear-light (H, W, C) image by the parameters ``p`` (bilinear, reflected borders).
+
+    ``window = (y, x, h, w)`` computes only that window of the warped image (the same pixels as
+    cropping the full result: the map and the borders stay those of the whole image), float64.
+    """
+    height, width = linear.shape[:2]
+    inverse = AffineTransform(matrix=affine_matrix(p, height, width)).inverse
+    shape = None
+    if window is not None:
+        y, x, h, w = window
+        inverse = AffineTransform(matrix=inverse.params @ np.array([[1.0, 0, x], [0, 1.0, y], [0, 0, 1.0]]))
+        shape = (h, w)
+    return warp(linear, inverse, output_shape=shape, order=1, mode="reflect", preserve_range=True)
+
+
 def augment_image(srgb: np.ndarray, p: dict) -> np.ndarray:
     """Warp an sRGB (H, W, 3) image by the parameters ``p`` (in linear light, reflected borders)."""
-    h, w = srgb.shape[:2]
-    tform = AffineTransform(matrix=affine_matrix(p, h, w))
-    lin = warp(spc.srgb_to_linear(srgb), tform.inverse, order=1, mode="reflect", preserve_range=True)
+    lin = warp_linear(spc.srgb_to_linear(srgb), p)
     return spc.linear_to_srgb(np.clip(lin, 0.0, 1.0)).astype(np.float32)
 
 
@@ -93,11 +110,12 @@ def augment_scene(scene_dir: str | os.PathLike, spc_dir: str | os.PathLike, out_
     scene, name = llff.read_scene(scene_dir), Path(scene_dir).name
     spc_record = read_spc_record(spc_dir)
     params, flux_scale = params_from_record(spc_record), spc_record["flux_scale"]
+    views, _ = split_views(len(scene.names))  # the held-out views validate stage 1 (translate.validate)
     samples = []
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for i in tqdm(range(count), desc=f"augment {name}", unit="pair"):
             rng = spc.view_rng(seed, f"{name}/augment", i)
-            view = int(rng.integers(len(scene.names)))
+            view = int(views[rng.integers(len(views))])
             p = sample_params(rng, settings)
             samples.append(write_pair(tmp, i, scene.images[view], p, flux_scale, params,
                                       spc.view_rng(seed, f"{name}/augment-spc", i)) | {"view": scene.names[view]})

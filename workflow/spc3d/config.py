@@ -136,14 +136,18 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     published weights, input paths and the values that constrain each other, so that a wrong key
     or value is reported at parse time."""
     from .reconstruct import CONFIGS
-    from .translate.train import check_pretrained, model_config, train_settings
-    from .workflow import translator_settings
+    from .translate.train import check_pretrained, data_mode, model_config, train_settings
+    from .translate.validate import validation_settings
+    from .workflow import translator_settings, translator_validation
 
     try:
+        if methods:
+            data_mode(config["stage1"]["data"])
         for method in methods:
             settings, train = translator_settings(config["stage1"], method)
             model_config(method, settings)
             train_settings(train, method, pretrained=settings.get("checkpoint"))
+            validation_settings(translator_validation(config["stage1"], method), f"stage1.{method}.validation")
             if settings.get("checkpoint"):
                 check_file(settings["checkpoint"], f"stage1.{method}.checkpoint", "published weights to start from")
                 check_pretrained(method, settings)
@@ -180,7 +184,7 @@ def check_consistency(config: dict, methods: list[str], combinations: list[str] 
         raise ConfigError(f"stage-1 methods {methods} are combined (stage2.combinations) but scenes.train is empty: "
                           f"list the scenes their training pairs come from")
     count = config["augment"]["count"]
-    if methods and count < len(train):
+    if methods and config["stage1"]["data"] == "fixed" and count < len(train):
         raise ConfigError(f"augment.count = {count}: the translators {methods} need at least one augmented pair "
                           f"per training scene (>= {len(train)} for scenes.train = {train})")
     source = config["metrics"]["lpips_source"]

@@ -12,6 +12,8 @@ family) offers
     step(it) -> dict[str, float]     one optimisation step (``it`` is 1-based); the values are shown
     state() -> dict / load(state)    everything needed to continue bit for bit (no pickled objects:
                                      tensors, numbers, strings, lists and dicts only)
+    should_stop() -> bool            optional: True after a step ends the training early (e.g.
+                                     validation stopped improving); a checkpoint is written then
 
 :func:`run` drives it: a tqdm bar, a checkpoint every ``CheckpointPolicy.fraction`` of the run or
 every ``minutes`` of training, whichever comes first (and at the end), and on restart a resume from
@@ -451,12 +453,15 @@ def _is_snakemake(argv: list[str]) -> bool:
 def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
         policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "train", log_every: int = 50,
         postfix=None) -> dict:
-    """Train to ``iterations`` (resuming from ``checkpoint`` when it belongs to this job).
+    """Train to ``iterations`` (resuming from ``checkpoint`` when it belongs to this job), or until
+    the trainer's optional ``should_stop()`` says so after a step (early stopping).
 
     ``postfix(stats) -> dict`` adds values to the progress bar every ``log_every`` steps. The
     checkpoint is locked while it trains (:class:`CheckpointInUse` if another training holds it),
-    and under Snakemake it stops with :class:`Orphaned` once that Snakemake is gone. Returns
-    iterations, resume point, training seconds, the last step's values and the checkpoint record.
+    and under Snakemake it stops with :class:`Orphaned` once that Snakemake is gone. A stop is
+    checkpointed at once, and a trainer resumed from that checkpoint stops without a step. Returns
+    iterations, steps done, whether it stopped early, resume point, training seconds, the last
+    step's values and the checkpoint record.
     """
     if iterations < 1:
         raise ValueError(f"{desc}: iterations must be >= 1 (got {iterations}); an untrained model is not a result")
@@ -464,20 +469,31 @@ def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
     with CheckpointLock(checkpoint.path) if checkpoint else contextlib.nullcontext():
         start, elapsed = checkpoint.resume(trainer) if checkpoint else (0, 0.0)
         every, t0 = policy.every(iterations), time.perf_counter() - elapsed
-        last_save, stats = time.perf_counter(), {}
-        bar = tqdm(range(start + 1, iterations + 1), desc=desc, initial=start, total=iterations, mininterval=2.0)
+        last_save, stats, done = time.perf_counter(), {}, start
+        stopped = _wants_stop(trainer)  # resumed from the checkpoint of an early stop
+        steps = range(start + 1, iterations + 1) if not stopped else range(0)
+        bar = tqdm(steps, desc=desc, initial=start, total=iterations, mininterval=2.0)
         for it in bar:
             if watch:
                 watch.check()
-            stats = trainer.step(it)
+            stats, done = trainer.step(it), it
+            stopped = _wants_stop(trainer)
             if it % log_every == 0:
                 bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items()} | (postfix(stats) if postfix else {}))
-            due = it == iterations or (every and it % every == 0) or \
+            due = it == iterations or stopped or (every and it % every == 0) or \
                 (policy.minutes > 0 and time.perf_counter() - last_save >= 60.0 * policy.minutes)
             if checkpoint and due:
                 if watch:
                     watch.check(now=True)  # never write for a Snakemake that is gone
                 checkpoint.save(it, trainer, time.perf_counter() - t0)
                 last_save = time.perf_counter()
-    return {"iterations": iterations, "resumed_from": start, "train_s": time.perf_counter() - t0,
-            "final": stats, "checkpoint": checkpoint.record if checkpoint else None}
+            if stopped:
+                break
+    return {"iterations": iterations, "steps": done, "stopped_early": stopped, "resumed_from": start,
+            "train_s": time.perf_counter() - t0, "final": stats, "checkpoint": checkpoint.record if checkpoint else None}
+
+
+def _wants_stop(trainer) -> bool:
+    """The trainer's own early-stopping verdict (trainers without ``should_stop`` never stop early)."""
+    should_stop = getattr(trainer, "should_stop", None)
+    return bool(should_stop()) if should_stop is not None else False

@@ -158,7 +158,14 @@ def display_budgets(combinations: list[str], stage2_frames: int) -> list[int]:
 
 
 def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:
-    """(model overrides, training settings) of ``method``: its ``train`` block overrides stage1.train."""
+    """(model overrides, training settings) of ``method``: its ``train`` block overrides stage1.train
+    (its ``validation`` block is :func:`translator_validation`'s)."""
     settings = dict(stage1.get(method) or {})
     train = {**stage1.get("train", {}), **settings.pop("train", {})}
+    settings.pop("validation", None)
     return settings, train
+
+
+def translator_validation(stage1: dict, method: str) -> dict:
+    """stage1.validation, overridden by the method's own ``validation`` block."""
+    return {**stage1.get("validation", {}), **(stage1.get(method) or {}).get("validation", {})}

@@ -1,4 +1,5 @@
-"""Stage-1 training data: the augmented (binary, RGB) pairs of the training scenes, in memory.
+"""Stage-1 training data of ``stage1.data: fixed``: the augmented (binary, RGB) pairs of the
+training scenes, in memory (``online``: fresh samples instead, :mod:`.online`).
 
 A pair is ``results/augment/{scene}/frames/{i}.npz`` (K packed binary frames) and
 ``rgb/{i}.png`` (the 8-bit sRGB image the frames were simulated from, so the two are
@@ -45,12 +46,12 @@ def load_pairs(augment_dirs: list[str | os.PathLike], frames: int) -> tuple[list
             r = io.read_rgb(folder / "rgb" / f"{name}.png")
             if b.shape != r.shape:
                 raise ValueError(f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; rerun the augment rule")
-            binary.append(_chw(b))
-            rgb.append(_chw(r))
+            binary.append(chw(b))
+            rgb.append(chw(r))
     return binary, rgb
 
 
-def _chw(image: np.ndarray) -> Tensor:
+def chw(image: np.ndarray) -> Tensor:
     """(H, W, 3) array -> (3, H, W) tensor."""
     return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).contiguous()
 
@@ -68,6 +69,8 @@ class PairSampler:
         self.batch, self.crop, self.paired = batch_size, crop, paired
         self.pairs = [torch.cat(p, dim=0) for p in zip(self.binary, self.rgb)] if paired else None  # (6, H, W): one crop
         self.gen = torch.Generator().manual_seed(seed)
+        self.seen = torch.zeros(len(self.binary), dtype=torch.bool)  # pairs drawn at least once
+        self.drawn = 0  # samples drawn so far
 
     def _crops(self, images: list[Tensor], idx: Tensor) -> Tensor:
         """(B, C, crop, crop): a uniformly placed window of each chosen image."""
@@ -82,6 +85,7 @@ class PairSampler:
     def _draw(self) -> tuple[Tensor, Tensor]:
         """Crops of the same pixels (paired) or of independent samples (unpaired)."""
         idx = torch.randint(0, len(self.binary), (self.batch,), generator=self.gen)
+        self.seen[idx] = True
         if not self.paired:
             other = torch.randint(0, len(self.rgb), (self.batch,), generator=self.gen)
             return self._crops(self.binary, idx), self._crops(self.rgb, other)
@@ -89,10 +93,17 @@ class PairSampler:
         return crops[:, :3], crops[:, 3:]
 
     def __call__(self) -> tuple[Tensor, Tensor]:
+        self.drawn += self.batch
         return self._draw()
 
-    def state(self) -> Tensor:
-        return self.gen.get_state()
+    def describe(self) -> dict:
+        """For train.json: the mode, the samples drawn and how many distinct pairs they came from."""
+        return {"mode": "fixed", "pairs": len(self.binary), "samples": self.drawn,
+                "distinct_samples": int(self.seen.sum())}
 
-    def load(self, state: Tensor) -> None:
-        self.gen.set_state(state)
+    def state(self) -> dict:
+        return {"gen": self.gen.get_state(), "seen": self.seen.clone(), "drawn": self.drawn}
+
+    def load(self, state: dict) -> None:
+        self.gen.set_state(state["gen"])
+        self.seen, self.drawn = state["seen"].clone(), int(state["drawn"])

@@ -1,20 +1,27 @@
-"""Training a stage-1 model: the loop, linear learning-rate decay, checkpoints, record and curve.
+"""Training a stage-1 model: the loop, linear learning-rate decay, validation, checkpoints, record and curve.
 
-``train_translator`` is the entry point of the workflow's ``train_translator`` rule. It writes
-(``results/models/{method}/``, atomically):
+``train_translator`` is the entry point of the workflow's ``train_translator`` rule. It trains on
+``stage1.data``: ``fixed`` cycles over the augmented pairs (:mod:`.data`), ``online`` draws every
+batch fresh from the training scenes (:mod:`.online`); with ``stage1.validation`` it validates on
+the training scenes' held-out views, keeps the best model and stops early (:mod:`.validate`). It
+writes (``results/models/{method}/``, atomically):
 
-    model.pt      the trained networks (every module's state) + method name + resolved Config
-    train.json    seed, resolved model and training settings, wall time, parameter counts,
-                  peak memory, final losses, resume point
-    curve.csv     the losses every ``log_every`` iterations
+    model.pt      the kept networks (every module's state: the best validated step, else the last)
+                  + method name + resolved Config
+    train.json    seed, resolved model, training and validation settings, the data (mode, samples
+                  drawn, distinct samples), the validation curve, best step, stop step and reason
+                  (``patience`` / ``budget``), wall time, parameter counts, peak memory, final
+                  losses, resume point
+    curve.csv     the losses every ``log_every`` iterations and the validation PSNR / L1
     curve.png     the training curve (a figure a person would rather look at than the csv)
 
 The schedule follows pix2pix/pix2pixHD (constant lr for the first half, then linear decay to 0:
-their "100 + 100 epochs"), expressed in iterations. The checkpoint (optimiser states and the
-sampler's RNG included) lives outside the output folder so a killed job resumes when rerun; it is
-resumed only when its fingerprint (method, resolved settings, seed, frames, digests of the pairs,
-of published weights and of the perceptual-loss network, code) is the job's own
-(:mod:`spc3d.training`), otherwise discarded with the reason logged.
+their "100 + 100 epochs"), expressed in iterations. The checkpoint (optimiser states, the
+sampler's RNG and the validation state included) lives outside the output folder so a killed job
+resumes when rerun; it is resumed only when its fingerprint (method, resolved settings, seed,
+frames, data mode, digests of the pairs or scene and SPC folders, of published weights and of the
+perceptual-loss network, code) is the job's own (:mod:`spc3d.training`), otherwise discarded with
+the reason logged.
 """
 
 from __future__ import annotations
@@ -29,10 +36,13 @@ import pandas as pd
 import torch
 
 from .. import io
+from ..augment import AugmentSettings
 from ..training import (Checkpoint, CheckpointPolicy, build_config, default_device, digest_arrays, digest_path,
                         fingerprint, peak_rss_mb, run, seed_everything)
 from . import TRANSLATORS
 from .data import PairSampler, load_pairs
+from .online import OnlineSampler, load_sources
+from .validate import Validator, load_views, validation_settings
 
 log = logging.getLogger(__name__)
 
@@ -100,14 +110,17 @@ def build_translator(method: str, cfg, device: torch.device, vgg_weights: dict |
 
 
 class TranslatorTrainer:
-    """A translator and its pair sampler as a trainer for :func:`spc3d.training.run`.
+    """A translator and its sampler (fixed pairs or online samples) as a trainer for
+    :func:`spc3d.training.run`.
 
     Each step sets the learning-rate scale, draws a batch and optimises; every ``log_every``
-    steps (and at the last) the losses join ``curve``, which the checkpoint carries.
+    steps (and at the last) the losses join ``curve``, which the checkpoint carries. With a
+    ``validator`` it validates when due (:mod:`.validate`) and asks the loop to stop once
+    validation has not improved for the configured patience.
     """
 
-    def __init__(self, model, sampler: PairSampler, s: TrainSettings):
-        self.model, self.sampler, self.s, self.curve = model, sampler, s, []
+    def __init__(self, model, sampler, s: TrainSettings, validator: Validator | None = None):
+        self.model, self.sampler, self.s, self.validator, self.curve = model, sampler, s, validator, []
 
     def step(self, it: int) -> dict[str, float]:
         self.model.train(True)
@@ -116,27 +129,108 @@ class TranslatorTrainer:
         losses = self.model.train_step(binary, rgb)
         if it % self.s.log_every == 0 or it == self.s.iterations:
             self.curve.append({"iteration": it, **losses})
+        if self.validator and self.validator.due(it):
+            scores = self.validator.update(it, self.model)
+            if self.should_stop() and self.curve[-1]["iteration"] != it:
+                self.curve.append({"iteration": it, **losses})  # the loss curve ends where training stopped
+            return losses | scores
         return losses
 
+    def should_stop(self) -> bool:
+        """Validation has not improved for ``patience`` validations (never without a validator)."""
+        return self.validator is not None and self.validator.should_stop()
+
     def state(self) -> dict:
-        return {"model": self.model.state(), "sampler": self.sampler.state(), "curve": self.curve}
+        return {"model": self.model.state(), "sampler": self.sampler.state(), "curve": self.curve,
+                "validation": self.validator.state() if self.validator else None}
 
     def load(self, state: dict) -> None:
         self.model.load(state["model"])
         self.sampler.load(state["sampler"])
         self.curve = list(state["curve"])
+        if self.validator:
+            self.validator.load(state["validation"])
 
 
-def fit(model, sampler: PairSampler, s: TrainSettings, checkpoint: Checkpoint | None = None,
-        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "stage1") -> dict:
-    """Run the optimisation to ``s.iterations``; returns timing, curve and final losses."""
-    trainer = TranslatorTrainer(model, sampler, s)
+def fit(model, sampler, s: TrainSettings, checkpoint: Checkpoint | None = None,
+        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "stage1", validator: Validator | None = None) -> dict:
+    """Run the optimisation to ``s.iterations`` (or an early stop); returns timing, curve, final losses,
+    the step it stopped at and why (``patience`` / ``budget``)."""
+    trainer = TranslatorTrainer(model, sampler, s, validator)
     if s.iterations == 0:  # published weights used as they are (setup_training allows nothing else)
+        if validator:
+            validator.update(0, model)  # their score on the held-out views, for the record
         return {"iterations": 0, "resumed_from": 0, "train_s": 0.0, "checkpoint": None, "final_losses": {},
-                "curve": []}
+                "curve": [], "stopped": {"step": 0, "reason": "budget"}}
     result = run(trainer, s.iterations, checkpoint, policy, desc=desc, log_every=s.log_every)
-    return {**{k: v for k, v in result.items() if k != "final"}, "final_losses": result["final"],
-            "curve": trainer.curve}
+    stopped = {"step": result["steps"], "reason": "patience" if result["stopped_early"] else "budget"}
+    final = {k: v for k, v in trainer.curve[-1].items() if k != "iteration"}  # also when resumed at the end
+    return {**{k: v for k, v in result.items() if k not in ("final", "steps", "stopped_early")},
+            "final_losses": final, "curve": trainer.curve, "stopped": stopped}
+
+
+DATA_MODES = ("fixed", "online")
+
+
+def data_mode(mode: str) -> str:
+    """``stage1.data``, checked."""
+    if mode not in DATA_MODES:
+        raise ValueError(f"stage1.data = {mode!r}: use one of {list(DATA_MODES)} (fixed: the augmented pairs of "
+                         f"results/augment; online: fresh augmentations and SPC photons every step)")
+    return mode
+
+
+@dataclass(frozen=True)
+class TrainingData:
+    """Where a translator's training and validation data come from (the rule's inputs)."""
+
+    mode: str = "fixed"  # stage1.data: fixed (augment_dirs) | online (fresh samples of scene_dirs + spc_dirs)
+    augment_dirs: tuple = ()  # results/augment/{scene}{rep} of the training scenes (fixed)
+    scene_dirs: tuple = ()  # results/scenes/{scene} of the training scenes (online; validation views)
+    spc_dirs: tuple = ()  # their results/spc/{scene}{rep} (online: exposure and physics; validation input)
+    augment: AugmentSettings = AugmentSettings()  # the online samples' augmentation ranges (the augment block)
+
+    def __post_init__(self):
+        data_mode(self.mode)
+        if self.mode == "fixed" and not self.augment_dirs:
+            raise ValueError("stage1.data = 'fixed' needs the augmented pairs (results/augment/{scene} folders)")
+        if len(self.scene_dirs) != len(self.spc_dirs):
+            raise ValueError(f"{len(self.scene_dirs)} training scene folder(s) but {len(self.spc_dirs)} SPC folder(s)")
+        if self.mode == "online" and not self.scene_dirs:
+            raise ValueError("stage1.data = 'online' needs the training scenes' folders and their SPC folders")
+
+    def digests(self) -> dict[str, str | None]:
+        folders = {"pairs": self.augment_dirs if self.mode == "fixed" else (), "scenes": self.scene_dirs,
+                   "spc": self.spc_dirs}
+        return {f"{k}[{i}]": digest_path(d) for k, dirs in folders.items() for i, d in enumerate(dirs)}
+
+
+def training_data(mode: str = "fixed", augment_dirs=(), scene_dirs=(), spc_dirs=(),
+                  augment: dict | None = None) -> TrainingData:
+    """TrainingData from the rule's values (``augment``: the config's augment block, ``count`` ignored)."""
+    ranges = {k: v for k, v in (augment or {}).items() if k != "count"}
+    return TrainingData(mode, tuple(map(str, augment_dirs)), tuple(map(str, scene_dirs)), tuple(map(str, spc_dirs)),
+                        build_config(AugmentSettings, ranges, "augment"))
+
+
+def make_sampler(data: TrainingData, s: TrainSettings, frames: int, seed: int, paired: bool):
+    """The fixed pairs' :class:`PairSampler` or an :class:`OnlineSampler` of the training scenes."""
+    if data.mode == "online":
+        sources = load_sources(list(data.scene_dirs), list(data.spc_dirs), frames)
+        return OnlineSampler(sources, s.batch_size, s.crop, seed, data.augment, paired=paired)
+    binary, rgb = load_pairs(list(data.augment_dirs), frames)
+    return PairSampler(binary, rgb, s.batch_size, s.crop, seed, paired=paired)
+
+
+def make_validator(data: TrainingData, validation: dict | None, frames: int, iterations: int) -> Validator | None:
+    """The validator of ``stage1.validation`` (None when ``every`` is 0 or ``validation`` None)."""
+    v = validation_settings(validation)
+    if v.every == 0:
+        return None
+    if not data.scene_dirs:
+        raise ValueError(f"stage1.validation.every = {v.every} needs the training scenes' folders and SPC folders "
+                         "(their held-out views); set stage1.validation.every: 0 to train without validation")
+    return Validator(load_views(list(data.scene_dirs), list(data.spc_dirs), frames), v, iterations)
 
 
 @dataclass
@@ -144,65 +238,88 @@ class TrainingJob:
     """Everything a stage-1 training needs, built from the rule's arguments (see :func:`setup_training`)."""
 
     model: object  # the Translator
-    sampler: PairSampler
+    sampler: PairSampler | OnlineSampler
     settings: TrainSettings
     checkpoint: Checkpoint | None
-    meta: dict  # method, seed, frames, resolved model and training settings (the fingerprint's settings)
-    pairs: int
+    meta: dict  # method, seed, frames, data, resolved model, training and validation settings (fingerprinted)
+    pairs: int | None  # fixed pairs (None online)
+    validator: Validator | None = None
 
 
 def setup_training(method: str, augment_dirs: list[str], settings: dict, train: dict, seed: int = 0,
                    frames: int = 1, checkpoint: str | os.PathLike | None = None,
-                   vgg_weights: dict | None = None, input_digests: dict | None = None) -> TrainingJob:
-    """Seed, build the model and its pair sampler, and the checkpoint with this job's fingerprint
-    (``input_digests``, when given, identifies the pairs instead of digests of their folders)."""
+                   vgg_weights: dict | None = None, input_digests: dict | None = None,
+                   data: TrainingData | None = None, validation: dict | None = None) -> TrainingJob:
+    """Seed, build the model, its sampler and validator, and the checkpoint with this job's fingerprint.
+
+    ``data`` (default: fixed pairs of ``augment_dirs``) says where samples come from; ``validation``
+    is ``stage1.validation`` (None: none); ``input_digests``, when given, identifies the inputs
+    instead of digests of their folders."""
     seed_everything(seed)
+    data = data or TrainingData("fixed", tuple(map(str, augment_dirs)))
     pretrained = settings.get("checkpoint")
     cfg, s = model_config(method, settings), train_settings(train, method, pretrained)
     model = build_translator(method, cfg, default_device(), vgg_weights)
     if pretrained:
         model.load_pretrained(pretrained)
-    binary, rgb = load_pairs(augment_dirs, frames)
-    sampler = PairSampler(binary, rgb, s.batch_size, s.crop, seed, paired=model.paired)
+    sampler = make_sampler(data, s, frames, seed, model.paired)
+    validator = make_validator(data, validation, frames, s.iterations)
     meta = {"method": method, "seed": seed, "frames": frames, "settings": dataclasses.asdict(cfg),
-            "train": dataclasses.asdict(s), "pretrained": pretrained}
-    inputs = input_digests or {f"pairs[{i}]": digest_path(d) for i, d in enumerate(augment_dirs)}
+            "train": dataclasses.asdict(s), "pretrained": pretrained, "data": data.mode,
+            "augment": dataclasses.asdict(data.augment) if data.mode == "online" else None,
+            "validation": dataclasses.asdict(validator.s) if validator else None}
+    inputs = input_digests or data.digests()
     ckpt = Checkpoint(checkpoint, fingerprint("train_translator", meta, inputs | {
         "pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)})) if checkpoint else None
-    return TrainingJob(model, sampler, s, ckpt, meta, len(binary))
+    pairs = len(sampler.binary) if isinstance(sampler, PairSampler) else None
+    return TrainingJob(model, sampler, s, ckpt, meta, pairs, validator)
 
 
 def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.PathLike, settings: dict,
                      train: dict, seed: int = 0, frames: int = 1, checkpoint: str | os.PathLike | None = None,
                      vgg_weights: dict | None = None, threads: int | None = None,
-                     policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None) -> dict:
-    """Train ``method`` on the augmented pairs of ``augment_dirs``; write ``out_dir`` (see module doc).
-    ``input_digests``: see :func:`spc3d.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
+                     policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None,
+                     data: TrainingData | None = None, validation: dict | None = None) -> dict:
+    """Train ``method`` on ``data`` (default: the augmented pairs of ``augment_dirs``), validating per
+    ``validation``; write ``out_dir`` (see module doc). ``input_digests``: see
+    :func:`spc3d.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
     if threads:
         torch.set_num_threads(threads)
-    job = setup_training(method, augment_dirs, settings, train, seed, frames, checkpoint, vgg_weights, input_digests)
-    result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method)
-    record = {**job.meta, "pairs": job.pairs, "augment_dirs": [str(d) for d in augment_dirs],
+    data = data or TrainingData("fixed", tuple(map(str, augment_dirs)))
+    job = setup_training(method, data.augment_dirs, settings, train, seed, frames, checkpoint, vgg_weights,
+                         input_digests, data, validation)
+    result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method, validator=job.validator)
+    best = job.validator.best_modules() if job.validator else None
+    record = {**job.meta, "pairs": job.pairs, "augment_dirs": list(data.augment_dirs),
+              "data": job.sampler.describe(), "validation": job.validator.record() if job.validator else None,
+              "model_step": job.validator.best["step"] if best else result["stopped"]["step"],
               "parameters": job.model.parameter_count(), "device": str(job.model.device),
               "peak_rss_mb": peak_rss_mb(), **{k: v for k, v in result.items() if k != "curve"}}
-    write_model_folder(out_dir, job.model, record, result["curve"])
+    write_model_folder(out_dir, job.model, record, result["curve"], best)
     return record
 
 
-def write_model_folder(out_dir, model, record: dict, curve: list[dict]) -> None:
+def write_model_folder(out_dir, model, record: dict, curve: list[dict], modules: dict | None = None) -> None:
+    """model.pt (``modules``: the weights to keep, e.g. the best validated; default: the model's
+    current ones), train.json, curve.csv (losses and validation by iteration) and curve.png."""
+    modules = modules or {k: m.state_dict() for k, m in model.modules().items()}
+    validation = (record.get("validation") or {}).get("curve", [])
+    frame = pd.DataFrame(curve)
+    if validation:
+        scores = pd.DataFrame(validation)
+        frame = frame.merge(scores, on="iteration", how="outer").sort_values("iteration") if curve else scores
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         tmp = Path(tmp)
         tmp.mkdir(parents=True, exist_ok=True)
-        torch.save({"method": record["method"], "config": record["settings"],
-                    "modules": {k: m.state_dict() for k, m in model.modules().items()}}, tmp / "model.pt")
+        torch.save({"method": record["method"], "config": record["settings"], "modules": modules}, tmp / "model.pt")
         io.write_json(tmp / "train.json", record)
-        frame = pd.DataFrame(curve)
         io.write_text(tmp / "curve.csv", frame.to_csv(index=False, float_format="%.6g"))
-        plot_curve(frame, tmp / "curve.png", record["method"])
+        plot_curve(frame, tmp / "curve.png", record["method"], record.get("model_step"))
 
 
-def plot_curve(frame: pd.DataFrame, path: Path, title: str) -> None:
-    """Every loss against the iteration, one panel per loss (log scale where all positive)."""
+def plot_curve(frame: pd.DataFrame, path: Path, title: str, best_step: int | None = None) -> None:
+    """Every loss and validation value against the iteration, one panel each (log scale where all
+    positive; validation values as points joined, the kept model's step dashed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -211,16 +328,24 @@ def plot_curve(frame: pd.DataFrame, path: Path, title: str) -> None:
     keys = [c for c in frame.columns if c != "iteration"]
     fig, axes = plt.subplots(1, max(len(keys), 1), figsize=(3.2 * max(len(keys), 1), 2.6), squeeze=False)
     for ax, key in zip(axes[0], keys):
-        ax.plot(frame["iteration"], frame[key], lw=1.2)
-        if (frame[key] > 0).all():
+        points = frame[["iteration", key]].dropna()
+        validation = key.startswith("val_")
+        ax.plot(points["iteration"], points[key], lw=1.2, marker="o" if validation else None, ms=2.5,
+                color="C1" if validation else "C0")
+        if (points[key] > 0).all() and not validation:
             ax.set_yscale("log")
-        ax.set_title(key, fontsize=9)
+        if validation and best_step is not None:
+            ax.axvline(best_step, color="0.4", ls="--", lw=0.8)
+        ax.set_title(VALIDATION_TITLES.get(key, key), fontsize=9)
         ax.set_xlabel("iteration", fontsize=8)
         ax.grid(alpha=0.3)
-    fig.suptitle(f"{title}: training losses", fontsize=10)
+    fig.suptitle(f"{title}: training losses" + (" and validation" if "val_psnr" in keys else ""), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+VALIDATION_TITLES = {"val_psnr": "validation PSNR (dB)", "val_l1": "validation L1"}
 
 
 def load_translator(model_dir: str | os.PathLike, device: torch.device | None = None):

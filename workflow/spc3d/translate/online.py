@@ -1,0 +1,119 @@
+"""Online stage-1 data: every batch drawn fresh from the training scenes (``stage1.data: online``).
+
+Each sample takes a random training view (not a held-out one: those validate, :mod:`.validate`)
+of a random training scene, a fresh random affine map from the augmentation's distribution
+(:func:`spc3d.augment.sample_params`, zoom / rotation / shear / flip), a random ``crop`` window of
+the warped view (only that window is warped: :func:`spc3d.augment.warp_linear`), and a fresh
+Bernoulli sample of ``frames`` 1-bit frames of exactly that window at the scene's exposure (its
+``flux_scale`` and physics from ``spc.json``), averaged as the fixed pairs' input is. The RGB
+target is the warped window in sRGB, so input and target are pixel-aligned as in a fixed pair,
+but no sample is ever seen twice.
+
+One numpy PCG64 stream, seeded by the run's seed, draws everything in a fixed order; its state
+is in :meth:`OnlineSampler.state`, so a resumed run continues the same sequence bit for bit.
+For unpaired methods (CycleGAN) the RGB crops come from independently drawn samples.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .. import llff, spc
+from ..augment import AugmentSettings, sample_params, warp_linear
+from ..cameras import split_views
+from ..simulate import params_from_record, read_spc_record
+from .data import chw
+
+
+@dataclass
+class SceneSource:
+    """What online sampling needs of one training scene."""
+
+    name: str
+    views: list[np.ndarray]  # its training views, linear light, (H, W, 3) float64
+    flux_scale: float  # photons/s at linear 1.0 (the scene's exposure, from spc.json)
+    params: spc.SPCParams  # its physics, with frames = the K frames averaged into the input
+
+
+def load_sources(scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike],
+                 frames: int) -> list[SceneSource]:
+    """The training views, exposure and physics of every training scene (paired folders in order)."""
+    if len(scene_dirs) != len(spc_dirs) or not scene_dirs:
+        raise ValueError(f"online stage-1 data needs one SPC folder per training scene folder, got "
+                         f"{len(scene_dirs)} scene(s) and {len(spc_dirs)} SPC folder(s)")
+    sources = []
+    for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
+        record = read_spc_record(spc_dir)
+        if record.get("scene") not in (None, scene_dir.name):
+            raise ValueError(f"{spc_dir}/spc.json belongs to scene {record['scene']!r}, not {scene_dir.name!r}")
+        scene = llff.read_scene(scene_dir)
+        train, _ = split_views(len(scene.names))
+        views = [spc.srgb_to_linear(scene.images[i]).astype(np.float64) for i in train]
+        physics = dataclasses.replace(params_from_record(record), frames=frames)
+        sources.append(SceneSource(scene_dir.name, views, float(record["flux_scale"]), physics))
+    return sources
+
+
+class OnlineSampler:
+    """Fresh (binary, rgb) crops of the training scenes, as :class:`.data.PairSampler` gives fixed ones."""
+
+    def __init__(self, sources: list[SceneSource], batch_size: int, crop: int, seed: int,
+                 augment: AugmentSettings = AugmentSettings(), paired: bool = True):
+        smallest = min(min(v.shape[:2]) for s in sources for v in s.views)
+        if crop > smallest:
+            raise ValueError(f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); "
+                             f"use <= {smallest}")
+        self.sources, self.batch, self.crop, self.augment, self.paired = sources, batch_size, crop, augment, paired
+        self.rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, zlib.crc32(b"stage1-online")])))
+        self.drawn = 0  # samples drawn so far (each one distinct)
+
+    def window(self) -> tuple[SceneSource, np.ndarray]:
+        """A random scene, training view, affine map and crop: (scene, linear crop (crop, crop, 3))."""
+        source = self.sources[self.rng.integers(len(self.sources))]
+        view = source.views[self.rng.integers(len(source.views))]
+        p = sample_params(self.rng, self.augment)
+        h, w = view.shape[:2]
+        y, x = (int(self.rng.integers(0, n - self.crop + 1)) for n in (h, w))
+        return source, np.clip(warp_linear(view, p, (y, x, self.crop, self.crop)), 0.0, 1.0)
+
+    def sample(self) -> tuple[SceneSource, Tensor, Tensor]:
+        """One fresh pair: its scene, the K-frame mean of a Bernoulli sample of the crop and the crop
+        in sRGB, both (3, crop, crop)."""
+        source, linear = self.window()
+        srgb = spc.linear_to_srgb(linear).astype(np.float32)
+        bits = spc.simulate_frames(srgb, source.flux_scale, source.params, self.rng)
+        self.drawn += 1
+        return source, chw(bits.mean(0, dtype=np.float32)), chw(srgb)
+
+    def __call__(self) -> tuple[Tensor, Tensor]:
+        """(B, 3, crop, crop) binary input and RGB target (from other samples when unpaired)."""
+        pairs = [self.sample() for _ in range(self.batch)]
+        binary = torch.stack([b for _, b, _ in pairs])
+        if self.paired:
+            return binary, torch.stack([r for _, _, r in pairs])
+        rgb = [chw(spc.linear_to_srgb(self.window()[1]).astype(np.float32)) for _ in range(self.batch)]
+        return binary, torch.stack(rgb)
+
+    def describe(self) -> dict:
+        """For train.json: the mode, the samples drawn (all distinct), the scenes and their views."""
+        return {"mode": "online", "samples": self.drawn, "distinct_samples": self.drawn,
+                "scenes": [s.name for s in self.sources], "training_views": sum(len(s.views) for s in self.sources),
+                "augment": dataclasses.asdict(self.augment)}
+
+    def state(self) -> dict:
+        """The generator's state (as JSON text: its 128-bit integers) and the count drawn."""
+        return {"rng": json.dumps(self.rng.bit_generator.state), "drawn": self.drawn}
+
+    def load(self, state: dict) -> None:
+        self.rng.bit_generator.state = json.loads(state["rng"])
+        self.drawn = int(state["drawn"])
+

@@ -1,0 +1,133 @@
+"""Validation while a translator trains: a held-out slice of the training scenes, the best model,
+early stopping (``stage1.validation``).
+
+The slice is the held-out views (every 8th, :func:`spc3d.cameras.split_views`) of the *training*
+scenes, never an evaluation scene. Neither the fixed pairs (:mod:`spc3d.augment` draws training
+views only) nor the online samples (:mod:`.online`, likewise) ever show them. Their input is the
+first ``frames`` stored frames of the scene's SPC folder (a seeded sample, fixed for the run),
+translated exactly as an evaluation scene is (:func:`.apply.translate_scene`).
+
+Every ``every`` steps and at the last one the model translates the slice; the mean PSNR over
+views (as stage-1 scores average) and the mean L1 error join the history. The model with the
+best PSNR so far is kept (a copy of every module's weights); after ``patience`` validations
+without a better PSNR the training stops (:func:`spc3d.training.run` asks ``should_stop``). All
+of it (history, best weights, the count since the best) is checkpoint state, so a resumed run
+stops at the same step with the same best model.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from .. import io, llff
+from ..cameras import split_views
+from ..metrics import psnr
+from ..training import build_config
+from .data import binary_input, chw
+
+
+@dataclass(frozen=True)
+class ValidationSettings:
+    """When a translator is validated and when it stops (the config's ``stage1.validation``)."""
+
+    every: int = 25  # steps between validations, plus one at the last step (0: none, the last model is kept)
+    patience: int = 4  # validations without a better PSNR before training stops (0: never stop early)
+
+    def __post_init__(self):
+        if self.every < 0 or self.patience < 0:
+            raise ValueError(f"need every >= 0 and patience >= 0, got every = {self.every}, "
+                             f"patience = {self.patience}")
+
+
+def validation_settings(values: dict | None, where: str = "stage1.validation") -> ValidationSettings:
+    """``stage1.validation`` (with a method's own block) as ValidationSettings; None: no validation."""
+    if values is None:
+        return ValidationSettings(every=0)
+    return build_config(ValidationSettings, dict(values), where)
+
+
+@dataclass
+class ValidationView:
+    name: str  # scene/view
+    binary: Tensor  # (3, H, W) K-frame mean of its stored SPC frames
+    rgb: Tensor  # (3, H, W) ground truth sRGB
+
+
+def load_views(scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike],
+               frames: int) -> list[ValidationView]:
+    """The held-out views of the training scenes with their stored binary input."""
+    views = []
+    for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
+        names = llff.read_scene(scene_dir, with_images=False).names
+        for i in split_views(len(names))[1]:
+            name = names[i]
+            views.append(ValidationView(f"{scene_dir.name}/{name}",
+                                        chw(binary_input(spc_dir / "frames" / f"{name}.npz", frames)),
+                                        chw(io.read_rgb(scene_dir / "images" / f"{name}.png"))))
+    return views
+
+
+def score(model, views: list[ValidationView]) -> dict[str, float]:
+    """Mean PSNR (dB) and L1 error of the model's translations of ``views`` (views of one size batched)."""
+    psnrs, l1s = [], []
+    for size in dict.fromkeys(tuple(v.binary.shape) for v in views):
+        group = [v for v in views if tuple(v.binary.shape) == size]
+        out = model.translate(torch.stack([v.binary for v in group]).to(model.device)).cpu()
+        for pred, v in zip(out, group):
+            psnrs.append(psnr(pred, v.rgb))
+            l1s.append(float((pred - v.rgb).abs().mean()))
+    return {"val_psnr": sum(psnrs) / len(psnrs), "val_l1": sum(l1s) / len(l1s)}
+
+
+class Validator:
+    """The validation history, the best model so far and the early-stopping count of one training."""
+
+    def __init__(self, views: list[ValidationView], s: ValidationSettings, iterations: int):
+        if s.every and not views:
+            raise ValueError("stage1.validation: no held-out views to validate on (every 8th view of each "
+                             "training scene); set stage1.validation.every: 0 to train without validation")
+        self.views, self.s, self.iterations = views, s, iterations
+        self.history: list[dict] = []
+        self.best: dict | None = None  # {"step", "val_psnr", "modules"}
+        self.since_best = 0  # validations since the best one
+
+    def due(self, it: int) -> bool:
+        return self.s.every > 0 and (it % self.s.every == 0 or it == self.iterations)
+
+    def update(self, it: int, model) -> dict[str, float]:
+        """Validate the model at step ``it``; keep it if it is the best so far."""
+        scores = score(model, self.views)
+        self.history.append({"iteration": it, **scores})
+        if self.best is None or scores["val_psnr"] > self.best["val_psnr"]:
+            modules = {k: {n: t.detach().cpu().clone() for n, t in m.state_dict().items()}
+                       for k, m in model.modules().items()}
+            self.best, self.since_best = {"step": it, "val_psnr": scores["val_psnr"], "modules": modules}, 0
+        else:
+            self.since_best += 1
+        return scores
+
+    def should_stop(self) -> bool:
+        return self.s.patience > 0 and self.since_best >= self.s.patience
+
+    def best_modules(self) -> dict | None:
+        """Every module's weights at the best validation (None before any)."""
+        return self.best["modules"] if self.best else None
+
+    def record(self) -> dict:
+        """For train.json: settings, views, the best step and PSNR, and the validation curve."""
+        best = self.best or {"step": None, "val_psnr": math.nan}
+        return {"every": self.s.every, "patience": self.s.patience, "views": [v.name for v in self.views],
+                "best_step": best["step"], "best_psnr": best["val_psnr"], "evaluations": len(self.history),
+                "curve": list(self.history)}
+
+    def state(self) -> dict:
+        return {"history": list(self.history), "best": self.best, "since_best": self.since_best}
+
+    def load(self, state: dict) -> None:
+        self.history, self.best, self.since_best = list(state["history"]), state["best"], int(state["since_best"])
