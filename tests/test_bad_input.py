@@ -107,6 +107,8 @@ CASES = [
     Case("validation-typo", r"stage1\.diffusion\.validation: unknown setting\(s\) \['evry'\]; did you mean 'every'",
          {"stage1": {"diffusion": {"validation": {"evry": 50}}}}),
     Case("stage1-without-train-scenes", r"scenes\.train is empty", {"scenes": {"train": []}}),
+    Case("paper-mode-physics-rows", r"spc\.mode = 'paper': the rows \['bernoulli\+3dgs', 'mle\+3dgs'\] invert the exact "
+         r"Bernoulli model", {"spc": {"mode": "paper"}, "stage2": {"combinations": ["gt+3dgs", "mle+3dgs", "bernoulli+3dgs"]}}),
     # --- files the config names --------------------------------------------------------------------
     Case("missing-pretrained-weights", r"stage1\.restormer\.checkpoint: .*/missing\.pth does not exist",
          {"stage1": {"restormer": {"checkpoint": "WORK/missing.pth"}}}),
