@@ -67,7 +67,8 @@ def train_combo(combo: str, scene_dir: Path, spc_dir: Path, settings: dict, mark
             pending.pop(0)
     psnr, ssim = held_out_psnr(trainer, scene)
     at += ["     -"] * len(pending)
-    return f"{combo:<18} {' '.join(f'{a:>11}' for a in at)} {psnr:8.2f} {ssim:7.4f} {it:6d} {clock:8.1f}  {trainer.capacity()}"
+    return (f"{combo:<18} {' '.join(f'{a:>11}' for a in at)} {psnr:8.2f} {ssim:7.4f} {it:6d} {clock:8.1f}  "
+            f"{trainer.capacity()}")
 
 
 def main() -> None:

@@ -94,7 +94,9 @@ def test_umeyama_recovers_similarity_and_transform_cameras():
 
 
 def test_rotation_angle():
-    Rz = lambda a: np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    def Rz(a):
+        return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+
     assert C.rotation_angle_deg(np.eye(3), Rz(np.radians(7.0))) == pytest.approx(7.0)
     assert C.rotation_angle_deg(np.eye(3), np.eye(3)) == 0.0
 

@@ -123,7 +123,7 @@ def test_settings_changes_retrain_stage2(tmp_path, lpips_cache):
         assert rec["settings"]["iterations"] == cfg["iterations"] == rec["iterations"]
         assert rec["settings"]["init_points"] == cfg.get("init_points", 500) and rec["seed"] == change.get("seed", 0)
         log = (tmp_path / "logs" / "reconstruct" / "courtyard" / "gt+3dgs.log").read_text()
-        assert f"discarding checkpoint results/checkpoints/courtyard/gt+3dgs/checkpoint.pt" in log and why in log
+        assert "discarding checkpoint results/checkpoints/courtyard/gt+3dgs/checkpoint.pt" in log and why in log
 
 
 @pytest.mark.slow

@@ -252,6 +252,9 @@ def test_nerf_overfits(ndc_data):
     cfg = replace(nerf.nerf_preset("cpu"), width=48, n_coarse=16, n_fine=8, n_iters=120, lr=2e-3, lr_final=5e-4)
     model = nerf.NeRF(cfg)
     opt = nerf.make_optimizer(model, cfg)
-    coarse = lambda out, c: ((out["rgb_coarse"] - c) ** 2).mean()
+
+    def coarse(out, c):
+        return ((out["rgb_coarse"] - c) ** 2).mean()
+
     before, after = _fit(model, opt, nerf.lr_at, cfg, ndc_data, 120, 256, coarse)
     assert after > before + 5.0, (before, after)

@@ -1,10 +1,8 @@
 """The evaluation protocol: no row but the oracle reads the evaluation scene's ground truth, the
 physics rows' display gain is metered from their own frames, and claims carry bootstrap intervals."""
-import shutil
 
 import numpy as np
 import pytest
-import torch
 
 from spc3d import exposure, io, spc
 from spc3d.augment import AugmentSettings, augment_scene

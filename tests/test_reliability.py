@@ -20,8 +20,6 @@ import math
 import os
 import shutil
 import signal
-import subprocess
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,8 +73,8 @@ KINDS = {
     "3dgs": Kind("results/eval/courtyard/gt+3dgs/metrics.json", "reconstruct", "results/recon/courtyard/gt+3dgs",
                  "results/checkpoints/courtyard/gt+3dgs/checkpoint.pt", 100, "snakemake"),
     "nerf-grid": Kind("results/eval/courtyard/gt+nerf-grid/metrics.json", "reconstruct",
-                      "results/recon/courtyard/gt+nerf-grid", "results/checkpoints/courtyard/gt+nerf-grid/checkpoint.pt",
-                      80, "job"),
+                      "results/recon/courtyard/gt+nerf-grid",
+                      "results/checkpoints/courtyard/gt+nerf-grid/checkpoint.pt", 80, "job"),
     "nerf": Kind("results/eval/courtyard/gt+nerf/metrics.json", "reconstruct", "results/recon/courtyard/gt+nerf",
                  "results/checkpoints/courtyard/gt+nerf/checkpoint.pt", 120, "group"),
     "pix2pix": Kind("results/stage1/courtyard/pix2pix.json", "train_translator", "results/models/pix2pix",

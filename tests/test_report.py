@@ -79,11 +79,13 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     assert report.stat().st_size > 500_000  # libraries and figures inline
     assert not re.search(r"<script[^>]+src=|<link[^>]+href=\"https?:", html)  # nothing fetched from the web
     results = embedded_json(html, "results")
-    expected = {"results/tables/two_stage.html": "1. Paper tables", "results/tables/single_stage.html": "1. Paper tables",
+    expected = {"results/tables/two_stage.html": "1. Paper tables",
+                "results/tables/single_stage.html": "1. Paper tables",
                 "results/tables/stage1.html": "1. Paper tables",
                 "results/figures/qualitative_courtyard.png": "2. Qualitative",
                 "results/summary/data_summary.png": "3. Data",
-                **{f"results/models/{m}/curve.png": "4. Stage 1 training" for m in ("pix2pixhd", "restormer", "diffusion")}}
+                **{f"results/models/{m}/curve.png": "4. Stage 1 training"
+                   for m in ("pix2pixhd", "restormer", "diffusion")}}
     assert set(expected) <= set(results), sorted(results)
     categories = embedded_json(html, "categories")
     for path, category in expected.items():
@@ -96,11 +98,13 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     assert "nerf-grid" in captions["results/figures/qualitative_courtyard.png"]
     assert "K = 4 stored frames" in captions["results/summary/data_summary.png"]  # smoke: spc.frames 4
     assert "DiffBIR stand-in" in captions["results/models/diffusion/curve.png"]
-    assert results["results/models/restormer/curve.png"]["labels"] == {"translator": "restormer", "figure": "training curve"}
+    assert results["results/models/restormer/curve.png"]["labels"] == {"translator": "restormer",
+                                                                       "figure": "training curve"}
     assert "LPIPS v0.1" in html and "spc3d: binary SPC frames to colour novel views" in html  # workflow.rst
     # Files are embedded as data URIs: the figure decodes to the PNG on disk.
     uri = results["results/figures/qualitative_courtyard.png"]["data_uri"]
-    assert base64.b64decode(uri.split(",", 1)[1]) == (tmp_path / "results" / "figures" / "qualitative_courtyard.png").read_bytes()
+    figure = tmp_path / "results" / "figures" / "qualitative_courtyard.png"
+    assert base64.b64decode(uri.split(",", 1)[1]) == figure.read_bytes()
     runtimes = embedded_json(html, "runtimes_spec")["data"]["values"]
     assert {"train_translator", "reconstruct", "evaluate"} <= {r["rule"] for r in runtimes}
 
@@ -108,7 +112,7 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     try:
         tool.find_browser()
     except tool.BrowserMissing as exc:  # the report is checked; only the browser part is left out
-        warnings.warn(f"report not rendered in a browser: {exc}")
+        warnings.warn(f"report not rendered in a browser: {exc}", stacklevel=2)
         return
     for name, show in (("landing", None), ("qualitative", "results/figures/qualitative_courtyard.png"),
                        ("two_stage", "results/tables/two_stage.html")):

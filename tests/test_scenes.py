@@ -179,7 +179,8 @@ def test_textures_are_cached_linear_and_filtered():
     assert a is b and a.size <= 512
     lvl0 = a.levels[0]
     assert lvl0.shape[0] == 3 and lvl0.max() <= 0.8 + 1e-6
-    u = np.array([0.3, 0.3]); v = np.array([0.6, 0.6])
+    u = np.array([0.3, 0.3])
+    v = np.array([0.6, 0.6])
     coarse = a.sample(u, v, np.array([1.0, 1e6]))[:, 1]
     np.testing.assert_allclose(coarse, a.levels[-1][:, 0, 0], rtol=1e-5)  # far away: the mean colour
 

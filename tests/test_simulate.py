@@ -43,7 +43,10 @@ def test_same_seed_same_bits_given_flux(scene_dir, tmp_path):
     simulate_scene(scene_dir, tmp_path / "b", params, flux_scale=2e4, seed=1)
     simulate_scene(scene_dir, tmp_path / "c", params, flux_scale=2e4, seed=2)
     assert a["flux_scale"] == 2e4 and not a["flux_scale_calibrated"]
-    bits = lambda d: io.load_frames(tmp_path / d / "frames" / "image000.npz")[0]
+
+    def bits(d):
+        return io.load_frames(tmp_path / d / "frames" / "image000.npz")[0]
+
     assert np.array_equal(bits("a"), bits("b")) and not np.array_equal(bits("a"), bits("c"))
 
 

@@ -83,7 +83,8 @@ def test_native_boxes_are_the_reference_boxes_tightened_to_visible_pixels():
     ref = pixel_boxes(means2d, radii, 24, 32).numpy()
     empty = (boxes[:, 1] < boxes[:, 0]) | (boxes[:, 3] < boxes[:, 2])
     assert empty[:3].all()
-    inside = (boxes[:, 0] >= ref[:, 0]) & (boxes[:, 1] <= ref[:, 1]) & (boxes[:, 2] >= ref[:, 2]) & (boxes[:, 3] <= ref[:, 3])
+    inside = ((boxes[:, 0] >= ref[:, 0]) & (boxes[:, 1] <= ref[:, 1])
+              & (boxes[:, 2] >= ref[:, 2]) & (boxes[:, 3] <= ref[:, 3]))
     assert (inside | empty).all()
     assert (boxes[~empty, 1] - boxes[~empty, 0]).sum() < 0.9 * (ref[~empty, 1] - ref[~empty, 0]).sum()
     ys, xs = torch.meshgrid(torch.arange(24), torch.arange(32), indexing="ij")
@@ -473,9 +474,9 @@ def real_sh_numpy(degree, dirs):
     d = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     theta, phi = np.arccos(np.clip(d[:, 2], -1, 1)), np.arctan2(d[:, 1], d[:, 0])
     cols = []
-    for l in range(degree + 1):
-        for m in range(-l, l + 1):
-            Y = sph_harm_y(l, abs(m), theta, phi)
+    for ell in range(degree + 1):
+        for m in range(-ell, ell + 1):
+            Y = sph_harm_y(ell, abs(m), theta, phi)
             cols.append(Y.real if m == 0 else np.sqrt(2) * (Y.imag if m < 0 else Y.real))
     return np.stack(cols, 1)
 

@@ -190,7 +190,8 @@ def test_validation_stops_on_a_plateau_and_keeps_the_best(world, tmp_path):
     result = run(trainer, 40, ckpt, CheckpointPolicy(fraction=0, minutes=0))
     # validations at 2, 4, ..: levels 0.1 0.3 0.45 0.3 0.35 0.2: best at step 6, then 3 without a better one
     assert result["stopped_early"] and result["steps"] == 12
-    assert trainer.validator.best["step"] == 6 and trainer.validator.best["modules"]["G"]["level"] == pytest.approx(0.45)
+    assert trainer.validator.best["step"] == 6
+    assert trainer.validator.best["modules"]["G"]["level"] == pytest.approx(0.45)
     assert [round(h["val_psnr"], 3) for h in trainer.validator.history] == \
         [round(-20 * np.log10(abs(v - 0.5)), 3) for v in (0.1, 0.3, 0.45, 0.3, 0.35, 0.2)]
     assert float(trainer.model.net.level.detach()) == pytest.approx(0.2)  # the last model is not the kept one

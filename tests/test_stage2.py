@@ -39,7 +39,8 @@ def test_sources_hold_only_training_views(scene):
     assert set(torch.unique(none.views.targets).tolist()) <= {0.0, 1.0}
     mle = load_source("mle-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4,
                       display_dir=scene / "mle" / "k4")
-    assert float((mle.views.targets - gt.views.targets).abs().mean()) < float((none.views.targets - gt.views.targets).abs().mean())
+    assert (float((mle.views.targets - gt.views.targets).abs().mean())
+            < float((none.views.targets - gt.views.targets).abs().mean()))
     with pytest.raises(ValueError, match="needs the metered display folder"):
         load_source("mle", scene / "scenes" / "gallery", scene / "spc" / "gallery")
 
@@ -97,8 +98,10 @@ def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):
 def test_evaluate_perfect_renders(scene, tmp_path, lpips_cache):
     recon = tmp_path / "recon"
     for name in ("image000", "image008"):
-        io.write_image(recon / "renders" / f"{name}.png", io.read_rgb(scene / "scenes" / "gallery" / "images" / f"{name}.png"))
-    io.write_json(recon / "train.json", {"source": "gt", "model": "3dgs", "seed": 0, "test_views": ["image000", "image008"]})
+        io.write_image(recon / "renders" / f"{name}.png",
+                       io.read_rgb(scene / "scenes" / "gallery" / "images" / f"{name}.png"))
+    io.write_json(recon / "train.json",
+                  {"source": "gt", "model": "3dgs", "seed": 0, "test_views": ["image000", "image008"]})
     rec = evaluate(recon, scene / "scenes" / "gallery", tmp_path / "metrics.json", lpips_dir=lpips_cache)
     assert rec["mean"]["psnr"] == float("inf") and rec["mean"]["ssim"] == pytest.approx(1.0)
     assert rec["mean"]["lpips_alex"] == pytest.approx(0.0, abs=1e-6) and rec["combination"] == "gt+3dgs"
@@ -176,6 +179,7 @@ def test_reconstruct_starts_from_colmap_points(colmap_scene, tmp_path):
     assert init["setting"] == "colmap" and init["used"].startswith("colmap sparse points")
     failed = tmp_path / "failed"
     io.write_json(failed / "pose_error.json", {"status": "failed: no image registered", "pose": {"aligned": False}})
-    reconstruct(colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed, init_setting="colmap")
+    reconstruct(colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed,
+                init_setting="colmap")
     init = io.read_json(tmp_path / "r2" / "train.json")["init"]
     assert init["setting"] == "colmap" and init["used"].startswith("random (")  # the fall-back is recorded

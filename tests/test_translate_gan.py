@@ -87,7 +87,10 @@ def test_learns_constant_colour(method):
     """Random bits -> one constant colour: a few dozen steps must cut the output's L1 error."""
     model = make(method, lr=1e-3)
     test = bits(2, 3, 16, 16, seed=7)
-    error = lambda: float((model.translate(test) - COLOUR).abs().mean())
+
+    def error():
+        return float((model.translate(test) - COLOUR).abs().mean())
+
     before = error()
     for step in range(25):
         model.train_step(bits(2, 3, 16, 16, seed=100 + step), COLOUR.expand(2, 3, 16, 16).clone())

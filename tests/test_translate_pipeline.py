@@ -242,7 +242,8 @@ def test_qualitative_figure(world, tmp_path):
         pick_view(world / "scenes" / "gallery", "image001")
     recon = tmp_path / "recon" / "gt+3dgs"
     (recon / "renders").mkdir(parents=True)
-    io.write_image(recon / "renders" / f"{view}.png", io.read_rgb(world / "scenes" / "gallery" / "images" / f"{view}.png"))
+    io.write_image(recon / "renders" / f"{view}.png",
+                   io.read_rgb(world / "scenes" / "gallery" / "images" / f"{view}.png"))
     out = tmp_path / "fig.png"
     qualitative_figure(world / "scenes" / "gallery", world / "spc" / "gallery", {"gt+3dgs": str(recon)}, out,
                        labels=LABELS)

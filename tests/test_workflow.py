@@ -121,7 +121,8 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
                                    "llff_scenes": {"fern": str(LLFF_ROOT / "fern")},
                                    "resolution": {"width": 128}, "spc": {"frames": 4},
                                    "colmap": {"inputs": ["rgb"]},
-                                   # no training scene: only rows that need none (no translator, no fitted display level)
+                                   # no training scene: only rows that need none
+                                   # (no translator, no fitted display level)
                                    "stage2": {"combinations": ["gt+3dgs", "none+3dgs"]}}))
     proc = snakemake(tmp_path, "results/summary/data_summary.md", "--cores", "2", "--configfile", str(SMOKE), str(cfg))
     assert proc.returncode == 0, proc.stderr[-4000:]

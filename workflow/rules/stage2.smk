@@ -97,7 +97,7 @@ rule paper_tables:
     conda:
         ENV
     script:
-        "../scripts/tables.py"
+        "../scripts/paper_tables.py"
 
 
 rule tables:
@@ -113,7 +113,7 @@ rule tables:
     conda:
         ENV
     script:
-        "../scripts/tables.py"
+        "../scripts/paper_tables.py"
 
 
 rule qualitative_figure:

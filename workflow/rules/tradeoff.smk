@@ -73,7 +73,7 @@ rule tradeoff_report:
     conda:
         ENV
     script:
-        "../scripts/tradeoff_table.py"
+        "../scripts/tradeoff_report.py"
 
 
 rule tradeoff:
@@ -128,7 +128,7 @@ rule photon_level_report:
     conda:
         ENV
     script:
-        "../scripts/photon_level.py"
+        "../scripts/photon_level_report.py"
 
 
 rule photon_level:

@@ -3,17 +3,40 @@
 The library behind the Snakemake workflow of this repository. Every module is importable and
 testable without Snakemake; values arrive as function arguments, never from the workflow config.
 
-Modules
+Modules (rule -> script -> function: ``workflow/rules/README.md``)
 -------
-io        image and binary-frame files (OpenImageIO, packed ``.npz``), atomic writes
-cameras   the one internal camera convention and conversions to/from LLFF and COLMAP
-llff      reading LLFF folders (``images*/`` + ``poses_bounds.npy``)
+io            image and binary-frame files (OpenImageIO, packed ``.npz``), JSON records; atomic writes
+cameras       the one internal camera convention and conversions to/from LLFF and COLMAP
+config        the workflow config checked before anything runs (schema, paths, typed settings)
+workflow      glue between Snakemake and the library: config -> arguments, logging for rule scripts
+runtime       process settings of a workflow job (freed memory kept for reuse)
+training      neutral training utilities of both stages: seeding, devices, checkpoints, the loop
+scenes        procedural forward-facing built-in scenes (disjoint training / evaluation content)
+llff          reading LLFF folders (``images*/`` + ``poses_bounds.npy``) to the canonical scene
 colmap_scene  reading COLMAP-format scenes (``images/`` + ``sparse/0/``, binary or text models)
-scenes    procedural forward-facing captures written in the LLFF layout
-spc       the SPC photon physics: 1-bit frames, exposure calibration, flux estimates
-augment   zoom / rotation / shear / flip augmentation of training views
-colmap    COLMAP (pycolmap) poses and their error against reference poses
-summary   the data summary table and figure
+prepare       a scene specification -> the canonical scene folder (rule ``scene_prepare``)
+spc           the SPC photon physics: 1-bit frames, exposure calibration, flux estimates
+montecarlo    Monte-Carlo renewal SPAD simulator (the tests' reference for ``spc``)
+simulate      a scene's SPC frames and their physics inversions (rule ``spc_simulate``)
+exposure      display gain of the physics rows without ground truth (fitted on training scenes)
+photon_cubes  photon-cube files of real SPAD sensors (bit-packed ``.npy``/``.npy.gz``, PNG frames, ``.npz``)
+sensors       monochrome and colour-filter-array SPAD sensors: masks, mosaics, demosaicing, masked MLE
+hot_pixels    hot-pixel detection and maps
+captures      captured SPAD scene folders read back; simulated scenes exported to them
+augment       zoom / rotation / shear / flip augmentation of training views (rule ``augment``)
+colmap        COLMAP (pycolmap) poses and their error against reference poses (rule ``colmap_poses``)
+summary       the data summary table and figure (rule ``data_summary``)
+translate     stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
+sources       stage-2 image sources (gt, none, mle, bernoulli, a translator's outputs)
+reconstruct   stage-2 models (``RECONSTRUCTORS``): 3DGS with its native rasterizer, NeRF, grid NeRF
+stage2        fit a reconstructor to one scene's source and render its held-out views (rule ``reconstruct``)
+metrics       PSNR, SSIM, LPIPS and the differentiable SSIM loss
+lpips_net     LPIPS v0.1 networks and their weights
+evaluate      held-out renders scored against the ground truth (rule ``evaluate``)
+tables        paper-layout tables from ``metrics.json`` files (rule ``paper_tables``)
+findings      the paper's claims and this project's, decided with paired bootstrap intervals
+figures       the qualitative figure and other plots
+sweeps        the speed-accuracy trade-off and photon-level sweeps
 """
 
 __version__ = "0.1.0"

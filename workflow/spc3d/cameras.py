@@ -63,11 +63,11 @@ class Cameras:
         K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = fx, fy, cx, cy, 1.0
         return K
 
-    def subset(self, idx) -> "Cameras":
+    def subset(self, idx) -> Cameras:
         idx = np.asarray(idx)
         return Cameras(self.w2c[idx], self.intrinsics[idx], self.height, self.width, self.bounds[idx])
 
-    def rescaled(self, height: int, width: int) -> "Cameras":
+    def rescaled(self, height: int, width: int) -> Cameras:
         """The same cameras for images resized to (height, width)."""
         sx, sy = width / self.width, height / self.height
         intr = self.intrinsics * np.array([sx, sy, sx, sy])
@@ -113,11 +113,14 @@ def cameras_to_llff(cams: Cameras) -> np.ndarray:
     return np.concatenate([poses.reshape(-1, 15), cams.bounds], axis=1)
 
 
-def look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0])) -> np.ndarray:
+def look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
     """World-to-camera (3, 4) of a camera at ``center`` looking at ``target``.
 
-    ``up`` is the world direction that should appear up in the image (image y points down).
+    ``up`` is the world direction that should appear up in the image (image y points down);
+    default ``(0, -1, 0)``.
     """
+    if up is None:
+        up = np.array([0.0, -1.0, 0.0])
     fwd = np.asarray(target, float) - np.asarray(center, float)
     if not np.linalg.norm(fwd) > 1e-12:
         raise ValueError(f"look_at: centre == target ({center}); no viewing direction")

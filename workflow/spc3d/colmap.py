@@ -342,9 +342,10 @@ def colmap_poses(
     """Run COLMAP on ``image_dir`` and score it against the reference cameras; write ``out_dir``.
 
     ``image_dir`` holds one image per view (RGB, binary frames as 0/255 or K-frame averages)
-    named by view stem; views without an image are left out (``total`` counts the images). The reference is a canonical scene folder (``llff.read_scene``) or
-    ``Cameras`` (then ``names`` defaults to the sorted image stems); ``align`` is the similarity
-    fit of :func:`fit_similarity`. Writes atomically:
+    named by view stem; views without an image are left out (``total`` counts the images). The
+    reference is a canonical scene folder (``llff.read_scene``) or ``Cameras`` (then ``names``
+    defaults to the sorted image stems); ``align`` is the similarity fit of
+    :func:`fit_similarity`. Writes atomically:
 
         out_dir/sparse/0/        the largest reconstruction (only when one was built)
         out_dir/pose_error.json  status, settings, registered/total, pose and reprojection errors

@@ -67,7 +67,8 @@ def expanded_level(n: int, level: float = LEVEL) -> float:
     return float(2 * stats.norm.cdf(z) - 1)
 
 
-def bootstrap(diffs: np.ndarray, n_boot: int = N_BOOT, level: float = LEVEL, seed: int = 0) -> tuple[float, float, float]:
+def bootstrap(diffs: np.ndarray, n_boot: int = N_BOOT, level: float = LEVEL,
+              seed: int = 0) -> tuple[float, float, float]:
     """(mean, low, high): the mean of ``diffs`` and its expanded percentile bootstrap interval."""
     diffs = np.asarray(diffs, dtype=np.float64)
     if diffs.size == 0 or not np.isfinite(diffs).all():
@@ -154,7 +155,8 @@ def markdown(results: list[dict]) -> str:
              f"Each claim: mean paired PSNR difference (dB) over scenes × seeds × held-out views, with its "
              f"{LEVEL:.0%} bootstrap interval ({N_BOOT:,} resamples); HOLDS / DOES NOT HOLD when the interval "
              f"excludes 0, else INCONCLUSIVE. A 'best' claim shows its closest competitor. Rows of equal K only.", "",
-             "| claim | by | verdict | closest comparison | Δ PSNR (dB) | 95 % interval | n |", "|---|---|---|---|---|---|---|"]
+             "| claim | by | verdict | closest comparison | Δ PSNR (dB) | 95 % interval | n |",
+             "|---|---|---|---|---|---|---|"]
     for r in results:
         lines.append(f"| {r['claim']} | {r['by']} | **{r['verdict']}** | " + " | ".join(_cells(r["closest"])) + " |")
     return "\n".join(lines) + "\n"

@@ -102,11 +102,13 @@ def ssim_map(pred: torch.Tensor, target: torch.Tensor, padding: str = "valid",
     Population covariance, K1 = 0.01, K2 = 0.03, data range 1.
     """
     if pred.shape != target.shape or pred.ndim != 4:
-        raise ValueError(f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} and {tuple(target.shape)}")
+        raise ValueError(f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} "
+                         f"and {tuple(target.shape)}")
     if padding not in ("valid", "same"):
         raise ValueError(f"padding must be 'valid' or 'same', got {padding!r}")
     if padding == "valid" and min(pred.shape[-2:]) < window_size:
-        raise ValueError(f"'valid' SSIM needs images of at least {window_size}x{window_size}, got {tuple(pred.shape[-2:])}")
+        raise ValueError(f"'valid' SSIM needs images of at least {window_size}x{window_size}, "
+                         f"got {tuple(pred.shape[-2:])}")
     window = gaussian_window(window_size, sigma, pred.dtype).to(pred.device)
     pad = window_size // 2 if padding == "same" else 0
     mu_x, mu_y = _blur(pred, window, pad), _blur(target, window, pad)

@@ -372,7 +372,7 @@ class MosaicBernoulliObjective:
     """BernoulliObjective for a mono/CFA sensor, with the trainers' ``loss(pred, target)`` signature:
     ``target`` (..., 5) from :func:`pack_mosaic_target`."""
 
-    base: "BernoulliObjective"
+    base: BernoulliObjective
     name: str = "bernoulli"
 
     def loss(self, pred: Tensor, target: Tensor) -> Tensor:

@@ -40,7 +40,7 @@ import math
 import numbers
 import zlib
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 

@@ -490,7 +490,8 @@ def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
             if stopped:
                 break
     return {"iterations": iterations, "steps": done, "stopped_early": stopped, "resumed_from": start,
-            "train_s": time.perf_counter() - t0, "final": stats, "checkpoint": checkpoint.record if checkpoint else None}
+            "train_s": time.perf_counter() - t0, "final": stats,
+            "checkpoint": checkpoint.record if checkpoint else None}
 
 
 def _wants_stop(trainer) -> bool:

@@ -113,7 +113,7 @@ def append(model: GaussianModel, opt: torch.optim.Optimizer, new: dict[str, Tens
     for name in PARAM_NAMES:
         old = getattr(model, name)
         param = torch.nn.Parameter(torch.cat([old.detach(), new[name]]).contiguous())
-        _replace_in_optimizer(opt, old, param, lambda s: torch.cat([s, torch.zeros_like(new[name])]))
+        _replace_in_optimizer(opt, old, param, lambda s, added=new[name]: torch.cat([s, torch.zeros_like(added)]))
         setattr(model, name, param)
 
 

@@ -31,31 +31,32 @@ PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_re
 
 @dataclass
 class GaussianConfig:
-    """3DGS settings; defaults are the reference implementation's (REFERENCES.md)."""
+    """3DGS settings; defaults are the reference implementation's (Kerbl et al. 2023, graphdeco-inria/
+    gaussian-splatting ``arguments/__init__.py``); the workflow's CPU budgets override some (config.yaml)."""
 
-    iterations: int = 30_000
+    iterations: int = 30_000  # optimisation steps (one random training view each)
     sh_degree: int = 3  # highest SH degree
     sh_interval: int = 1000  # consider raising the active degree every this many iterations
     lr_means: float = 1.6e-4  # x scene extent, decays exponentially to lr_means_final
-    lr_means_final: float = 1.6e-6
-    lr_sh_dc: float = 2.5e-3
-    lr_sh_rest: float = 2.5e-3 / 20
-    lr_opacity: float = 0.05
-    lr_scales: float = 5e-3
-    lr_quats: float = 1e-3
+    lr_means_final: float = 1.6e-6  # x scene extent, the positions' learning rate at the last step
+    lr_sh_dc: float = 2.5e-3  # Adam lr of the SH degree-0 (base colour) coefficients
+    lr_sh_rest: float = 2.5e-3 / 20  # Adam lr of the higher SH coefficients (view-dependent colour)
+    lr_opacity: float = 0.05  # Adam lr of the opacity logits
+    lr_scales: float = 5e-3  # Adam lr of the log scales
+    lr_quats: float = 1e-3  # Adam lr of the rotation quaternions
     ssim_weight: float = 0.2  # loss (1 - w) L1 + w (1 - SSIM)
-    densify_from: int = 500
-    densify_until: int = 15_000
-    densify_every: int = 100
+    densify_from: int = 500  # first iteration of clone / split / prune
+    densify_until: int = 15_000  # no density control after this iteration
+    densify_every: int = 100  # iterations between density-control passes
     densify_grad: float = 2e-4  # view-space positional gradient threshold (NDC units, as 3DGS)
     percent_dense: float = 0.01  # clone below / split above this fraction of the scene extent
-    opacity_reset_every: int = 3000
-    prune_opacity: float = 0.005
+    opacity_reset_every: int = 3000  # opacities clamped down to 0.01 this often (while densifying)
+    prune_opacity: float = 0.005  # prune Gaussians whose opacity falls below this
     max_screen_size: float = 20.0  # px; prune larger Gaussians after the first opacity reset
     max_gaussians: int = 200_000  # hard cap on capacity
     init_points: int = 5000  # random initialisation only
     backend: str = "native"  # rasterizer back-end
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour behind the last Gaussian (render space)
 
     def __post_init__(self):
         require_positive(self, "iterations", "sh_interval", "densify_every", "max_gaussians", "init_points")

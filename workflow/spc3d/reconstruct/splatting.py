@@ -1,6 +1,7 @@
 """3DGS training: one random training view per step, per-parameter Adam, density control.
 
-Learning rates as the reference implementation (REFERENCES.md): positions 1.6e-4 -> 1.6e-6 times
+Learning rates as the reference implementation (Kerbl et al. 2023, graphdeco-inria/gaussian-splatting,
+``arguments/__init__.py``): positions 1.6e-4 -> 1.6e-6 times
 the scene extent, decayed exponentially over the run; SH DC 2.5e-3 (rest / 20), opacity 0.05,
 scales 5e-3, rotations 1e-3. The active SH degree rises by one every ``sh_interval`` iterations,
 but only while it still pays: if the mean loss over the last interval did not drop by at least

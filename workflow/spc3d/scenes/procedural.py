@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -141,7 +141,7 @@ PATTERNS = {
 }
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def pattern(kind: str) -> np.ndarray:
     """Linear RGB (h, w, 3) float64 in [0, 1] of pattern ``kind`` (read-only, cached)."""
     if kind not in PATTERNS:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -121,7 +121,7 @@ def mip_pyramid(img: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(np.ascontiguousarray(level.transpose(2, 0, 1), dtype=np.float32) for level in levels)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _raw_image(name: str) -> np.ndarray:
     """Sample image ``name`` as stored by scikit-image (cheap: no filtering)."""
     if name not in SAMPLE_IMAGES:
@@ -139,7 +139,7 @@ def _scaled_shape(h: int, w: int) -> tuple[int, int]:
     return max(1, round(h * scale)), max(1, round(w * scale))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _base_image(name: str) -> np.ndarray:
     """Texture source ``name`` as linear RGB (h, w, 3) float64, longer side <= MAX_SIZE (read-only)."""
     if name.startswith("proc:"):
@@ -168,7 +168,7 @@ def pattern_shape(kind: str) -> tuple[int, int]:
     return PATTERNS[kind].shape
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def texture(name: str, tint: tuple[float, float, float] = (1.0, 1.0, 1.0),
             base: tuple[float, float, float] = (0.0, 0.0, 0.0), gain: float = 1.0) -> Texture:
     """Cached texture of source ``name`` (a sample image or "proc:<pattern>"), coloured in linear light.

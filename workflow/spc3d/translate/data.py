@@ -45,7 +45,8 @@ def load_pairs(augment_dirs: list[str | os.PathLike], frames: int) -> tuple[list
             b = binary_input(folder / "frames" / f"{name}.npz", frames)
             r = io.read_rgb(folder / "rgb" / f"{name}.png")
             if b.shape != r.shape:
-                raise ValueError(f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; rerun the augment rule")
+                raise ValueError(f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; "
+                                 "rerun the augment rule")
             binary.append(chw(b))
             rgb.append(chw(r))
     return binary, rgb
@@ -67,7 +68,8 @@ class PairSampler:
             raise ValueError(f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); "
                              f"use <= {smallest}")
         self.batch, self.crop, self.paired = batch_size, crop, paired
-        self.pairs = [torch.cat(p, dim=0) for p in zip(self.binary, self.rgb)] if paired else None  # (6, H, W): one crop
+        # (6, H, W): one crop
+        self.pairs = [torch.cat(p, dim=0) for p in zip(self.binary, self.rgb)] if paired else None
         self.gen = torch.Generator().manual_seed(seed)
         self.seen = torch.zeros(len(self.binary), dtype=torch.bool)  # pairs drawn at least once
         self.drawn = 0  # samples drawn so far

@@ -2,7 +2,7 @@
 
 NOT DiffBIR. DiffBIR (Lin et al. 2024) restores images with a stage-1 cleaner (SwinIR / BSRNet /
 SCUNet) followed by Stable Diffusion 2.1 steered by an IRControlNet; those weights are not
-reachable offline (docs/REFERENCES.md). This module keeps DiffBIR's *structure* at a size we can
+reachable offline (they are hosted on model hubs only). This module keeps DiffBIR's *structure* at a size we can
 train on our own (binary, RGB) pairs:
 
     stage-1 cleaner   a 5x5 box blur of the binary image (a cheap local photon-rate estimate)

@@ -1,7 +1,8 @@
 """Building blocks shared by the GAN translators (pix2pixHD, pix2pix, CycleGAN).
 
 Own implementations of the architectures of Isola et al. (pix2pix), Zhu et al. (CycleGAN) and
-Wang et al. (pix2pixHD), following the public reference defaults (see docs/REFERENCES.md):
+Wang et al. (pix2pixHD), following the public reference defaults (junyanz/pytorch-CycleGAN-and-pix2pix,
+NVIDIA/pix2pixHD):
 
     norm_layer / init_weights      normalisation factory; N(0, 0.02) initialisation
     ResnetBlock, ResnetGenerator   7x7 conv, stride-2 downsamplings, ResNet blocks, transposed-conv

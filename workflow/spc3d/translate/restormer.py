@@ -21,7 +21,7 @@ which is what makes Restormer usable on full-resolution images.
 
 Here it is trained from scratch on (binary, RGB) pairs with L1, exactly like a denoiser: the net
 predicts the residual ``rgb - binary``. The public checkpoints (SIDD real denoising, Gaussian
-sigma 15/25/50) were not trained on Bernoulli noise (see docs/REFERENCES.md), but
+sigma 15/25/50) were not trained on Bernoulli noise (Zamir et al. 2022, swz30/Restormer), but
 ``load_official_checkpoint`` loads them, e.g. as an initialisation or a zero-shot baseline.
 """
 

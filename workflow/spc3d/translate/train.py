@@ -153,7 +153,8 @@ class TranslatorTrainer:
 
 
 def fit(model, sampler, s: TrainSettings, checkpoint: Checkpoint | None = None,
-        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "stage1", validator: Validator | None = None) -> dict:
+        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "stage1",
+        validator: Validator | None = None) -> dict:
     """Run the optimisation to ``s.iterations`` (or an early stop); returns timing, curve, final losses,
     the step it stopped at and why (``patience`` / ``budget``)."""
     trainer = TranslatorTrainer(model, sampler, s, validator)

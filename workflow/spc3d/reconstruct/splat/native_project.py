@@ -181,8 +181,8 @@ def _jacobian_backward(x, y, zs, u_free, v_free, inv_z, W, cam, gJ0, gJ1, g_mx, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2d, g_con, g_depth, g_cov, counter, total,
-                      g_means, g_scales, g_quats):
+def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2d, g_con, g_depth, g_cov, counter,
+                      total, g_means, g_scales, g_quats):
     """The chunks of the ``total`` Gaussians this worker takes: dL/dmeans (N, 3), dL/dscales
     (N, 3), dL/dquats (N, 4) (written, any float dtype) from dL/d(means2d, conics, depths, cov2d)
     (zeros where an output had none)."""
@@ -192,8 +192,11 @@ def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2
         c0, n = next_chunk(counter, total, CHUNK)
         if n <= 0:
             break
-        row = gather_columns(quats, c0, n, inp, gather_columns(scales, c0, n, inp, gather_columns(means, c0, n, inp, 0)))
-        gather_columns(g_cov, c0, n, inp, gather_columns(g_depth, c0, n, inp, gather_columns(g_con, c0, n, inp, gather_columns(g_m2d, c0, n, inp, row))))
+        row = gather_columns(quats, c0, n, inp,
+                             gather_columns(scales, c0, n, inp, gather_columns(means, c0, n, inp, 0)))
+        gather_columns(g_cov, c0, n, inp,
+                       gather_columns(g_depth, c0, n, inp,
+                                      gather_columns(g_con, c0, n, inp, gather_columns(g_m2d, c0, n, inp, row))))
         for j in range(CHUNK):  # the vectorised loop: arrays only indexed here (passing one to a
             # function would add reference counting calls, which stop vectorisation)
             grads = (inp[10, j], inp[11, j], inp[12, j], inp[13, j], inp[14, j], inp[15, j], inp[16, j],
@@ -202,8 +205,10 @@ def _project_backward(means, scales, quats, W_arr, cam_arr, near, low_pass, g_m2
                                                                                              inp[8, j], inp[9, j])
             gm, gs, gq, good = _backward_one(m, s, q, grads, W, cam, near, low_pass)
             # zero (selects, not a branch) for a Gaussian with non-finite parameters or covariance
-            out[0, j], out[1, j], out[2, j] = (gm[0] if good else 0.0), (gm[1] if good else 0.0), (gm[2] if good else 0.0)
-            out[3, j], out[4, j], out[5, j] = (gs[0] if good else 0.0), (gs[1] if good else 0.0), (gs[2] if good else 0.0)
+            out[0, j], out[1, j], out[2, j] = ((gm[0] if good else 0.0), (gm[1] if good else 0.0),
+                                               (gm[2] if good else 0.0))
+            out[3, j], out[4, j], out[5, j] = ((gs[0] if good else 0.0), (gs[1] if good else 0.0),
+                                               (gs[2] if good else 0.0))
             out[6, j], out[7, j] = (gq[0] if good else 0.0), (gq[1] if good else 0.0)
             out[8, j], out[9, j] = (gq[2] if good else 0.0), (gq[3] if good else 0.0)
         for j in range(n):
@@ -240,7 +245,8 @@ def _backward_one(m, s, q, grads, W, cam, near, low_pass):
     gM1 = (J0[1] * gr0[0] + J1[1] * gr1[0], J0[1] * gr0[1] + J1[1] * gr1[1], J0[1] * gr0[2] + J1[1] * gr1[2])
     gM2 = (J0[2] * gr0[0] + J1[2] * gr1[0], J0[2] * gr0[1] + J1[2] * gr1[1], J0[2] * gr0[2] + J1[2] * gr1[2])
     # M[k][j] = R[k][j] s[j]
-    g_s = (gM0[0] * R[0][0] + gM1[0] * R[1][0] + gM2[0] * R[2][0], gM0[1] * R[0][1] + gM1[1] * R[1][1] + gM2[1] * R[2][1],
+    g_s = (gM0[0] * R[0][0] + gM1[0] * R[1][0] + gM2[0] * R[2][0],
+           gM0[1] * R[0][1] + gM1[1] * R[1][1] + gM2[1] * R[2][1],
            gM0[2] * R[0][2] + gM1[2] * R[1][2] + gM2[2] * R[2][2])
     gR = ((gM0[0] * s[0], gM0[1] * s[1], gM0[2] * s[2]), (gM1[0] * s[0], gM1[1] * s[1], gM1[2] * s[2]),
           (gM2[0] * s[0], gM2[1] * s[1], gM2[2] * s[2]))

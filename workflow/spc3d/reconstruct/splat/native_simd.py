@@ -320,8 +320,10 @@ def _bwd_block(rec, k, b, tx0, ty0, T, last, gimg, gtail, behind, acc, gcache, o
 @njit(inline="always")
 def _lane_sum(acc, j):
     """Sum of acc[j] over the 16 lanes: a pairwise tree (short dependency chains)."""
-    return ((((acc[j, 0] + acc[j, 8]) + (acc[j, 4] + acc[j, 12])) + ((acc[j, 2] + acc[j, 10]) + (acc[j, 6] + acc[j, 14])))
-            + (((acc[j, 1] + acc[j, 9]) + (acc[j, 5] + acc[j, 13])) + ((acc[j, 3] + acc[j, 11]) + (acc[j, 7] + acc[j, 15]))))
+    return ((((acc[j, 0] + acc[j, 8]) + (acc[j, 4] + acc[j, 12]))
+             + ((acc[j, 2] + acc[j, 10]) + (acc[j, 6] + acc[j, 14])))
+            + (((acc[j, 1] + acc[j, 9]) + (acc[j, 5] + acc[j, 13]))
+               + ((acc[j, 3] + acc[j, 11]) + (acc[j, 7] + acc[j, 15]))))
 
 
 @njit(inline="always")
