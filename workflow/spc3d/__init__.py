@@ -36,6 +36,7 @@ evaluate      held-out renders scored against the ground truth (rule ``evaluate`
 tables        paper-layout tables from ``metrics.json`` files (rule ``paper_tables``)
 findings      the paper's claims and this project's, decided with paired bootstrap intervals
 figures       the qualitative figure and other plots
+plotting      matplotlib on the Agg back-end and atomic PNG writes, for every figure
 sweeps        the speed-accuracy trade-off and photon-level sweeps
 """
 

@@ -15,15 +15,7 @@ import numpy as np
 
 from . import io, llff, metrics
 from .cameras import split_views
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+from .plotting import pyplot, save_png
 
 
 def pick_view(scene_dir: str | os.PathLike, view: str | None = None) -> str:
@@ -56,7 +48,7 @@ def qualitative_figure(scene_dir: str | os.PathLike, spc_dir: str | os.PathLike,
 
 
 def _draw(panels: list[tuple[str, np.ndarray]], out_png, title: str, per_row: int) -> None:
-    plt = _plt()
+    plt = pyplot()
     cols = min(per_row, len(panels))
     rows = math.ceil(len(panels) / cols)
     h, w = panels[0][1].shape[:2]
@@ -68,6 +60,4 @@ def _draw(panels: list[tuple[str, np.ndarray]], out_png, title: str, per_row: in
         ax.set_title(label, fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    with io.atomic_path(out_png) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
+    save_png(fig, out_png, dpi=120)

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from . import io, spc
+from .plotting import pyplot, save_png
 from .simulate import read_spc_record
 
 
@@ -62,10 +63,7 @@ def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray]
 
 def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: int) -> None:
     """Grid figure: a row per scene, columns RGB | binary | K-frame average | MLE."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     titles = ["RGB (ground truth)", "one binary frame", f"{K}-frame average", f"MLE flux ({K} frames, exact gain)"]
     fig, axes = plt.subplots(len(scenes), 4, figsize=(12, 2.4 * len(scenes) + 0.4), squeeze=False)
@@ -79,9 +77,7 @@ def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: in
                 ax.set_title(titles[c], fontsize=10)
         axes[r, 0].set_ylabel(f"{scene_dir.name}\n{view}", fontsize=10)
     fig.tight_layout()
-    with io.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 def write_summary(scene_dirs: list[str], spc_dirs: list[str], colmap_dirs: list[str], roles: list[str],

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .. import io
+from ..plotting import pyplot, save_png
 from .knobs import KNOBS, label
 
 SCORES = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
@@ -106,25 +107,10 @@ def photon_table(paths: list[str | os.PathLike], combos: list[str]) -> pd.DataFr
                "peak_memory_mb"]]
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, plt, out_png) -> None:
-    with io.atomic_path(out_png) as tmp:
-        fig.savefig(tmp, dpi=130, format="png")
-    plt.close(fig)
-
-
 def tradeoff_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[str, str] | None = None,
                     clock: str = "wall") -> None:
     """PSNR and LPIPS-alex against time (log), fronts as step lines, points labelled by setting."""
-    plt = _plt()
+    plt = pyplot()
     time_key = clock_column(clock)
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.6))
     colours = plt.get_cmap("tab10").colors
@@ -147,7 +133,7 @@ def tradeoff_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dic
                  fontsize=11)
     fig.text(0.01, 0.01, setting_legend(table), fontsize=7.5, family="monospace", va="bottom")
     fig.tight_layout(rect=(0, 0.03 + 0.028 * table["setting"].nunique(), 1, 1))
-    _save(fig, plt, out_png)
+    save_png(fig, out_png, dpi=130)
 
 
 def setting_legend(table: pd.DataFrame) -> str:
@@ -171,7 +157,7 @@ def _log_seconds(ax) -> None:
 
 def photon_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[str, str] | None = None) -> None:
     """PSNR and LPIPS-alex against mean detection probability (logit axis), a line per (combination, K)."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(13, 6.0))
     colours = plt.get_cmap("tab10").colors
     ks = sorted(table["K"].unique())
@@ -191,7 +177,7 @@ def photon_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[
     fig.legend(handles, names, loc="lower center", ncol=3, fontsize=7.5, frameon=False)
     fig.suptitle("Quality against photon level (exposure) and number of binary frames K", fontsize=11)
     fig.tight_layout(rect=(0, 0.035 * rows + 0.01, 1, 1))
-    _save(fig, plt, out_png)
+    save_png(fig, out_png, dpi=130)
 
 
 def _logit_levels(ax, levels: list[float]) -> None:

@@ -37,6 +37,7 @@ import torch
 
 from .. import io
 from ..augment import AugmentSettings
+from ..plotting import pyplot, save_png
 from ..training import (Checkpoint, CheckpointPolicy, build_config, default_device, digest_arrays, digest_path,
                         fingerprint, peak_rss_mb, run, seed_everything)
 from . import TRANSLATORS
@@ -321,10 +322,7 @@ def write_model_folder(out_dir, model, record: dict, curve: list[dict], modules:
 def plot_curve(frame: pd.DataFrame, path: Path, title: str, best_step: int | None = None) -> None:
     """Every loss and validation value against the iteration, one panel each (log scale where all
     positive; validation values as points joined, the kept model's step dashed)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     keys = [c for c in frame.columns if c != "iteration"]
     fig, axes = plt.subplots(1, max(len(keys), 1), figsize=(3.2 * max(len(keys), 1), 2.6), squeeze=False)
@@ -342,8 +340,7 @@ def plot_curve(frame: pd.DataFrame, path: Path, title: str, best_step: int | Non
         ax.grid(alpha=0.3)
     fig.suptitle(f"{title}: training losses" + (" and validation" if "val_psnr" in keys else ""), fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path, dpi=110)
 
 
 VALIDATION_TITLES = {"val_psnr": "validation PSNR (dB)", "val_l1": "validation L1"}
