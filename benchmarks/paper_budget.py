@@ -25,12 +25,12 @@ import yaml
 sys.path.insert(0, str(Path(__file__).parent))
 from rasterizer import make_scene, train_step  # noqa: E402
 
-from spc3d import lpips_net  # noqa: E402
+from spc3d import lpips_specs  # noqa: E402
 from spc3d.reconstruct import make_nerf  # noqa: E402
 from spc3d.reconstruct.train import Views  # noqa: E402
 from spc3d.scenes import render_scene  # noqa: E402
 from spc3d.translate import TRANSLATORS  # noqa: E402
-from spc3d.translate.train import model_config  # noqa: E402
+from spc3d.translate.model_io import model_config  # noqa: E402
 
 PRESET = Path(__file__).resolve().parents[1] / "workflow" / "presets" / "paper.yaml"
 
@@ -48,7 +48,7 @@ def seconds_per_step(step, steps: int) -> float:
 
 def translator_step(method: str, crop: int):
     vgg = {k: np.random.default_rng(0).standard_normal(s).astype(np.float32) * 0.01
-           for k, s in lpips_net.expected_shapes("vgg").items()}
+           for k, s in lpips_specs.expected_shapes("vgg").items()}
     model = TRANSLATORS[method].Translator(model_config(method, {"preset": "paper"}), torch.device("cpu"), vgg)
     x, y = torch.rand(1, 3, crop, crop).round(), torch.rand(1, 3, crop, crop)
     return lambda: model.train_step(x, y)

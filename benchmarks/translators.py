@@ -28,7 +28,7 @@ import time
 import numpy as np
 import torch
 
-from spc3d import lpips_net
+from spc3d import lpips_specs
 from spc3d.translate import TRANSLATORS
 
 
@@ -46,7 +46,7 @@ def build(method: str, seed: int = 0):
     torch.manual_seed(seed)
     module = TRANSLATORS[method]
     rng = np.random.default_rng(seed)
-    vgg = {k: (0.01 * rng.standard_normal(s)).astype(np.float32) for k, s in lpips_net.expected_shapes("vgg").items()}
+    vgg = {k: (0.01 * rng.standard_normal(s)).astype(np.float32) for k, s in lpips_specs.expected_shapes("vgg").items()}
     return module.Translator(module.Config(), torch.device("cpu"), vgg)
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from spc3d import lpips_net
+from spc3d import lpips_weights
 
 REPO = Path(__file__).resolve().parents[1]
 LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"
@@ -29,12 +29,12 @@ def fern() -> Path:
 @pytest.fixture(scope="session")
 def lpips_cache(request, tmp_path_factory) -> Path:
     """Converted LPIPS weights, fetched once per checkout into pytest's cache (else the shared tmp
-    root); with xdist the first worker fetches and the others wait on lpips_net's file lock."""
+    root); with xdist the first worker fetches and the others wait on lpips_weights' file lock."""
     cache = getattr(request.config, "cache", None)
     folder = cache.mkdir("spc3d_lpips") if cache is not None else tmp_path_factory.getbasetemp().parent / "spc3d_lpips"
     try:
-        lpips_net.fetch_to_cache(folder)
-    except lpips_net.LPIPSDownloadError as exc:
+        lpips_weights.fetch_to_cache(folder)
+    except lpips_weights.LPIPSDownloadError as exc:
         pytest.skip(f"LPIPS weights cannot be fetched here: {exc}")
     return Path(folder)
 

@@ -9,7 +9,8 @@ import torch
 import yaml
 
 from spc3d import io
-from spc3d.training import Checkpoint, CheckpointPolicy, digest_path, differences, fingerprint, run
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy, digest_path, differences, fingerprint
+from spc3d.training import run
 from conftest import REPO, InterruptAt, Interrupted, llff_scene, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"

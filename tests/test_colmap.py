@@ -1,5 +1,5 @@
-"""COLMAP poses (spc3d.colmap): alignment and error maths on synthetic cameras, the pycolmap
-conversions on a synthetic reconstruction, and one real COLMAP run on fern (skipped without data)."""
+"""COLMAP poses: alignment and error maths (spc3d.alignment) on synthetic cameras, the pycolmap
+conversions (spc3d.colmap) on a synthetic reconstruction, and one real COLMAP run on fern (skipped without data)."""
 
 import json
 from pathlib import Path
@@ -8,7 +8,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from spc3d import colmap, io, llff
+from spc3d import alignment, colmap, io, llff
 from spc3d.cameras import Cameras, invert_rigid, look_at, rotation_angle_deg, transform_cameras
 
 LLFF_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "llff"
@@ -44,11 +44,11 @@ def estimated(ref: Cameras, idx: np.ndarray, noise: float = 0.0, seed: int = 1) 
     return est
 
 
-@pytest.mark.parametrize("align", colmap.ALIGNMENTS)
+@pytest.mark.parametrize("align", alignment.ALIGNMENTS)
 def test_pose_error_recovers_known_similarity(align):
     ref = grid_cameras()
     idx = np.arange(len(ref))
-    rec = colmap.pose_error(ref, estimated(ref, idx), idx, align)
+    rec = alignment.pose_error(ref, estimated(ref, idx), idx, align)
     assert rec["aligned"] and rec["registered"] == rec["total"] == len(ref)
     assert rec["rotation_deg"]["max"] < 1e-5 and rec["center_rel"]["max"] < 1e-9
     assert rec["scale"] == pytest.approx(1 / 0.37)
@@ -58,20 +58,20 @@ def test_pose_error_recovers_known_similarity(align):
 def test_pose_error_centre_noise_and_one_rotated_view():
     ref = grid_cameras()
     idx = np.array([0, 2, 3, 5, 7, 8, 11, 12, 14, 17, 19])  # a subset registered, unordered gaps
-    spread = colmap.camera_spread(ref)
+    spread = alignment.camera_spread(ref)
     est = estimated(ref, idx, noise=1e-3 * spread * 0.37)  # noise in the estimate's units
-    rec = colmap.pose_error(ref, est, idx)
+    rec = alignment.pose_error(ref, est, idx)
     assert rec["center_rel"]["median"] == pytest.approx(1.5e-3, rel=0.7)  # |N(0, 1e-3 I3)| ≈ 1.5e-3
     assert rec["rotation_deg"]["max"] < 0.05  # the rotation comes from orientations, noise-free here
     # rotate view 4 of the estimate by 3° about its own centre (centres unchanged)
     c2w = est.c2w
     c2w[4, :, :3] = rot([0.3, 1, 0.2], 3.0) @ c2w[4, :, :3]
     bent = Cameras(invert_rigid(c2w), est.intrinsics, est.height, est.width, est.bounds)
-    by_centres = np.array(colmap.pose_error(ref, bent, idx, "centers")["per_view"]["rotation_deg"])
+    by_centres = np.array(alignment.pose_error(ref, bent, idx, "centers")["per_view"]["rotation_deg"])
     # (a centre-only fit picks up a ~0.02° tilt from the 1e-3 centre noise: coplanar centres)
     assert by_centres[4] == pytest.approx(3.0, abs=0.05) and np.delete(by_centres, 4).max() < 0.05
     # fitted to the orientations, the world rotation absorbs 1/11 of it: 3·10/11 on view 4, 3/11 elsewhere
-    rec = colmap.pose_error(ref, bent, idx)
+    rec = alignment.pose_error(ref, bent, idx)
     per_view = np.array(rec["per_view"]["rotation_deg"])
     assert per_view[4] == pytest.approx(3.0 * 10 / 11, abs=0.02)
     np.testing.assert_allclose(np.delete(per_view, 4), 3.0 / 11, atol=0.02)
@@ -82,7 +82,7 @@ def test_pose_error_too_few_registered_is_a_result_not_a_crash():
     ref = grid_cameras()
     for idx in ([], [3], [3, 9]):
         est = estimated(ref, np.array([3, 4, 5]))
-        rec = colmap.pose_error(ref, est.subset(np.arange(len(idx))), idx)
+        rec = alignment.pose_error(ref, est.subset(np.arange(len(idx))), idx)
         assert not rec["aligned"] and rec["registered"] == len(idx) and rec["total"] == len(ref)
         assert "at least 3" in rec["reason"]
         assert rec["rotation_deg"] is None and rec["center_rel"] is None and rec["scale"] is None
@@ -97,8 +97,8 @@ def test_centre_only_alignment_is_ill_conditioned_for_coplanar_centres():
     c2w = est.c2w
     c2w[:, :, 3] += 0.37 * 0.05 * np.random.default_rng(3).normal(0, 1, (len(idx), 3))
     est = Cameras(invert_rigid(c2w), est.intrinsics, est.height, est.width, est.bounds)
-    by_centres = colmap.pose_error(ref, est, idx, "centers")["rotation_deg"]["median"]
-    by_rotations = colmap.pose_error(ref, est, idx, "rotations")["rotation_deg"]["median"]
+    by_centres = alignment.pose_error(ref, est, idx, "centers")["rotation_deg"]["median"]
+    by_rotations = alignment.pose_error(ref, est, idx, "rotations")["rotation_deg"]["median"]
     assert by_rotations < 1e-5 < 0.5 < by_centres
 
 
@@ -126,9 +126,9 @@ def test_reconstruction_cameras_and_reprojection_on_a_synthetic_reconstruction()
     # the reference lives in another world frame; aligning and projecting must give back the keypoints
     s0, R0, t0 = 2.5, rot([0, 1, 1], 70.0), np.array([1.0, 2.0, -3.0])
     ref = transform_cameras(est, s0, R0, t0)
-    pose = colmap.pose_error(ref, est, idx)
+    pose = alignment.pose_error(ref, est, idx)
     assert pose["rotation_deg"]["max"] < 1e-5 and pose["center_rel"]["max"] < 1e-9
-    proj = colmap.reprojection_error(rec, ref, names, colmap.similarity_of(pose))
+    proj = colmap.reprojection_error(rec, ref, names, alignment.similarity_of(pose))
     assert proj["observations"] == rec.compute_num_observations() and proj["behind_camera"] == 0
     assert proj["p90_px"] < 1e-6
     assert rotation_angle_deg(np.asarray(pose["similarity"]["rotation"]), R0) < 1e-5

@@ -15,7 +15,8 @@ from spc3d.reconstruct.objectives import BernoulliObjective, RGBObjective, linea
 from spc3d.reconstruct.splatting import SplatTrainer, make_optimizer
 from spc3d.reconstruct.train import Views
 from spc3d.scenes import render_scene
-from spc3d.training import Checkpoint, CheckpointPolicy, fingerprint, run
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy, fingerprint
+from spc3d.training import run
 from conftest import InterruptAt, Interrupted
 
 

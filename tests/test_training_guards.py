@@ -1,4 +1,4 @@
-"""One trainer per checkpoint, and none without its Snakemake (spc3d.training.CheckpointLock,
+"""One trainer per checkpoint, and none without its Snakemake (spc3d.checkpoints.CheckpointLock,
 SnakemakeWatch): a second trainer of a checkpoint is refused with a message naming the holder, and a
 training whose Snakemake is killed stops by itself."""
 import os
@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from spc3d.training import (Checkpoint, CheckpointInUse, CheckpointLock, SnakemakeWatch, _is_snakemake,
-                            fingerprint, run)
+from spc3d.checkpoints import (Checkpoint, CheckpointInUse, CheckpointLock, SnakemakeWatch, _is_snakemake,
+                               fingerprint)
+from spc3d.training import run
 from conftest import process_alive, wait_until
 
 LINUX = Path("/proc/self/stat").exists()
@@ -20,7 +21,8 @@ FP = fingerprint("test", {"seed": 0}, {})
 # A trainer that takes 20 ms a step, for ever (as far as a test goes), checkpointing every 10 steps.
 SLOW_TRAINING = """
 import sys, time, torch
-from spc3d.training import Checkpoint, CheckpointPolicy, fingerprint, run
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy, fingerprint
+from spc3d.training import run
 
 class Slow:
     def __init__(self):

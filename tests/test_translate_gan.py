@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from spc3d import lpips_net
+from spc3d import lpips_specs
 from spc3d.translate import cyclegan, pix2pix, pix2pixhd
 from spc3d.translate.networks import (
     GANLoss,
@@ -51,7 +51,7 @@ def random_vgg_weights(seed: int = 0) -> dict[str, np.ndarray]:
     """He-initialised arrays with the shapes of the LPIPS VGG16 weights (keeps activations O(1))."""
     rng = np.random.default_rng(seed)
     out = {}
-    for key, shape in lpips_net.expected_shapes("vgg").items():
+    for key, shape in lpips_specs.expected_shapes("vgg").items():
         fan_in = int(np.prod(shape[1:])) if len(shape) > 1 else 1
         scale = math.sqrt(2.0 / fan_in) if key.endswith("weight") else 0.01
         out[key] = (rng.standard_normal(shape) * scale).astype(np.float32)

@@ -14,9 +14,10 @@ from spc3d.augment import AugmentSettings, augment_scene
 from spc3d.figures import pick_view, qualitative_figure
 from spc3d.scenes import write_builtin_scene
 from spc3d.simulate import simulate_scene
-from spc3d.translate import base, data, train
+from spc3d.translate import base, data, model_io, train
 from spc3d.translate.apply import score_images, translate_scene
-from spc3d.training import CheckpointPolicy, run
+from spc3d.checkpoints import CheckpointPolicy
+from spc3d.training import run
 from spc3d.workflow import LABELS, STAGE1_METHODS, translator_settings
 from conftest import InterruptAt, Interrupted
 from torch import nn
@@ -130,15 +131,15 @@ def test_lr_schedule_is_constant_then_linear_to_zero():
 
 
 def test_model_config_presets_and_unknown_keys(tiny_registered):
-    assert train.model_config("tiny", {}).width == 4
-    assert train.model_config("tiny", {"preset": "paper"}).width == 8
-    assert train.model_config("tiny", {"preset": "paper", "width": 3}).width == 3
+    assert model_io.model_config("tiny", {}).width == 4
+    assert model_io.model_config("tiny", {"preset": "paper"}).width == 8
+    assert model_io.model_config("tiny", {"preset": "paper", "width": 3}).width == 3
     with pytest.raises(ValueError, match="stage1.tiny: unknown setting.*'depth'"):
-        train.model_config("tiny", {"depth": 3})
+        model_io.model_config("tiny", {"depth": 3})
     with pytest.raises(ValueError, match="unknown stage-1 method 'pix3pix'"):
-        train.model_config("pix3pix", {})
+        model_io.model_config("pix3pix", {})
     with pytest.raises(ValueError, match="preset='huge'"):
-        train.model_config("tiny", {"preset": "huge"})
+        model_io.model_config("tiny", {"preset": "huge"})
 
 
 def test_translator_settings_merge_the_method_train_block():
@@ -205,7 +206,7 @@ def test_translate_scene_and_stage1_scores(world, tmp_path, tiny_registered, lpi
 
 def test_load_translator_names_a_missing_model(tmp_path):
     with pytest.raises(FileNotFoundError, match="model.pt is missing.*train_translator"):
-        train.load_translator(tmp_path)
+        model_io.load_translator(tmp_path)
 
 
 def _metrics(path, combo, psnr):
@@ -257,13 +258,13 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
 
     tiny = {"dim": 8, "heads": [1, 1, 1, 1]}
     torch.manual_seed(5)
-    published = restormer.Translator(train.model_config("restormer", tiny), torch.device("cpu"))
+    published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
     rec = train.train_translator("restormer", [world / "augment" / "orchard"], tmp_path / "model",
                                  {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
                                  {"iterations": 0, "crop": 16}, seed=0)
     assert rec["pretrained"].endswith("real_denoising.pth") and rec["iterations"] == 0
-    _, loaded = train.load_translator(tmp_path / "model")
+    _, loaded = model_io.load_translator(tmp_path / "model")
     x = torch.rand(1, 3, 16, 24).round()
     assert torch.equal(loaded.translate(x), published.translate(x))
     with pytest.raises(ValueError, match="real_denoising.pth: checkpoint does not match"):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from spc3d import lpips_net
+from spc3d import lpips_specs
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.base import to_signed
 from spc3d.translate.networks import conditional_d_step, set_requires_grad
@@ -28,7 +28,7 @@ def vgg_weights(seed: int = 0) -> dict[str, np.ndarray]:
     """He-initialised arrays with the LPIPS VGG16 shapes (activations O(1), so the loss matters)."""
     rng = np.random.default_rng(seed)
     out = {}
-    for key, shape in lpips_net.expected_shapes("vgg").items():
+    for key, shape in lpips_specs.expected_shapes("vgg").items():
         scale = math.sqrt(2.0 / int(np.prod(shape[1:]))) if key.endswith("weight") else 0.01
         out[key] = (rng.standard_normal(shape) * scale).astype(np.float32)
     return out

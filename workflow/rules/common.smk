@@ -13,9 +13,9 @@ resolve_paths(config, workflow.basedir)
 
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, display_budgets, llff_input_files, resolve_combinations,
-                            scene_specs, source_frames, split_source, stage1_sources, translator_settings,
-                            translator_validation)
+from spc3d.workflow import (PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budgets, llff_input_files,
+                            resolve_combinations, scene_specs, source_frames, spc_settings, split_source,
+                            stage1_sources, translator_settings, translator_validation)
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -25,7 +25,6 @@ TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])
 ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
-STAGE2_MODELS = ["3dgs", "nerf", "nerf-grid"]
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
 check_settings(config, STAGE1_USED, sorted({c.partition("+")[2] for c in COMBINATIONS}), COMBINATIONS)
@@ -126,10 +125,7 @@ def get_scene_source(wildcards):
 
 
 def get_spc_settings(wildcards):
-    s = config["spc"]
-    physics = {k: s[k] for k in ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")}
-    return {"physics": physics, "flux_scale": s["flux_scale"], "target_detection": s["target_detection"],
-            "seed": get_seed(wildcards)}
+    return spc_settings(config["spc"], get_seed(wildcards))
 
 
 def get_augment_count(wildcards):
@@ -202,15 +198,16 @@ def get_translator_checkpoint(wildcards):
 def get_stage1_images(wildcards):
     """The folder holding a source's images of a scene (stage-1 output, metered MLE or binary frame)."""
     base = split_source(wildcards.source)[0]
-    if base in STAGE1_METHODS:
+    kind = SOURCE_IMAGES[base][0]
+    if kind == "translated":
         return f"results/translate/{wildcards.scene}/{base}{wildcards.rep}"
-    if base == "mle":
+    if kind == "display":
         return display_folder(wildcards)
     return f"results/spc/{wildcards.scene}{wildcards.rep}"
 
 
 def get_stage1_subdir(wildcards):
-    return "binary" if wildcards.source == "none" else "images"
+    return SOURCE_IMAGES[split_source(wildcards.source)[0]][1]
 
 
 def get_qualitative_inputs(wildcards):

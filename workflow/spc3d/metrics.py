@@ -22,7 +22,7 @@ Conventions (pinned)
   image, borders included), in the input dtype. Do not report it as the metric.
 - LPIPS: v0.1 net-lin with AlexNet (``net="alex"``) or VGG16 (``net="vgg"``) as in the official
   code; images are scaled ``x * 2 - 1``. Name the backbone wherever a value is reported (3DGS
-  reports VGG, gsplat/nerfstudio AlexNet). Networks and weights: ``spc3d.lpips_net``.
+  reports VGG, gsplat/nerfstudio AlexNet). Networks: ``spc3d.lpips_net``; weights: ``spc3d.lpips_weights``.
 
 Constant and all-black images give finite values everywhere (C1, C2 > 0 keep SSIM's
 denominators positive; identical constant images give SSIM 1); LPIPS of identical images is 0.
@@ -154,7 +154,7 @@ def lpips_batch(pred: torch.Tensor, target: torch.Tensor, net: str = "alex",
                 cache_dir: str | os.PathLike | None = None) -> torch.Tensor:
     """LPIPS v0.1 distances (B,) of (B, 3, H, W) tensors in [0, 1]; differentiable in the inputs.
 
-    Weights resolve as in ``spc3d.lpips_net.lpips_weights``; the network is cached per process.
+    Weights resolve as in ``spc3d.lpips_weights.lpips_weights``; the network is cached per process.
     """
     if min(pred.shape[-2:]) < LPIPS_MIN_SIZE:
         raise ValueError(f"LPIPS needs images of at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels (AlexNet's "

@@ -28,9 +28,8 @@ from .exposure import read_gain
 from .reconstruct.objectives import BernoulliObjective
 from .reconstruct.train import Views
 from .simulate import read_spc_record
-from .workflow import split_source
+from .workflow import SOURCE_IMAGES, split_source
 
-IMAGE_SOURCES = {"gt": ("scene", "images"), "none": ("spc", "binary")}
 FRAME_SOURCES = ("bernoulli",)
 
 
@@ -65,23 +64,24 @@ def load_source(name: str, scene_dir: str | os.PathLike, spc_dir: str | os.PathL
         targets = bit_fractions(Path(spc_dir), names, frames)
         objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir, likelihood=True))
     else:
-        if base == "mle" and image_dir is None:
-            if display_dir is None:
-                raise ValueError(f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames})")
-            image_dir = Path(display_dir) / "images"
-        folder = Path(image_dir) if image_dir else _image_folder(base, Path(scene_dir), spc_dir)
+        folder = Path(image_dir) if image_dir else _image_folder(name, Path(scene_dir), spc_dir, display_dir, frames)
         targets, objective = np.stack([_read_view(folder, n, cams) for n in names]), None
     return Source(Views(torch.as_tensor(targets, dtype=torch.float32), cams, names), objective, name)
 
 
-def _image_folder(name: str, scene_dir: Path, spc_dir) -> Path:
-    if name not in IMAGE_SOURCES:
-        raise ValueError(f"unknown image source {name!r}: use one of {sorted(IMAGE_SOURCES) + list(FRAME_SOURCES)} "
+def _image_folder(name: str, scene_dir: Path, spc_dir, display_dir, frames: int) -> Path:
+    """The folder of source ``name``'s images (spc3d.workflow.SOURCE_IMAGES), from the folders given."""
+    kind, sub = SOURCE_IMAGES.get(split_source(name)[0], (None, None))
+    if kind not in ("scene", "spc", "display"):  # a stage-1 method's images come as image_dir
+        known = sorted(k for k, (where, _) in SOURCE_IMAGES.items() if where != "translated")
+        raise ValueError(f"unknown image source {name!r}: use one of {known + list(FRAME_SOURCES)} "
                          "or give the folder of a stage-1 method's images")
-    base, sub = IMAGE_SOURCES[name]
-    if base == "spc" and spc_dir is None:
-        raise ValueError(f"source {name!r} needs the scene's SPC folder (results/spc/{{scene}})")
-    return (scene_dir if base == "scene" else Path(spc_dir)) / sub
+    folders = {"scene": scene_dir, "spc": spc_dir, "display": display_dir}
+    if folders[kind] is None:
+        what = {"spc": "the scene's SPC folder (results/spc/{scene})",
+                "display": f"the metered display folder (results/mle/{{scene}}/k{frames})"}[kind]
+        raise ValueError(f"source {name!r} needs {what}")
+    return Path(folders[kind]) / sub
 
 
 def _read_view(folder: Path, name: str, cams) -> np.ndarray:

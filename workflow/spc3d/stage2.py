@@ -10,7 +10,7 @@
 The checkpoint lives outside that folder (``checkpoint``, e.g. ``results/checkpoints/...``) so
 that Snakemake's clean-up of an interrupted job's outputs keeps it: a rerun resumes from it, but
 only when its fingerprint (resolved settings, seed, source, input digests, code) is the job's own
-(:mod:`spc3d.training`); a checkpoint of other settings is discarded, with the reason logged.
+(:mod:`spc3d.checkpoints`); a checkpoint of other settings is discarded, with the reason logged.
 """
 
 from __future__ import annotations
@@ -26,10 +26,11 @@ import torch
 
 from . import io, llff
 from .cameras import split_views
+from .checkpoints import Checkpoint, CheckpointPolicy, digest_path, fingerprint
 from .colmap import sparse_points
 from .reconstruct import RECONSTRUCTORS
 from .sources import load_source
-from .training import Checkpoint, CheckpointPolicy, digest_path, fingerprint, peak_rss_mb, run, seed_everything
+from .training import peak_rss_mb, run, seed_everything
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,11 @@
-"""Glue between Snakemake and the library: config checks and logging for the thin rule scripts.
+"""The one layer between the workflow config and the library: the vocabulary of sources and
+models, the config turned into each stage's arguments (scene specs, SPC settings, translator and
+validation settings, combinations and their photon budgets), config checks, and logging for the
+thin rule scripts.
 
-Nothing in the rest of :mod:`spc3d` imports this module: the library never sees Snakemake.
+Both the rules' ``get_*`` helpers (``workflow/rules/common.smk``) and the sweeps
+(:mod:`spc3d.sweeps`) build their arguments here. Torch-free, so parsing the Snakefile stays fast;
+nothing here knows about Snakemake objects.
 """
 
 from __future__ import annotations
@@ -97,9 +102,16 @@ def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") 
 # not import torch; a test keeps the two equal) and the stage-2 sources that need no stage 1.
 STAGE1_METHODS = ("pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion")
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
+# Stage-2 models (keys of spc3d.reconstruct.RECONSTRUCTORS, repeated for the same reason; a test keeps them equal).
+STAGE2_MODELS = ("3dgs", "nerf", "nerf-grid")
 # Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
 # the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
 BUDGET_SOURCES = ("mle", "bernoulli")
+# Where each image source's views are: (input folder kind, subfolder). "scene" is results/scenes/{scene},
+# "spc" results/spc/{scene}, "display" the metered MLE folder of the row's budget, "translated" a
+# stage-1 method's outputs. ``bernoulli`` trains on the frames themselves (no images).
+SOURCE_IMAGES = {"gt": ("scene", "images"), "none": ("spc", "binary"), "mle": ("display", "images"),
+                 **{m: ("translated", "images") for m in STAGE1_METHODS}}
 # How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
 LABELS = {"pix2pixhd": "Pix2PixHD", "pix2pix": "Pix2Pix", "cyclegan": "CycleGAN", "restormer": "Restormer",
           "diffusion": "Diffusion (DiffBIR stand-in)", "mle": "MLE", "none": "binary frame (no stage 1)",
@@ -131,7 +143,7 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
     out = []
     for combo in combinations:
         source, sep, model = combo.partition("+")
-        if not sep or not source or model not in ("3dgs", "nerf", "nerf-grid"):
+        if not sep or not source or model not in STAGE2_MODELS:
             raise ConfigError(f"{where}: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
         base, k = split_source(source)
         if base not in PLAIN_SOURCES + STAGE1_METHODS or (source != base and k is None):
@@ -155,6 +167,24 @@ def display_budgets(combinations: list[str], stage2_frames: int) -> list[int]:
     ks = {source_frames(c.partition("+")[0], 1, stage2_frames) for c in combinations
           if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES}
     return sorted(ks)
+
+
+# The spc block's keys that are the camera's physics (spc3d.spc.SPCParams); the others set its exposure.
+SPC_PHYSICS = ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")
+
+
+def spc_settings(spc: dict, seed: int, frames: int | None = None, detection: float | None = None) -> dict:
+    """Arguments of :func:`spc3d.simulate.simulate_scene` from the config's ``spc`` block: the physics,
+    the exposure (a fixed ``flux_scale``, or calibration to ``target_detection``) and the seed.
+    ``frames`` overrides K stored per view; ``detection`` sets a calibration target (whatever
+    ``flux_scale`` says), as a sweep's ``K`` and ``detection`` knobs do."""
+    physics = {k: spc[k] for k in SPC_PHYSICS}
+    if frames is not None:
+        physics["frames"] = frames
+    if detection is not None:
+        return {"physics": physics, "flux_scale": None, "target_detection": detection, "seed": seed}
+    return {"physics": physics, "flux_scale": spc["flux_scale"], "target_detection": spc["target_detection"],
+            "seed": seed}
 
 
 def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:

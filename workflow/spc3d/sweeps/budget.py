@@ -22,6 +22,7 @@ import dataclasses
 
 from ..augment import split_count
 from ..training import build_config
+from ..workflow import spc_settings
 from .knobs import METERED, PLAIN_SOURCES, check_setting, split_combination, used_knobs
 
 # The translator's main width (``width`` knob) per stage-1 method.
@@ -30,7 +31,6 @@ WIDTH_KEYS = {"pix2pixhd": "ngf", "pix2pix": "ngf", "cyclegan": "ngf", "restorme
 ITERATION_FIELD = {"3dgs": "iterations", "nerf": "n_iters", "nerf-grid": "n_iters"}
 SCHEDULE_FIELDS = {"3dgs": ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_interval"),
                    "nerf": (), "nerf-grid": ("occupancy_every", "occupancy_warmup")}
-SPC_PHYSICS = ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")
 CROP_MULTIPLE = 16  # translator training crops: a multiple of every default network's stride
 
 
@@ -48,7 +48,7 @@ def resolve_point(base: dict, setting: dict, combo: str) -> dict:
         raise ValueError(f"{combo}: source {source!r} needs training scenes (tradeoff.train_scenes is empty)")
     if base["scene_name"] in train_scenes:
         raise ValueError(f"{combo}: scene {base['scene_name']!r} is both evaluated and trained on; keep them apart")
-    spc = spc_settings(base["spc"], knobs, base["seed"])
+    spc = spc_settings(base["spc"], base["seed"], frames=knobs.get("K"), detection=knobs.get("detection"))
     return {"combination": combo, "source": source, "model": model, "seed": base["seed"], "setting": knobs,
             "used_knobs": used_knobs(combo), "scene_name": base["scene_name"], "scene": scene,
             "train_scenes": train_scenes, "spc": spc,
@@ -69,15 +69,7 @@ def scale_spec(spec: dict, res: int | None) -> dict:
     return spec
 
 
-def spc_settings(spc: dict, knobs: dict, seed: int) -> dict:
-    """SPC simulation settings: ``K`` frames stored, ``detection`` calibrates the exposure to it."""
-    physics = {k: spc[k] for k in SPC_PHYSICS}
-    if "K" in knobs:
-        physics["frames"] = knobs["K"]
-    if "detection" in knobs:  # a target exposure always means calibration, whatever flux_scale says
-        return {"physics": physics, "flux_scale": None, "target_detection": knobs["detection"], "seed": seed}
-    return {"physics": physics, "flux_scale": spc["flux_scale"], "target_detection": spc["target_detection"],
-            "seed": seed}
+
 
 
 def source_frames(base: dict, source: str, knobs: dict, spc: dict) -> int | None:

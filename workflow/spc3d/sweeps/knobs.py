@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..workflow import BUDGET_SOURCES, PLAIN_SOURCES, STAGE2_MODELS
+
 # Knob -> (type, what it sets). Order = the order of path components in a default table.
 KNOBS: dict[str, tuple[type, str]] = {
     "iters": (int, "stage-2 iterations (3DGS iterations, NeRF n_iters); iteration schedules scale with it"),
@@ -24,18 +26,15 @@ KNOBS: dict[str, tuple[type, str]] = {
     "grid": (int, "nerf-grid final grid resolution (the res_schedule is scaled to end there)"),
     "detection": (float, "exposure: mean detection probability spc.target_detection (calibrated flux)"),
 }
-# Stage-2 sources that need no translator (spc3d.workflow.PLAIN_SOURCES; a test keeps them equal).
-PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
 # Sources whose display gain is metered with a level fitted on the training scenes (spc3d.exposure).
-METERED = ("mle", "bernoulli")
-MODELS = ("3dgs", "nerf", "nerf-grid")
+METERED = BUDGET_SOURCES
 
 
 def split_combination(combo: str) -> tuple[str, str]:
     """``"pix2pixhd+3dgs"`` -> ``("pix2pixhd", "3dgs")``."""
     source, sep, model = combo.partition("+")
-    if not sep or not source or model not in MODELS:
-        raise ValueError(f"combination {combo!r} must be 'source+model' with model one of {list(MODELS)}")
+    if not sep or not source or model not in STAGE2_MODELS:
+        raise ValueError(f"combination {combo!r} must be 'source+model' with model one of {list(STAGE2_MODELS)}")
     return source, model
 
 

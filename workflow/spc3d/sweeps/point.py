@@ -45,17 +45,18 @@ from .. import io
 from ..augment import AugmentSettings, augment_scene
 from ..evaluate import evaluate
 from ..prepare import prepare_scene
-from ..training import CheckpointPolicy, canonical, digest_path, peak_rss_mb
+from ..checkpoints import CheckpointPolicy, canonical, digest_path
+from ..training import peak_rss_mb
 from ..simulate import simulate_scene
 from ..spc import SPCParams
 from ..stage2 import reconstruct
 from .budget import resolve_point
+from ..workflow import SOURCE_IMAGES
 from .knobs import METERED
 from .plan import scene_inputs
 
 log = logging.getLogger(__name__)
 STAGES = ("prepare", "simulate", "augment", "train", "translate", "reconstruct", "evaluate")
-STAGE1_IMAGES = {"mle": ("display", "images"), "none": ("spc", "binary")}  # sources scored before 3D
 TRANSLATOR_KEYS = ("parameters", "train_s", "settings", "train", "pairs", "peak_rss_mb")  # kept from train.json
 
 
@@ -169,7 +170,7 @@ def meter_display(plan: dict, work: Path, times: dict) -> Path:
 def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict,
                resume: Resume = Resume(None, {})) -> tuple[dict, Path]:
     """Augment the training scenes, train the translator, translate the evaluation scene."""
-    from ..lpips_net import cache_file, load_npz
+    from ..lpips_weights import cache_file, load_npz
     from ..translate.apply import translate_scene
     from ..translate.train import train_translator
 
@@ -196,9 +197,9 @@ def score_source(plan: dict, work: Path, image_dir: Path | None, lpips_dir) -> d
     from ..translate.apply import score_images
 
     source, name = plan["source"], plan["scene_name"]
-    if image_dir is None and source not in STAGE1_IMAGES:
+    kind, sub = SOURCE_IMAGES.get(source, (None, None))
+    if image_dir is None and kind not in ("spc", "display"):  # scored before 3D: translated, MLE and binary
         return None
-    kind, sub = STAGE1_IMAGES.get(source, (None, None))
     folder = image_dir or (work / "display" / sub if kind == "display" else work / kind / name / sub)
     return score_images(folder, work / "scenes" / name, work / "stage1.json", source, lpips_dir=lpips_dir)["mean"]
 

@@ -8,7 +8,8 @@
 
 Each module holds ``Config`` (CPU-budget defaults), ``PAPER`` (the published sizes) and
 ``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks`. The
-training loop is :mod:`.train`, applying a model to a scene and stage-1 scoring :mod:`.apply`.
+training loop is :mod:`.train`, a model folder's files :mod:`.model_io` (its curve figure
+:mod:`.curves`), applying a model to a scene and stage-1 scoring :mod:`.apply`.
 Physics baselines without training (``mle``, the raw binary frame ``none``) are stage-2 sources
 (:mod:`spc3d.sources`), scored before 3D alongside the translators.
 """

@@ -26,7 +26,7 @@ from .. import io, llff
 from ..cameras import split_views
 from ..evaluate import mean_scores, score_view
 from .data import binary_input
-from .train import load_translator
+from .model_io import load_translator
 
 log = logging.getLogger(__name__)
 

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from spc3d import lpips_net
+from spc3d import lpips_specs
 
 NORMS = ("instance", "batch", "none")
 
@@ -314,7 +314,7 @@ VGG_LOSS_WEIGHTS = (1.0 / 32, 1.0 / 16, 1.0 / 8, 1.0 / 4, 1.0)
 
 class VGGFeatures(nn.Module):
     """Frozen VGG16 returning relu1_1, relu2_1, relu3_1, relu4_1, relu5_1 (the first conv of each
-    stage); written with plain convs, weights from ``spc3d.lpips_net.lpips_weights("vgg")``.
+    stage); written with plain convs, weights from ``spc3d.lpips_weights.lpips_weights("vgg")``.
 
     pix2pixHD uses VGG19 at these taps. VGG19 weights are not available offline here, so VGG16
     (the LPIPS backbone: same five stages and widths, but 3 instead of 4 convs in stages 3-5)
@@ -328,19 +328,19 @@ class VGGFeatures(nn.Module):
 
     def __init__(self, weights: Mapping[str, np.ndarray | Tensor]):
         super().__init__()
-        expected = lpips_net.expected_shapes("vgg")
+        expected = lpips_specs.expected_shapes("vgg")
         for i in range(self.TAP_CONVS[-1] + 1):
             for part in ("weight", "bias"):
                 key = f"conv{i}.{part}"
                 if key not in weights:
                     raise ValueError(f"VGG weights: key {key!r} missing; expected the layout of "
-                                     f"spc3d.lpips_net.lpips_weights('vgg')")
+                                     f"spc3d.lpips_weights.lpips_weights('vgg')")
                 value = torch.as_tensor(np.asarray(weights[key], dtype=np.float32))
                 if tuple(value.shape) != expected[key]:
                     raise ValueError(f"VGG weights: {key} has shape {tuple(value.shape)}, expected {expected[key]}")
                 self.register_buffer(f"conv{i}_{part}", value.clone(), persistent=False)
-        self.register_buffer("shift", torch.tensor(lpips_net.SHIFT).view(1, 3, 1, 1), persistent=False)
-        self.register_buffer("scale", torch.tensor(lpips_net.SCALE).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("shift", torch.tensor(lpips_specs.SHIFT).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("scale", torch.tensor(lpips_specs.SCALE).view(1, 3, 1, 1), persistent=False)
         self.eval()
 
     def _conv(self, x: Tensor, i: int) -> Tensor:

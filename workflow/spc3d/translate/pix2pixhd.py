@@ -116,7 +116,7 @@ class Generator(nn.Module):
 class Translator(PairedGANBase):
     """Pix2PixHD as a stage-1 model; ``G`` binary -> sRGB, ``D`` multiscale conditional PatchGAN.
 
-    ``vgg_weights``: ``spc3d.lpips_net.lpips_weights("vgg")``, required when ``cfg.vgg_loss``.
+    ``vgg_weights``: ``spc3d.lpips_weights.lpips_weights("vgg")``, required when ``cfg.vgg_loss``.
     """
 
     paired = True
@@ -140,7 +140,7 @@ class Translator(PairedGANBase):
             return None
         if vgg_weights is None:
             raise ValueError("pix2pixhd: vgg_loss is True but no vgg_weights were given; pass the VGG16 "
-                             "weights from spc3d.lpips_net.lpips_weights('vgg') or set vgg_loss: false")
+                             "weights from spc3d.lpips_weights.lpips_weights('vgg') or set vgg_loss: false")
         return VGGLoss(vgg_weights).to(self.device)
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:

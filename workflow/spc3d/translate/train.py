@@ -1,10 +1,10 @@
-"""Training a stage-1 model: the loop, linear learning-rate decay, validation, checkpoints, record and curve.
+"""Training a stage-1 model: the loop, linear learning-rate decay, validation, checkpoints and the record.
 
 ``train_translator`` is the entry point of the workflow's ``train_translator`` rule. It trains on
 ``stage1.data``: ``fixed`` cycles over the augmented pairs (:mod:`.data`), ``online`` draws every
 batch fresh from the training scenes (:mod:`.online`); with ``stage1.validation`` it validates on
 the training scenes' held-out views, keeps the best model and stops early (:mod:`.validate`). It
-writes (``results/models/{method}/``, atomically):
+writes (``results/models/{method}/``, atomically, with :func:`.model_io.write_model_folder`):
 
     model.pt      the kept networks (every module's state: the best validated step, else the last)
                   + method name + resolved Config
@@ -13,14 +13,14 @@ writes (``results/models/{method}/``, atomically):
                   (``patience`` / ``budget``), wall time, parameter counts, peak memory, final
                   losses, resume point
     curve.csv     the losses every ``log_every`` iterations and the validation PSNR / L1
-    curve.png     the training curve (a figure a person would rather look at than the csv)
+    curve.png     the training curve (a figure a person would rather look at than the csv; :mod:`.curves`)
 
 The schedule follows pix2pix/pix2pixHD (constant lr for the first half, then linear decay to 0:
 their "100 + 100 epochs"), expressed in iterations. The checkpoint (optimiser states, the
 sampler's RNG and the validation state included) lives outside the output folder so a killed job
 resumes when rerun; it is resumed only when its fingerprint (method, resolved settings, seed,
 frames, data mode, digests of the pairs or scene and SPC folders, of published weights and of the
-perceptual-loss network, code) is the job's own (:mod:`spc3d.training`), otherwise discarded with
+perceptual-loss network, code) is the job's own (:mod:`spc3d.checkpoints`), otherwise discarded with
 the reason logged.
 """
 
@@ -30,18 +30,14 @@ import dataclasses
 import logging
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
-import pandas as pd
 import torch
 
-from .. import io
 from ..augment import AugmentSettings
-from ..plotting import pyplot, save_png
-from ..training import (Checkpoint, CheckpointPolicy, build_config, default_device, digest_arrays, digest_path,
-                        fingerprint, peak_rss_mb, run, seed_everything)
-from . import TRANSLATORS
+from ..checkpoints import Checkpoint, CheckpointPolicy, digest_arrays, digest_path, fingerprint
+from ..training import build_config, default_device, peak_rss_mb, run, seed_everything
 from .data import PairSampler, load_pairs
+from .model_io import build_translator, model_config, write_model_folder
 from .online import OnlineSampler, load_sources
 from .validate import Validator, load_views, validation_settings
 
@@ -74,21 +70,6 @@ def lr_scale(it: int, s: TrainSettings) -> float:
     return max(0.0, 1.0 - (it - start) / max(s.iterations - start, 1.0))
 
 
-def model_config(method: str, settings: dict):
-    """The method's Config: ``preset: paper`` starts from the published sizes; other keys override."""
-    if method not in TRANSLATORS:
-        raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(TRANSLATORS)}")
-    module = TRANSLATORS[method]
-    settings = dict(settings)
-    preset = settings.pop("preset", None)
-    settings.pop("checkpoint", None)
-    if preset not in (None, "paper"):
-        raise ValueError(f"stage1.{method}.preset={preset!r}: use 'paper' or leave it out (CPU default)")
-    base = module.Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in module.PAPER.items()}) \
-        if preset == "paper" else None
-    return build_config(module.Config, settings, f"stage1.{method}", base)
-
-
 def train_settings(train: dict, method: str, pretrained: str | None = None) -> TrainSettings:
     """``stage1.train`` (with the method's own ``train`` block) as TrainSettings; 0 iterations only
     when the method starts from published weights (an untrained network is not a result)."""
@@ -97,17 +78,6 @@ def train_settings(train: dict, method: str, pretrained: str | None = None) -> T
         raise ValueError(f"stage1.train.iterations = 0 for {method}: an untrained network is not a result; use "
                          f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)")
     return s
-
-
-def check_pretrained(method: str, settings: dict) -> None:
-    """Load the published weights of ``settings['checkpoint']`` into the method's network now (safely:
-    no pickled code runs), so a corrupt or mismatched file stops the run before any job."""
-    cfg = model_config(method, settings)
-    build_translator(method, cfg, torch.device("cpu")).load_pretrained(settings["checkpoint"])
-
-
-def build_translator(method: str, cfg, device: torch.device, vgg_weights: dict | None = None):
-    return TRANSLATORS[method].Translator(cfg, device, vgg_weights=vgg_weights)
 
 
 class TranslatorTrainer:
@@ -299,65 +269,3 @@ def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.Pat
               "peak_rss_mb": peak_rss_mb(), **{k: v for k, v in result.items() if k != "curve"}}
     write_model_folder(out_dir, job.model, record, result["curve"], best)
     return record
-
-
-def write_model_folder(out_dir, model, record: dict, curve: list[dict], modules: dict | None = None) -> None:
-    """model.pt (``modules``: the weights to keep, e.g. the best validated; default: the model's
-    current ones), train.json, curve.csv (losses and validation by iteration) and curve.png."""
-    modules = modules or {k: m.state_dict() for k, m in model.modules().items()}
-    validation = (record.get("validation") or {}).get("curve", [])
-    frame = pd.DataFrame(curve)
-    if validation:
-        scores = pd.DataFrame(validation)
-        frame = frame.merge(scores, on="iteration", how="outer").sort_values("iteration") if curve else scores
-    with io.atomic_path(out_dir, is_dir=True) as tmp:
-        tmp = Path(tmp)
-        tmp.mkdir(parents=True, exist_ok=True)
-        torch.save({"method": record["method"], "config": record["settings"], "modules": modules}, tmp / "model.pt")
-        io.write_json(tmp / "train.json", record)
-        io.write_text(tmp / "curve.csv", frame.to_csv(index=False, float_format="%.6g"))
-        plot_curve(frame, tmp / "curve.png", record["method"], record.get("model_step"))
-
-
-def plot_curve(frame: pd.DataFrame, path: Path, title: str, best_step: int | None = None) -> None:
-    """Every loss and validation value against the iteration, one panel each (log scale where all
-    positive; validation values as points joined, the kept model's step dashed)."""
-    plt = pyplot()
-
-    keys = [c for c in frame.columns if c != "iteration"]
-    fig, axes = plt.subplots(1, max(len(keys), 1), figsize=(3.2 * max(len(keys), 1), 2.6), squeeze=False)
-    for ax, key in zip(axes[0], keys):
-        points = frame[["iteration", key]].dropna()
-        validation = key.startswith("val_")
-        ax.plot(points["iteration"], points[key], lw=1.2, marker="o" if validation else None, ms=2.5,
-                color="C1" if validation else "C0")
-        if (points[key] > 0).all() and not validation:
-            ax.set_yscale("log")
-        if validation and best_step is not None:
-            ax.axvline(best_step, color="0.4", ls="--", lw=0.8)
-        ax.set_title(VALIDATION_TITLES.get(key, key), fontsize=9)
-        ax.set_xlabel("iteration", fontsize=8)
-        ax.grid(alpha=0.3)
-    fig.suptitle(f"{title}: training losses" + (" and validation" if "val_psnr" in keys else ""), fontsize=10)
-    fig.tight_layout()
-    save_png(fig, path, dpi=110)
-
-
-VALIDATION_TITLES = {"val_psnr": "validation PSNR (dB)", "val_l1": "validation L1"}
-
-
-def load_translator(model_dir: str | os.PathLike, device: torch.device | None = None):
-    """A trained model from ``model_dir/model.pt``, ready for ``translate`` (no loss networks)."""
-    path = Path(model_dir) / "model.pt"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} is missing: train the method first (rule train_translator)")
-    saved = io.load_torch(path, "trained stage-1 model")
-    method = saved["method"]
-    cfg = build_config(TRANSLATORS[method].Config, saved["config"], f"{path} config")
-    if any(f.name == "vgg_loss" for f in dataclasses.fields(cfg)):
-        cfg = dataclasses.replace(cfg, vgg_loss=False)  # the perceptual loss is a training-only network
-    model = build_translator(method, cfg, device or default_device())
-    for k, m in model.modules().items():
-        m.load_state_dict(saved["modules"][k])
-    return method, model
-
