@@ -39,6 +39,16 @@ def lpips_cache(request, tmp_path_factory) -> Path:
     return Path(folder)
 
 
+@pytest.fixture
+def one_thread():
+    """One test on one torch thread, restored afterwards: bit-exact comparisons (multi-threaded
+    scatter-adds sum in varying order) and tiny float64 ops (no thread-pool contention)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def one_torch_thread():
     """Tiny networks gain nothing from threads, and OpenMP spin-waiting is slow on a busy 2-core

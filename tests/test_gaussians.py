@@ -82,14 +82,6 @@ def test_densification_grows_where_gradients_demand(scene):
     assert len(t2.model) <= 320
 
 
-@pytest.fixture
-def one_thread():
-    """Multi-threaded scatter-adds sum in varying order (1e-7 differences that training amplifies);
-    bit-exact comparisons run on one thread."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def test_resume_matches_uninterrupted_run(scene, tmp_path, one_thread):

@@ -93,13 +93,6 @@ def test_ssim_map_shapes_and_small_images():
         metrics.ssim(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)))
 
 
-@pytest.fixture
-def one_thread():
-    """Tiny float64 ops: one intra-op thread avoids thread-pool contention on a busy machine."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
 
 
 def test_ssim_loss_gradcheck(one_thread):

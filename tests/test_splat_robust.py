@@ -409,12 +409,6 @@ def _trainer(**changes):
     return SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=0, points=points, colors=np.full((200, 3), 0.5))
 
 
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def test_trainer_stops_on_a_non_finite_loss_naming_the_iteration(one_thread):
