@@ -1,6 +1,9 @@
 """Captured SPAD data: photon-cube formats, CFA sensors, the masked likelihood, hot pixels, and the
 simulated export read back as a capture."""
 import gzip
+import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -11,6 +14,7 @@ from spc3d.reconstruct.objectives import BernoulliObjective
 from spc3d.metrics import psnr
 from spc3d.scenes import render_scene, write_builtin_scene
 from spc3d.simulate import simulate_scene
+from conftest import REPO
 
 BAYER = ("RGGB", "BGGR", "GRBG", "GBRG")
 OBJ = BernoulliObjective(flux_scale=2000.0, q=0.45, exposure_s=1e-3, dark_count_rate=100.0)
@@ -547,3 +551,54 @@ def test_bad_captures_name_the_file_and_key(simulated, tmp_path):
     io.write_json(sensor_json, {**rec, "cfa": "cfa.png"})
     with pytest.raises(FileNotFoundError, match=r"cfa names cfa.png, which is not in"):
         captures.read_capture(tmp_path / "cap")
+
+
+# --------------------------------------------------------------------------------------------
+# the command line: export, then inspect (hot pixels, detection rates, previews without reference)
+
+CAPTURE_TOOL = REPO / "workflow" / "tools" / "capture.py"
+
+
+def capture_tool(*args):
+    return subprocess.run([sys.executable, str(CAPTURE_TOOL), *map(str, args)], capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_capture_tool_exports_and_inspects_a_capture_with_a_planted_hot_pixel(tmp_path):
+    # 4 views x 64 frames: enough frames that one hot pixel stands out of the courtyard's sharp texture
+    write_builtin_scene("courtyard", tmp_path / "scene", height=36, width=48, views=4, supersample=1, seed=0)
+    simulate_scene(tmp_path / "scene", tmp_path / "spc", spc.SPCParams(frames=64), target_detection=0.3, seed=4)
+    cap, out = tmp_path / "cap", tmp_path / "inspect"
+    proc = capture_tool("export", tmp_path / "spc", cap, "--cfa", "RGGB", "--format", "npz",
+                        "--scene", tmp_path / "scene")
+    assert proc.returncode == 0, proc.stderr
+    assert "64 frames of 48x36, cfa RGGB" in proc.stdout
+    for path in sorted((cap / "frames").glob("*.npz")):  # pixel (row 9, column 13) fires in 63 of 64 frames
+        cube = photon_cubes.read_cube(path)
+        cube[:, 9, 13] = np.arange(len(cube)) > 0
+        photon_cubes.write_cube(path, cube)
+    shutil.rmtree(cap / "images")  # inspecting needs no reference views
+    proc = capture_tool("inspect", cap, out)
+    assert proc.returncode == 0, proc.stderr
+    assert "hot pixels: 1 (" in proc.stdout
+    rec = io.read_json(out / "capture.json")
+    assert rec["hot_pixels"]["positions"] == [[9, 13]] and rec["frames"] == 64 and rec["cfa"] == "RGGB"
+    assert np.array_equal(hot_pixels.read_hot_pixel_map(out / "hot_pixels.png"),
+                          np.pad([[True]], ((9, 26), (13, 34))))
+    # the simulation's exposure: 0.3 mean detection (rates per colour around it, R > G > B on this scene)
+    rates = rec["detection_rate"]
+    assert set(rates) == {"R", "G", "B"} and 0.15 < np.mean(list(rates.values())) < 0.45
+    # previews: the demosaiced MLE at one metered gain, hot pixel excluded: the scene's picture
+    gt = io.read_rgb(tmp_path / "scene" / "images" / "image000.png")
+    preview = io.read_rgb(out / "preview" / "image000.png")
+    assert preview.shape == gt.shape
+    assert np.corrcoef(preview.mean(2).ravel(), gt.mean(2).ravel())[0, 1] > 0.6
+    assert sorted(p.name for p in (out / "preview").iterdir()) == [f"image00{i}.png" for i in range(4)]
+
+
+def test_capture_tool_errors_name_the_file(simulated, tmp_path):
+    proc = capture_tool("inspect", tmp_path / "nowhere", tmp_path / "out")
+    assert proc.returncode == 1 and "capture inspect:" in proc.stderr and "nowhere/sensor.json" in proc.stderr
+    assert not (tmp_path / "out").exists()
+    proc = capture_tool("export", simulated / "spc", tmp_path / "w", "--cfa", "RGBW")
+    assert proc.returncode == 1 and "give scene_dir" in proc.stderr and not (tmp_path / "w").exists()

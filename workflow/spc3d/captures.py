@@ -49,7 +49,8 @@ from pathlib import Path
 import numpy as np
 
 from . import io, photon_cubes, sensors, spc
-from .hot_pixels import read_hot_pixel_map
+from .exposure import display_srgb, metered_gain
+from .hot_pixels import detect_hot_pixels, read_hot_pixel_map, write_hot_pixel_map
 
 SENSOR_FILE = "sensor.json"
 REQUIRED_KEYS = ("format", "width", "height", "frames", "cfa", "q", "exposure_s", "dark_count_rate")
@@ -179,6 +180,48 @@ def reference_images(folder: str | os.PathLike, names: list[str]) -> np.ndarray 
     if missing:
         raise FileNotFoundError(f"{images}: no reference image for views {missing[:5]}; give one per view or none")
     return np.stack([io.read_rgb(files[n]) for n in names])
+
+
+# --------------------------------------------------------------------------------------------
+# a first look at a capture: hot pixels, detection rates, MLE previews
+
+PREVIEW_LEVEL = 0.18  # average metering: the mean flux is shown at 18 % linear grey (a camera's default)
+
+
+def inspect_capture(folder: str | os.PathLike, out_dir: str | os.PathLike, max_frames: int | None = None,
+                    level: float = PREVIEW_LEVEL, threshold: float = 6.0) -> dict:
+    """Check a capture folder and write what a SPAD user looks at first into ``out_dir``.
+
+    ``hot_pixels.png``  hot pixels detected from the counts of every view (robust z-score above
+                        ``threshold`` against same-colour neighbours), united with sensor.json's map
+    ``preview/*.png``   each view's demosaiced MLE flux (hot pixels excluded), shown at one gain
+                        metered from all views (mean flux at linear ``level``): no reference needed
+    ``capture.json``    the sensor, views, frames used, detection rate per CFA colour, hot pixels
+                        (the strongest listed), the display gain; returned too
+
+    Nothing here reads the reference images: a capture without them is inspected the same way.
+    """
+    names, cubes, sensor = read_capture(folder, max_frames)
+    params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
+    counts = [cube.sum(0, dtype=np.int64) for cube in cubes]
+    hot, hot_record = detect_hot_pixels(sum(counts), k * len(cubes), pattern, threshold)
+    if sensor.hot_pixels is not None:
+        hot |= sensor.hot_pixels
+    flux = [sensors.mle_rgb(c, k, params, pattern, hot) for c in counts]
+    gain = metered_gain(np.stack(flux), level)
+    labels, classes = sensors.class_map(pattern, sensor.height, sensor.width)
+    rate = sum(counts) / (k * len(cubes))
+    record = {"folder": str(folder), "views": names, "frames": k, "width": sensor.width, "height": sensor.height,
+              "cfa": pattern.name, "format": sensor.format,
+              "detection_rate": {c: float(rate[(labels == i) & ~hot].mean()) for i, c in enumerate(classes)},
+              "hot_pixels": {**hot_record, "count": int(hot.sum()), "from_sensor_json": sensor.hot_pixels is not None},
+              "display": {"rule": "average metering over all views", "level": level, "gain": gain}}
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        write_hot_pixel_map(tmp / "hot_pixels.png", hot)
+        for name, phi in zip(names, flux):
+            io.write_image(tmp / "preview" / f"{name}.png", display_srgb(phi, gain))
+        io.write_json(tmp / "capture.json", record)
+    return record
 
 
 # --------------------------------------------------------------------------------------------
