@@ -600,5 +600,7 @@ def test_capture_tool_errors_name_the_file(simulated, tmp_path):
     proc = capture_tool("inspect", tmp_path / "nowhere", tmp_path / "out")
     assert proc.returncode == 1 and "capture inspect:" in proc.stderr and "nowhere/sensor.json" in proc.stderr
     assert not (tmp_path / "out").exists()
+    proc = capture_tool("inspect", tmp_path / "nowhere", tmp_path / "out", "--level", "0")
+    assert proc.returncode == 1 and "level=0.0: the linear grey level" in proc.stderr
     proc = capture_tool("export", simulated / "spc", tmp_path / "w", "--cfa", "RGBW")
     assert proc.returncode == 1 and "give scene_dir" in proc.stderr and not (tmp_path / "w").exists()

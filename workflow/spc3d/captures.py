@@ -201,6 +201,10 @@ def inspect_capture(folder: str | os.PathLike, out_dir: str | os.PathLike, max_f
 
     Nothing here reads the reference images: a capture without them is inspected the same way.
     """
+    if not (isinstance(level, (int, float)) and 0 < level <= 1):
+        raise ValueError(f"level={level!r}: the linear grey level the mean flux is shown at must be in (0, 1]")
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
+        raise ValueError(f"max_frames={max_frames!r}: use a positive number of frames per view (or None: all)")
     names, cubes, sensor = read_capture(folder, max_frames)
     params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
     counts = [cube.sum(0, dtype=np.int64) for cube in cubes]
