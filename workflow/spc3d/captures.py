@@ -208,13 +208,14 @@ def inspect_capture(folder: str | os.PathLike, out_dir: str | os.PathLike, max_f
     names, cubes, sensor = read_capture(folder, max_frames)
     params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
     counts = [cube.sum(0, dtype=np.int64) for cube in cubes]
-    hot, hot_record = detect_hot_pixels(sum(counts), k * len(cubes), pattern, threshold)
+    total, total_frames = sum(counts), k * len(cubes)
+    hot, hot_record = detect_hot_pixels(total, total_frames, pattern, threshold)
     if sensor.hot_pixels is not None:
         hot |= sensor.hot_pixels
     flux = [sensors.mle_rgb(c, k, params, pattern, hot) for c in counts]
     gain = metered_gain(np.stack(flux), level)
     labels, classes = sensors.class_map(pattern, sensor.height, sensor.width)
-    rate = sum(counts) / (k * len(cubes))
+    rate = total / total_frames
     record = {"folder": str(folder), "views": names, "frames": k, "width": sensor.width, "height": sensor.height,
               "cfa": pattern.name, "format": sensor.format,
               "detection_rate": {c: float(rate[(labels == i) & ~hot].mean()) for i, c in enumerate(classes)},

@@ -34,8 +34,8 @@ UMASK = _umask()
 
 
 def remove_stale_tmp(path: str | os.PathLike) -> list[Path]:
-    """Delete the temporary siblings an interrupted writer of ``path`` left (``.{name}.XXXXXXXX.tmp``,
-    as :func:`atomic_path` names them; ``.{name}.json.XXXXXXXX.tmp`` belongs to another output)."""
+    """Delete the temporary siblings an interrupted writer of ``path`` left (``.{name}.<8 random>.tmp``,
+    as :func:`atomic_path` names them; ``.{name}.json.<8 random>.tmp`` belongs to another output)."""
     path = Path(path)
     own = re.compile(rf"\.{re.escape(path.name)}\.[a-z0-9_]{{8}}\.tmp")
     stale = sorted(p for p in path.parent.glob(f".{path.name}.*.tmp") if own.fullmatch(p.name)) \

@@ -22,8 +22,8 @@ import dataclasses
 
 from ..augment import split_count
 from ..training import build_config
-from ..workflow import spc_settings
-from .knobs import METERED, PLAIN_SOURCES, check_setting, split_combination, used_knobs
+from ..workflow import BUDGET_SOURCES, PLAIN_SOURCES, spc_settings
+from .knobs import check_setting, split_combination, used_knobs
 
 # The translator's main width (``width`` knob) per stage-1 method.
 WIDTH_KEYS = {"pix2pixhd": "ngf", "pix2pix": "ngf", "cyclegan": "ngf", "restormer": "dim", "diffusion": "base_channels"}
@@ -42,7 +42,7 @@ def resolve_point(base: dict, setting: dict, combo: str) -> dict:
     stage1 = source not in PLAIN_SOURCES
     if stage1 and not base.get("translator"):
         raise ValueError(f"{combo}: source {source!r} is a stage-1 method but no translator settings were given")
-    trained = stage1 or source in METERED  # translators learn from them; metered rows fit their display level
+    trained = stage1 or source in BUDGET_SOURCES  # translators learn from them; metered rows fit their display level
     train_scenes = {n: scale_spec(s, knobs.get("res")) for n, s in base["train_scenes"].items()} if trained else {}
     if trained and not train_scenes:
         raise ValueError(f"{combo}: source {source!r} needs training scenes (tradeoff.train_scenes is empty)")
@@ -80,7 +80,7 @@ def source_frames(base: dict, source: str, knobs: dict, spc: dict) -> int | None
         return 1  # frame 0
     if "K" in knobs:
         return knobs["K"]
-    return base["stage2"]["frames"] if source in METERED else base["translator"]["frames"]
+    return base["stage2"]["frames"] if source in BUDGET_SOURCES else base["translator"]["frames"]
 
 
 def augment_settings(augment: dict, train_names: list[str]) -> dict:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..workflow import BUDGET_SOURCES, PLAIN_SOURCES, STAGE2_MODELS
+from ..workflow import PLAIN_SOURCES, STAGE2_MODELS
 
 # Knob -> (type, what it sets). Order = the order of path components in a default table.
 KNOBS: dict[str, tuple[type, str]] = {
@@ -26,8 +26,6 @@ KNOBS: dict[str, tuple[type, str]] = {
     "grid": (int, "nerf-grid final grid resolution (the res_schedule is scaled to end there)"),
     "detection": (float, "exposure: mean detection probability spc.target_detection (calibrated flux)"),
 }
-# Sources whose display gain is metered with a level fitted on the training scenes (spc3d.exposure).
-METERED = BUDGET_SOURCES
 
 
 def split_combination(combo: str) -> tuple[str, str]:

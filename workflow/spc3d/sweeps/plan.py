@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import pandas as pd
 
-from .knobs import METERED, check_setting, distinct_rows, split_combination
+from ..workflow import BUDGET_SOURCES
+from .knobs import check_setting, distinct_rows, split_combination
 
 
 class ByCombination(dict):
@@ -57,7 +58,7 @@ def point_base(combo: str, config: dict, scene: str, train: list[str], specs: di
         settings, train_settings = translators[source]
         translator = {"settings": settings, "train": train_settings, "frames": config["stage1"]["frames"]}
     return {"seed": config["seed"], "scene_name": scene, "scene": specs[scene],
-            "train_scenes": {name: specs[name] for name in train} if translator or source in METERED else {},
+            "train_scenes": {name: specs[name] for name in train} if translator or source in BUDGET_SOURCES else {},
             "spc": dict(config["spc"]), "augment": dict(config["augment"]), "translator": translator,
             "stage2": {"settings": dict(config["stage2"][model]), "frames": config["stage2"]["frames"]}}
 

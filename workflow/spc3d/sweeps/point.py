@@ -51,8 +51,7 @@ from ..simulate import simulate_scene
 from ..spc import SPCParams
 from ..stage2 import reconstruct
 from .budget import resolve_point
-from ..workflow import SOURCE_IMAGES
-from .knobs import METERED
+from ..workflow import BUDGET_SOURCES, SOURCE_IMAGES
 from .plan import scene_inputs
 
 log = logging.getLogger(__name__)
@@ -116,7 +115,7 @@ def run_point(out_dir: str | os.PathLike, combo: str, setting: dict, base: dict,
     scene_dir, spc_dir = prepare_and_simulate(plan, work, times)
     model_record, image_dir = run_stage1(plan, work, lpips_dir, threads, times, resume) if plan["translator"] \
         else (None, None)
-    display_dir = meter_display(plan, work, times) if plan["source"] in METERED else None
+    display_dir = meter_display(plan, work, times) if plan["source"] in BUDGET_SOURCES else None
     with timed(times, "reconstruct"):
         recon = reconstruct(scene_dir, out / "recon", plan["source"], plan["model"], plan["stage2"], plan["seed"],
                             spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"], threads=threads,
