@@ -11,7 +11,8 @@ from spc3d import spc
 from spc3d.cameras import split_views
 from spc3d.reconstruct import densify
 from spc3d.reconstruct.gaussians import GaussianConfig, GaussianModel, knn_rms_distance, random_points
-from spc3d.reconstruct.objectives import BernoulliObjective, RGBObjective, linear_to_srgb, srgb_to_linear
+from spc3d.colour import linear_to_srgb, srgb_to_linear
+from spc3d.reconstruct.objectives import BernoulliObjective, RGBObjective
 from spc3d.reconstruct.splatting import SplatTrainer, make_optimizer
 from spc3d.reconstruct.train import Views
 from spc3d.scenes import render_scene

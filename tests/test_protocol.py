@@ -41,8 +41,9 @@ def test_metered_display_is_exposure_invariant_and_the_fit_finds_the_known_level
 # --- no oracle information outside oracle rows ----------------------------------------------------
 
 def _products(root, out):
-    """Every non-oracle product of the evaluation scene: metered MLE images, translated images and
-    the stage-2 renders of none / mle / bernoulli / a translator (one thread: bit-reproducible)."""
+    """Every non-oracle product of the evaluation scene: metered MLE images, translated images (and
+    the translator's physics prior alone) and the stage-2 renders of none / mle / bernoulli / a
+    translator (one thread: bit-reproducible)."""
     scene, frames = root / "scenes" / "courtyard", root / "spc" / "courtyard"
     exposure.write_display(frames, root / "display-k2.json", 2, out / "mle")
     translate_scene(root / "model", frames, scene, out / "translate", frames=1, threads=1)
@@ -71,7 +72,7 @@ def test_replacing_the_ground_truth_changes_no_non_oracle_image_or_render(tmp_pa
         io.write_image(path, np.random.default_rng(i).random(io.read_rgb(path).shape).astype(np.float32))
     after = _products(root, root / "b")
     assert [p.relative_to(root / "a") for p in before] == [p.relative_to(root / "b") for p in after]
-    assert len(before) == 4 * 2 + 2 * 9  # renders of 4 rows (2 held-out views), MLE and translated views
+    assert len(before) == 4 * 2 + 3 * 9  # renders of 4 rows (2 held-out views), MLE, translated and prior views
     for a, b in zip(before, after):
         assert a.read_bytes() == b.read_bytes(), a.relative_to(root / "a")
     oracle = reconstruct(root / "scenes" / "courtyard", root / "gt", "gt", "3dgs", TINY_3DGS, seed=1, threads=1)

@@ -337,10 +337,11 @@ def test_validation_settings_are_checked(world, tmp_path):
 def test_published_weights_without_training_are_validated_once(world, tmp_path):
     from spc3d.translate import restormer
 
-    published = restormer.Translator(model_io.model_config("restormer", TINY_RESTORMER), torch.device("cpu"))
+    tiny = {**TINY_RESTORMER, "prior_sigma": 0.0}  # the published design, as published weights need
+    published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
     rec = train.train_translator("restormer", [], tmp_path / "model",
-                                 {**TINY_RESTORMER, "checkpoint": str(tmp_path / "real_denoising.pth")},
+                                 {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
                                  {"iterations": 0, "crop": 16}, **_online_job(world, tmp_path))
     assert [h["iteration"] for h in rec["validation"]["curve"]] == [0] and rec["model_step"] == 0
     assert rec["stopped"] == {"step": 0, "reason": "budget"} and rec["data"]["samples"] == 0

@@ -16,8 +16,9 @@ from spc3d.translate import diffusion as D
 from spc3d.translate import restormer as R
 
 CPU = torch.device("cpu")
-TINY_R = R.Config(dim=8, num_blocks=(1, 1, 1, 1), num_refinement_blocks=1, heads=(1, 1, 2, 2))
-TINY_D = D.Config(base_channels=8, channel_mults=(1, 2), groups=4, timesteps=50, sample_steps=4)
+# The published designs, without the physics prior (tested with it in test_translate_prior.py).
+TINY_R = R.Config(dim=8, num_blocks=(1, 1, 1, 1), num_refinement_blocks=1, heads=(1, 1, 2, 2), prior_sigma=0.0)
+TINY_D = D.Config(base_channels=8, channel_mults=(1, 2), groups=4, timesteps=50, sample_steps=4, prior_sigma=0.0)
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

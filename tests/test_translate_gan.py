@@ -22,12 +22,14 @@ from spc3d.translate.networks import (
 )
 
 CPU = torch.device("cpu")
-# Tiny settings: every network has 9k-33k parameters; crops of 16 px.
+# Tiny settings: every network has 9k-33k parameters; crops of 16 px. The published networks, without
+# the physics prior (tested with it in test_translate_prior.py).
 TINY = {
-    "pix2pix": (pix2pix, {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2}),
+    "pix2pix": (pix2pix, {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2, "prior_sigma": 0.0}),
     "pix2pixhd": (pix2pixhd, {"ngf": 8, "ndf": 8, "n_downsample_global": 2, "n_blocks_global": 1, "n_layers_D": 2,
-                            "vgg_loss": False}),
-    "cyclegan": (cyclegan, {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2}),
+                            "vgg_loss": False, "prior_sigma": 0.0}),
+    "cyclegan": (cyclegan, {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2,
+                            "prior_sigma": 0.0}),
 }
 METHODS = sorted(TINY)
 COLOUR = torch.tensor([0.85, 0.25, 0.55]).view(1, 3, 1, 1)

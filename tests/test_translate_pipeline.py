@@ -256,7 +256,7 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
     with 0 iterations, is exactly the model that translates (the paper's pretrained variant)."""
     from spc3d.translate import restormer
 
-    tiny = {"dim": 8, "heads": [1, 1, 1, 1]}
+    tiny = {"dim": 8, "heads": [1, 1, 1, 1], "prior_sigma": 0.0}  # published weights: no physics prior
     torch.manual_seed(5)
     published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
@@ -269,4 +269,5 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
     assert torch.equal(loaded.translate(x), published.translate(x))
     with pytest.raises(ValueError, match="real_denoising.pth: checkpoint does not match"):
         train.train_translator("restormer", [world / "augment" / "orchard"], tmp_path / "model2",
-                               {"dim": 16, "checkpoint": str(tmp_path / "real_denoising.pth")}, {"iterations": 0})
+                               {"dim": 16, "prior_sigma": 0.0, "checkpoint": str(tmp_path / "real_denoising.pth")},
+                               {"iterations": 0})

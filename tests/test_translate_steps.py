@@ -54,7 +54,7 @@ def pix2pixhd_reference_step(t, binary, rgb) -> dict[str, float]:
     """The pix2pixHD step before D's passes were shared."""
     t.train(True)
     x, y = to_signed(binary), to_signed(rgb)
-    fake = t.G(x)
+    fake = t.generate(x)  # G, as a residual over the physics prior
     set_requires_grad([t.D], False)
     pred_fake = t.D(torch.cat([x, fake], 1), features=True)
     terms = {"G_GAN": t.gan(pred_fake, True)}
@@ -77,11 +77,11 @@ def cyclegan_reference_step(t, binary, rgb) -> dict[str, float]:
     """The CycleGAN step before generator and discriminator calls were batched."""
     t.train(True)
     cfg, a, b = t.cfg, to_signed(binary), to_signed(rgb)
-    fake_b, fake_a = t.G(a), t.F(b)
+    fake_b, fake_a = t.g(a), t.F(b)  # t.g: G as a residual over the physics prior
     set_requires_grad([t.D_A, t.D_B], False)
     terms = {"G_GAN": t.gan(t.D_B(fake_b), True), "F_GAN": t.gan(t.D_A(fake_a), True),
-             "cycle_A": cfg.lambda_A * F.l1_loss(t.F(fake_b), a), "cycle_B": cfg.lambda_B * F.l1_loss(t.G(fake_a), b),
-             "idt_G": cfg.lambda_identity * cfg.lambda_B * F.l1_loss(t.G(b), b),
+             "cycle_A": cfg.lambda_A * F.l1_loss(t.F(fake_b), a), "cycle_B": cfg.lambda_B * F.l1_loss(t.g(fake_a), b),
+             "idt_G": cfg.lambda_identity * cfg.lambda_B * F.l1_loss(t.g(b), b),
              "idt_F": cfg.lambda_identity * cfg.lambda_A * F.l1_loss(t.F(a), a)}
     set_requires_grad([t.D_A, t.D_B], True)
     loss_g = sum(terms.values())
@@ -115,7 +115,11 @@ def outputs(model, x: torch.Tensor) -> dict[str, torch.Tensor]:
         was = net.training
         net.eval()
         with torch.no_grad():
-            if hasattr(model, "ema"):  # the diffusion UNet and its EMA copy: (x_t, binary, cleaned) at two t
+            if name == "prior":
+                y = net(x)
+            elif name == "G":  # as it translates: with the prior, the residual's mean (and G's last bias) drop out
+                y = model.forward_image(x)
+            elif hasattr(model, "ema"):  # the diffusion UNet and its EMA copy: (x_t, binary, cleaned) at two t
                 net = net.model if name == "ema" else net
                 y = net(torch.cat([x, x, x], 1), torch.tensor([10, 500][:len(x)]))
             elif name.startswith("D"):

@@ -98,7 +98,8 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     assert (res / "models" / "restormer" / "curve.png").exists() and not (res / "models" / "cyclegan").exists()
     assert len(list((res / "translate" / "courtyard" / "diffusion" / "images").glob("*.png"))) == 9
     s1 = pd.read_csv(res / "tables" / "stage1.csv").set_index("combination")
-    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "none"}  # smoke runs no mle row
+    # smoke runs no mle row; "prior": the translators' shared physics prior alone
+    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "none", "prior"}
     two = pd.read_csv(res / "tables" / "two_stage.csv").set_index("combination")
     assert two.loc["pix2pixhd+3dgs", "runs"] == 1 and two.loc["pix2pix+nerf-grid", "runs"] == 0
     assert (res / "figures" / "qualitative_courtyard.png").stat().st_size > 10_000

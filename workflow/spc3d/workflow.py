@@ -115,7 +115,8 @@ SOURCE_IMAGES = {"gt": ("scene", "images"), "none": ("spc", "binary"), "mle": ("
 # How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
 LABELS = {"pix2pixhd": "Pix2PixHD", "pix2pix": "Pix2Pix", "cyclegan": "CycleGAN", "restormer": "Restormer",
           "diffusion": "Diffusion (DiffBIR stand-in)", "mle": "MLE", "none": "binary frame (no stage 1)",
-          "gt": "ground truth", "bernoulli": "SPAD likelihood on binary"}
+          "gt": "ground truth", "bernoulli": "SPAD likelihood on binary",
+          "prior": "physics prior: blurred MLE, the translators' start (no training)"}
 
 
 def split_source(source: str) -> tuple[str, int | None]:

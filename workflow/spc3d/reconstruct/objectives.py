@@ -20,19 +20,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ..colour import linear_to_srgb
+
 LN2 = 0.6931471805599453
-
-
-def srgb_to_linear(x: Tensor) -> Tensor:
-    """IEC 61966-2-1 sRGB decoding (torch; input clamped to [0, 1])."""
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
-def linear_to_srgb(x: Tensor) -> Tensor:
-    """IEC 61966-2-1 sRGB encoding (torch; input clamped to [0, 1], power guarded at 0)."""
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,9 @@ of its first K SPC frames, K = 1 by default) into sRGB with a trained model and 
 ``results/translate/{scene}/{method}/`` (atomically):
 
     images/{view}.png   one image per view, named like the scene's views (stage 2's source)
-    translate.json      method, model folder, frames, per-image inference time, seed
+    prior/{view}.png    with a physics prior (:mod:`.prior`): the prior alone, what the network's
+                        residual was added to (scored beside the translation, never a stage-2 source)
+    translate.json      method, model folder, frames, per-image inference time, the prior's settings
 
 ``score_images`` (rule ``stage1_evaluate``) compares the held-out views of any image source
 (a translator's folder, the MLE image, the raw binary frame) with the ground truth, so stage-1
@@ -41,14 +43,23 @@ def translate_scene(model_dir: str | os.PathLike, spc_dir: str | os.PathLike, sc
     times = []
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         (Path(tmp) / "images").mkdir(parents=True)
+        if model.prior is not None:
+            (Path(tmp) / "prior").mkdir()
         for name in names:
             x = torch.from_numpy(binary_input(Path(spc_dir) / "frames" / f"{name}.npz", frames))
+            x = x.permute(2, 0, 1)[None].to(model.device)
             t0 = time.perf_counter()
-            y = model.translate(x.permute(2, 0, 1)[None].to(model.device))[0]
+            y = model.translate(x)[0]
             times.append(time.perf_counter() - t0)
             io.write_image(Path(tmp) / "images" / f"{name}.png", y.permute(1, 2, 0).cpu().numpy())
+            if model.prior is not None:
+                with torch.no_grad():
+                    base = model.prior(x)[0].clamp(0.0, 1.0)
+                io.write_image(Path(tmp) / "prior" / f"{name}.png", base.permute(1, 2, 0).cpu().numpy())
+        prior = None if model.prior is None else {"sigma": model.prior.sigma, "gain": model.prior.gain.tolist()}
         record = {"method": method, "model_dir": str(model_dir), "scene": Path(scene_dir).name, "frames": frames,
-                  "views": len(names), "seconds_per_image": float(np.mean(times)), "device": str(model.device)}
+                  "views": len(names), "seconds_per_image": float(np.mean(times)), "device": str(model.device),
+                  "prior": prior}
         io.write_json(Path(tmp) / "translate.json", record)
     log.info("%s: %d views of %s in %.2f s each", method, len(names), Path(scene_dir).name, record["seconds_per_image"])
     return record
@@ -60,19 +71,33 @@ def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out
     """PSNR / SSIM / LPIPS of a source's held-out views (before any 3D) against the ground truth.
 
     ``frames``: binary frames per view the source consumed (its photon budget K; None for ground
-    truth), ``seed``: the run's seed; both go into the record, for the tables.
+    truth), ``seed``: the run's seed; both go into the record, for the tables. A translator's
+    physics prior alone (``image_dir``'s sibling ``prior/``, when there) is scored too, under
+    ``prior`` with its settings from ``translate.json``.
     """
-    scene = llff.read_scene(scene_dir)
-    _, test = split_views(len(scene.names))
-    per_view = {}
-    for i in test:
-        name = scene.names[i]
-        pred_path = Path(image_dir) / f"{name}.png"
-        if not pred_path.is_file():
-            raise FileNotFoundError(f"{pred_path} is missing: source {source!r} has no image for view {name}")
-        per_view[name] = score_view(io.read_rgb(pred_path), io.read_rgb(Path(scene_dir) / "images" / f"{name}.png"),
-                                    lpips_dir)
-    record = {"scene": Path(scene_dir).name, "source": source, "stage": 1, "frames": frames, "seed": seed,
+    scene_dir = Path(scene_dir)
+    scene = llff.read_scene(scene_dir, with_images=False)
+    test = [scene.names[i] for i in split_views(len(scene.names))[1]]
+    per_view = score_folder(Path(image_dir), scene_dir, test, source, lpips_dir)
+    record = {"scene": scene_dir.name, "source": source, "stage": 1, "frames": frames, "seed": seed,
               "views": per_view, "mean": mean_scores(list(per_view.values()))}
+    prior_dir = Path(image_dir).parent / "prior"
+    if Path(image_dir).name == "images" and prior_dir.is_dir():
+        prior_views = score_folder(prior_dir, scene_dir, test, f"{source} (prior)", lpips_dir)
+        settings = io.read_json(prior_dir.parent / "translate.json").get("prior") or {}
+        record["prior"] = {**settings, "views": prior_views, "mean": mean_scores(list(prior_views.values()))}
     io.write_json(out_json, record)
     return record
+
+
+def score_folder(image_dir: Path, scene_dir: Path, names: list[str], source: str,
+                 lpips_dir: str | os.PathLike | None) -> dict[str, dict]:
+    """Scores of ``image_dir/{name}.png`` against the scene's ground truth, per view name."""
+    per_view = {}
+    for name in names:
+        pred_path = image_dir / f"{name}.png"
+        if not pred_path.is_file():
+            raise FileNotFoundError(f"{pred_path} is missing: source {source!r} has no image for view {name}")
+        per_view[name] = score_view(io.read_rgb(pred_path), io.read_rgb(scene_dir / "images" / f"{name}.png"),
+                                    lpips_dir)
+    return per_view

@@ -22,10 +22,14 @@ K > 1: the average of K frames) to an sRGB image of the same size. Each model fi
         set_lr_scale(scale: float)    multiply every optimiser's base lr by scale (linear decay)
         device: torch.device          where the networks live (set in __init__)
         load_pretrained(path)         optional: published weights given by path (Restormer)
+        prior: PhysicsPrior | None    the physics prior its output is a residual over (``prior_sigma``
+                                      > 0 in its Config; :mod:`.prior`), else None
 
 ``TranslatorBase`` supplies ``translate`` (pad, run, crop back, clamp), ``state`` / ``load`` for
-checkpoints, and ``parameter_count``. Models keep their outputs in [0, 1] at the interface even
-when their networks work in [-1, 1] (pix2pix convention) internally.
+checkpoints, ``parameter_count``, and the physics prior (``make_prior`` builds it, ``with_prior``
+lists it among the modules so its fitted gain is saved, ``plus_prior`` adds it to an output).
+Models keep their outputs in [0, 1] at the interface even when their networks work in [-1, 1]
+(pix2pix convention) internally.
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ import copy
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from .prior import PhysicsPrior
 
 
 def pad_to_multiple(x: Tensor, multiple: int) -> tuple[Tensor, tuple[int, int]]:
@@ -70,16 +76,48 @@ def from_signed(x: Tensor) -> Tensor:
     return (x + 1.0) * 0.5
 
 
+def zero_last_conv(net: nn.Module) -> None:
+    """Zero the weights and bias of the last convolution registered in ``net`` (its output layer):
+    a residual network then starts as the identity of what it is added to."""
+    convs = [m for m in net.modules() if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))]
+    if not convs:
+        raise ValueError(f"{type(net).__name__} has no convolution to zero")
+    nn.init.zeros_(convs[-1].weight)
+    if convs[-1].bias is not None:
+        nn.init.zeros_(convs[-1].bias)
+
+
 class TranslatorBase(abc.ABC):
     """Shared behaviour of the stage-1 models (see the module docstring for the contract)."""
 
     paired: bool = True
     multiple: int = 16
     device: torch.device = torch.device("cpu")
+    prior: PhysicsPrior | None = None
 
-    def load_pretrained(self, path) -> None:
-        raise ValueError(f"{type(self).__module__}: loading published weights ({path}) is not supported "
-                         "for this method; remove its 'checkpoint' setting")
+    def make_prior(self, sigma: float, head: nn.Module | None = None) -> None:
+        """The physics prior of ``sigma`` pixels (none for 0); its gain is fitted before training.
+        ``head``: the network whose last convolution is zeroed, so training starts at the prior."""
+        self.prior = PhysicsPrior(sigma).to(self.device) if sigma > 0 else None
+        if self.prior is not None and head is not None:
+            zero_last_conv(head)
+
+    def with_prior(self, modules: dict[str, nn.Module]) -> dict[str, nn.Module]:
+        """``modules`` plus the prior (when there is one): saved, loaded and copied with the networks."""
+        return modules if self.prior is None else {**modules, "prior": self.prior}
+
+    def plus_prior(self, out: Tensor, binary: Tensor, signed: bool) -> Tensor:
+        """A network output made a residual over the prior of its input: prior(``binary``) + ``out``
+        less its mean per image and channel, both in [-1, 1] (``signed``, ``binary`` too) or in [0, 1];
+        ``out`` alone without a prior. The mean is removed because the frames carry no absolute
+        brightness (every scene is exposed to the same mean detection rate): the prior's gain, fitted
+        on the training scenes, sets the level and colour balance, the network adds structure."""
+        if self.prior is None:
+            return out
+        residual = out - out.mean(dim=(-2, -1), keepdim=True)
+        if signed:
+            return residual + to_signed(self.prior(from_signed(binary)))
+        return residual + self.prior(binary)
 
     @abc.abstractmethod
     def modules(self) -> dict[str, nn.Module]:
@@ -142,11 +180,15 @@ class PairedGANBase(TranslatorBase):
     networks in [-1, 1] (pix2pix, pix2pixHD): modules, optimisers and inference in one place."""
 
     def modules(self) -> dict[str, nn.Module]:
-        return {"G": self.G, "D": self.D}
+        return self.with_prior({"G": self.G, "D": self.D})
+
+    def generate(self, x: Tensor) -> Tensor:
+        """G on a signed image (B, 3, h, w) in [-1, 1], as a residual over the prior when there is one."""
+        return self.plus_prior(self.G(x), x, signed=True)
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"G": self.opt_G, "D": self.opt_D}
 
     def forward_image(self, binary: Tensor) -> Tensor:
         """(B, 3, H', W') padded binary in [0, 1] -> (B, 3, H', W') sRGB in [0, 1]."""
-        return from_signed(self.G(to_signed(binary.to(self.device))))
+        return from_signed(self.generate(to_signed(binary.to(self.device))))

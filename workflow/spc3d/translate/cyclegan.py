@@ -14,6 +14,7 @@ One Adam optimiser steps both generators, one both discriminators (as the refere
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -48,12 +49,13 @@ class Config:
     lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
     beta1: float = 0.5  # Adam beta1; paper 0.5
     beta2: float = 0.999  # Adam beta2; paper 0.999
+    prior_sigma: float = 2.0  # > 0: G is a residual over the blurred-MLE prior of sigma px (prior.py); paper 0
 
 
 # Published sizes: resnet_9blocks generators (ngf 64), 70x70 PatchGANs (ndf 64).
 PAPER: dict = {"ngf": 64, "n_downsampling": 2, "n_blocks": 9, "ndf": 64, "n_layers_D": 3, "norm": "instance",
                 "gan_mode": "lsgan", "lambda_A": 10.0, "lambda_B": 10.0, "lambda_identity": 0.5, "pool_size": 50,
-                "lr": 2e-4, "beta1": 0.5}
+                "lr": 2e-4, "beta1": 0.5, "prior_sigma": 0.0}
 
 
 def _generator(cfg: Config) -> ResnetGenerator:
@@ -77,6 +79,7 @@ class Translator(TranslatorBase):
         self.device = torch.device(device)
         self.multiple = 2**cfg.n_downsampling
         self.G, self.F = _generator(cfg).to(self.device), _generator(cfg).to(self.device)
+        self.make_prior(cfg.prior_sigma, self.G)
         self.D_A, self.D_B = _discriminator(cfg).to(self.device), _discriminator(cfg).to(self.device)
         self.gan = GANLoss(cfg.gan_mode)
         self.pool_A, self.pool_B = ImagePool(cfg.pool_size), ImagePool(cfg.pool_size)
@@ -85,14 +88,18 @@ class Translator(TranslatorBase):
         self.opt_D = adam([*self.D_A.parameters(), *self.D_B.parameters()], self.device, lr=cfg.lr, betas=betas)
 
     def modules(self) -> dict[str, nn.Module]:
-        return {"G": self.G, "F": self.F, "D_A": self.D_A, "D_B": self.D_B}
+        return self.with_prior({"G": self.G, "F": self.F, "D_A": self.D_A, "D_B": self.D_B})
+
+    def g(self, x: Tensor) -> Tensor:
+        """The binary -> sRGB generator on signed images: ``G``, a residual over the prior when there is one."""
+        return self.plus_prior(self.G(x), x, signed=True)
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"G": self.opt_G, "D": self.opt_D}
 
     def forward_image(self, binary: Tensor) -> Tensor:
         """(B, 3, H', W') padded binary in [0, 1] -> (B, 3, H', W') sRGB in [0, 1] through ``G``."""
-        return from_signed(self.G(to_signed(binary.to(self.device))))
+        return from_signed(self.g(to_signed(binary.to(self.device))))
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
         """One generator step then one discriminator step; ``binary`` and ``rgb``: (B, 3, h, w) in
@@ -102,9 +109,9 @@ class Translator(TranslatorBase):
         check_multiple(rgb, self.multiple, "cyclegan")
         a, b = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
         if self.cfg.lambda_identity > 0 and self._batchable(a, b):  # G(b) and F(a) ride along in one pass
-            (fake_b, idt_b), (fake_a, idt_a) = self._each(self.G, a, b), self._each(self.F, b, a)
+            (fake_b, idt_b), (fake_a, idt_a) = self._each(self.g, a, b), self._each(self.F, b, a)
         else:
-            fake_b, fake_a, idt_b, idt_a = self.G(a), self.F(b), None, None  # (B, 3, h, w) each
+            fake_b, fake_a, idt_b, idt_a = self.g(a), self.F(b), None, None  # (B, 3, h, w) each
         terms = self._generator_terms(a, b, fake_a, fake_b, idt_a, idt_b)
         loss_g = sum(terms.values())
         self.opt_G.zero_grad(set_to_none=True)
@@ -119,7 +126,7 @@ class Translator(TranslatorBase):
         running statistics depend on the order of the calls) and the image sizes agree."""
         return self.cfg.norm != "batch" and len({t.shape[1:] for t in batches}) == 1
 
-    def _each(self, net: nn.Module, *batches: Tensor) -> list[Tensor]:
+    def _each(self, net: Callable[[Tensor], Tensor], *batches: Tensor) -> list[Tensor]:
         """``[net(t) for t in batches]``, as one pass over their concatenation when
         :meth:`_batchable`: fewer, larger convolutions."""
         if not self._batchable(*batches):
@@ -134,9 +141,9 @@ class Translator(TranslatorBase):
         set_requires_grad([self.D_A, self.D_B], False)
         terms = {"G_GAN": self.gan(self.D_B(fake_b), True), "F_GAN": self.gan(self.D_A(fake_a), True),
                  "cycle_A": cfg.lambda_A * F.l1_loss(self.F(fake_b), a),
-                 "cycle_B": cfg.lambda_B * F.l1_loss(self.G(fake_a), b)}
+                 "cycle_B": cfg.lambda_B * F.l1_loss(self.g(fake_a), b)}
         if cfg.lambda_identity > 0:
-            idt_b = self.G(b) if idt_b is None else idt_b
+            idt_b = self.g(b) if idt_b is None else idt_b
             idt_a = self.F(a) if idt_a is None else idt_a
             terms["idt_G"] = cfg.lambda_identity * cfg.lambda_B * F.l1_loss(idt_b, b)
             terms["idt_F"] = cfg.lambda_identity * cfg.lambda_A * F.l1_loss(idt_a, a)

@@ -98,6 +98,10 @@ class PairSampler:
         self.drawn += self.batch
         return self._draw()
 
+    def calibration_pairs(self):
+        """Every (binary, rgb) pair, whole: the data the physics prior's gain is fitted on."""
+        return zip(self.binary, self.rgb)
+
     def describe(self) -> dict:
         """For train.json: the mode, the samples drawn and how many distinct pairs they came from."""
         return {"mode": "fixed", "pairs": len(self.binary), "samples": self.drawn,

@@ -5,7 +5,9 @@ SCUNet) followed by Stable Diffusion 2.1 steered by an IRControlNet; those weigh
 reachable offline (they are hosted on model hubs only). This module keeps DiffBIR's *structure* at a size we can
 train on our own (binary, RGB) pairs:
 
-    stage-1 cleaner   a 5x5 box blur of the binary image (a cheap local photon-rate estimate)
+    stage-1 cleaner   the physics prior (:mod:`.prior`: a blurred-MLE image at a gain fitted on the
+                      training scenes), whose residual the generator produces; with
+                      ``prior_sigma: 0`` a 5x5 box blur of the binary image, and the whole image
     generator         a small pixel-space UNet (GroupNorm + SiLU residual blocks, sinusoidal
                       timestep embedding added in every block, self-attention in 16 x 16 tiles
                       at the lowest level) conditioned by concatenating [binary, cleaned] to
@@ -59,12 +61,16 @@ class Config:
     sample_steps: int = 20  # DDIM steps at inference
     eta: float = 0.0  # DDIM stochasticity (0 = deterministic ODE sampler)
     sample_seed: int = 0  # seed of the generator that draws x_T (and eta > 0 noise)
+    prior_sigma: float = 2.0  # > 0: the cleaner is the blurred-MLE prior of sigma px (prior.py), not the box blur,
+    #                           and the model generates the residual over it; 0: box blur, whole image
+    residual_scale: float = 6.0  # the residual is generated multiplied by this: its spread (~0.15 in [-1, 1]) then
+    #                              meets the unit scale the noise schedule assumes (latent diffusion scales its latents)
 
 
 # DiffBIR publishes no sizes for a pixel-space model: only sample_steps (50) and T (1000) come from
 # it; the widths are a GPU-sized version of this UNet, not Stable Diffusion's 865M-parameter UNet.
 PAPER: dict = {"timesteps": 1000, "sample_steps": 50, "base_channels": 128, "channel_mults": (1, 2, 2, 4),
-                "num_res_blocks": 2, "ema_decay": 0.9999}
+                "num_res_blocks": 2, "ema_decay": 0.9999, "prior_sigma": 0.0}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -325,6 +331,8 @@ class Translator(TranslatorBase):
         del vgg_weights  # diffusion loss only
         if cfg.prediction not in ("v", "eps"):
             raise ValueError(f"prediction must be 'v' or 'eps', got {cfg.prediction!r}")
+        if not cfg.residual_scale > 0:
+            raise ValueError(f"residual_scale must be > 0, got {cfg.residual_scale}")
         if cfg.clean_kernel < 1 or cfg.clean_kernel % 2 == 0:
             raise ValueError(f"clean_kernel must be odd and >= 1, got {cfg.clean_kernel}")
         self.cfg = cfg
@@ -333,20 +341,22 @@ class Translator(TranslatorBase):
         self.schedule = NoiseSchedule(make_betas(cfg.beta_schedule, cfg.timesteps))
         cond_ch = 6 if cfg.cleaned_condition else 3
         self.net = UNet(cfg, in_ch=3 + cond_ch).to(self.device)
+        self.make_prior(cfg.prior_sigma)
         self.ema = EMA(self.net, cfg.ema_decay, cfg.ema_warmup).to(self.device)
         self.opt = adam(self.net.parameters(), self.device, lr=cfg.lr, betas=tuple(cfg.adam_betas))
 
     def modules(self) -> dict[str, nn.Module]:
-        return {"net": self.net, "ema": self.ema}
+        return self.with_prior({"net": self.net, "ema": self.ema})
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"net": self.opt}
 
     def condition(self, binary: Tensor) -> Tensor:
-        """(B, 3, H, W) in [0, 1] -> (B, 3 or 6, H, W) in [-1, 1]: binary [, box-blurred binary]."""
+        """(B, 3, H, W) in [0, 1] -> (B, 3 or 6, H, W) in [-1, 1]: binary [, cleaned: the prior, else box blur]."""
         parts = [to_signed(binary)]
         if self.cfg.cleaned_condition:
-            parts.append(to_signed(box_blur(binary, self.cfg.clean_kernel)))
+            cleaned = self.prior(binary) if self.prior is not None else box_blur(binary, self.cfg.clean_kernel)
+            parts.append(to_signed(cleaned))
         return torch.cat(parts, dim=1)
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
@@ -354,6 +364,9 @@ class Translator(TranslatorBase):
         self.net.train()
         binary, (h, w) = pad_to_multiple(binary.to(self.device), self.multiple)  # any crop size
         x0, _ = pad_to_multiple(to_signed(rgb.to(self.device)), self.multiple)
+        if self.prior is not None:  # the residual over the prior, less its mean (TranslatorBase.plus_prior)
+            x0 = x0 - to_signed(self.prior(binary))
+            x0 = (x0 - x0.mean(dim=(-2, -1), keepdim=True)) * self.cfg.residual_scale
         t = torch.randint(0, self.cfg.timesteps, (x0.shape[0],), device=self.device)
         noise = torch.randn_like(x0)
         x_t = self.schedule.q_sample(x0, t, noise)
@@ -382,4 +395,6 @@ class Translator(TranslatorBase):
 
         x0 = ddim_sample(predict, x_T, self.schedule, self.cfg.sample_steps, self.cfg.prediction,
                          eta=self.cfg.eta, generator=gen)
+        if self.prior is not None:
+            x0 = self.plus_prior(x0 / self.cfg.residual_scale, to_signed(binary), signed=True)
         return from_signed(x0).clamp(0.0, 1.0)

@@ -75,6 +75,7 @@ class OnlineSampler:
         self.sources, self.batch, self.crop, self.augment, self.paired = sources, batch_size, crop, augment, paired
         self.rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, zlib.crc32(b"stage1-online")])))
         self.drawn = 0  # samples drawn so far (each one distinct)
+        self.seed = seed
 
     def window(self) -> tuple[SceneSource, np.ndarray]:
         """A random scene, training view, affine map and crop: (scene, linear crop (crop, crop, 3))."""
@@ -102,6 +103,16 @@ class OnlineSampler:
             return binary, torch.stack([r for _, _, r in pairs])
         rgb = [chw(spc.linear_to_srgb(self.window()[1]).astype(np.float32)) for _ in range(self.batch)]
         return binary, torch.stack(rgb)
+
+    def calibration_pairs(self):
+        """Every training view, whole, with a Bernoulli sample at its scene's exposure (a generator of
+        its own, so the training draws do not change): the data the physics prior's gain is fitted on."""
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([self.seed, zlib.crc32(b"stage1-prior")])))
+        for source in self.sources:
+            for linear in source.views:
+                srgb = spc.linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
+                bits = spc.simulate_frames(srgb, source.flux_scale, source.params, rng)
+                yield chw(bits.mean(0, dtype=np.float32)), chw(srgb)
 
     def describe(self) -> dict:
         """For train.json: the mode, the samples drawn (all distinct), the scenes and their views."""

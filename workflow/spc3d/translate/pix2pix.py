@@ -45,11 +45,13 @@ class Config:
     lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
     beta1: float = 0.5  # Adam beta1; paper 0.5
     beta2: float = 0.999  # Adam beta2; paper 0.999
+    prior_sigma: float = 2.0  # > 0: G is a residual over the blurred-MLE prior of sigma px (prior.py); paper 0
 
 
 # Published sizes: unet_256 on 256x256 crops, 70x70 PatchGAN with ndf 64.
 PAPER: dict = {"ngf": 64, "num_downs": 8, "dropout": True, "ndf": 64, "n_layers_D": 3, "norm": "batch",
-                "gan_mode": "vanilla", "lambda_L1": 100.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5}
+                "gan_mode": "vanilla", "lambda_L1": 100.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5,
+                "prior_sigma": 0.0}
 
 
 class Translator(PairedGANBase):
@@ -63,6 +65,7 @@ class Translator(PairedGANBase):
         self.device = torch.device(device)
         self.multiple = 2**cfg.num_downs
         self.G = init_weights(UnetGenerator(3, 3, cfg.num_downs, cfg.ngf, cfg.norm, cfg.dropout)).to(self.device)
+        self.make_prior(cfg.prior_sigma, self.G)
         self.D = init_weights(NLayerDiscriminator(6, cfg.ndf, cfg.n_layers_D, cfg.norm)).to(self.device)
         self.gan = GANLoss(cfg.gan_mode)
         self.pool = ImagePool(cfg.pool_size)
@@ -76,7 +79,7 @@ class Translator(PairedGANBase):
         self.train(True)
         check_multiple(binary, self.multiple, "pix2pix")
         x, y = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
-        fake = self.G(x)  # (B, 3, h, w) in [-1, 1]
+        fake = self.generate(x)  # (B, 3, h, w) in [-1, 1]
         d_terms = conditional_d_step(self.D, self.opt_D, self.gan, self.pool, x, y, fake)
         set_requires_grad([self.D], False)
         g_gan = self.gan(self.D(torch.cat([x, fake], 1)), True)

@@ -55,6 +55,7 @@ class Config:
     lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
     beta1: float = 0.5  # Adam beta1; paper 0.5
     beta2: float = 0.999  # Adam beta2; paper 0.999
+    prior_sigma: float = 2.0  # > 0: G is a residual over the blurred-MLE prior of sigma px (prior.py); paper 0
 
     def __post_init__(self):
         if self.ngf % 2**self.n_local_enhancers:
@@ -66,7 +67,8 @@ class Config:
 # reference's 1024p recipe, --netG local --ngf 32), 2 x 3-layer D, feature matching + VGG loss.
 PAPER: dict = {"ngf": 64, "n_downsample_global": 4, "n_blocks_global": 9, "n_local_enhancers": 1,
                 "n_blocks_local": 3, "ndf": 64, "n_layers_D": 3, "num_D": 2, "norm": "instance",
-                "feat_match": True, "vgg_loss": True, "lambda_feat": 10.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5}
+                "feat_match": True, "vgg_loss": True, "lambda_feat": 10.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5,
+                "prior_sigma": 0.0}
 
 
 class LocalEnhancer(nn.Module):
@@ -126,6 +128,7 @@ class Translator(PairedGANBase):
         self.device = torch.device(device)
         self.multiple = 2 ** (cfg.n_downsample_global + cfg.n_local_enhancers)
         self.G = init_weights(Generator(cfg)).to(self.device)
+        self.make_prior(cfg.prior_sigma, self.G)
         self.D = init_weights(MultiscaleDiscriminator(6, cfg.ndf, cfg.n_layers_D, cfg.norm, cfg.num_D,
                                                       padding=2)).to(self.device)
         self.vgg = self._vgg_loss(cfg, vgg_weights)
@@ -158,7 +161,7 @@ class Translator(PairedGANBase):
         self.train(True)
         check_multiple(binary, self.multiple, "pix2pixhd")
         x, y = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
-        fake = self.G(x)  # (B, 3, h, w) in [-1, 1]
+        fake = self.generate(x)  # (B, 3, h, w) in [-1, 1]
         pred_real = self.D(torch.cat([x, y], 1), features=True)  # num_D lists of n_layers+2 maps
         pred_fake = self.D(torch.cat([x, fake], 1), features=True)
         terms = self._generator_terms(y, fake, pred_fake, pred_real)

@@ -20,8 +20,9 @@ Each transformer block is ``x + MDTA(LN(x))`` then ``x + GDFN(LN(x))``. MDTA att
 which is what makes Restormer usable on full-resolution images.
 
 Here it is trained from scratch on (binary, RGB) pairs with L1, exactly like a denoiser: the net
-predicts the residual ``rgb - binary``. The public checkpoints (SIDD real denoising, Gaussian
-sigma 15/25/50) were not trained on Bernoulli noise (Zamir et al. 2022, swz30/Restormer), but
+predicts the residual ``rgb - binary`` (with ``prior_sigma`` > 0, the default here, ``rgb - prior``:
+the residual over the blurred-MLE image of :mod:`.prior`). The public checkpoints (SIDD real
+denoising, Gaussian sigma 15/25/50) were not trained on Bernoulli noise (Zamir et al. 2022, swz30/Restormer), but
 ``load_official_checkpoint`` loads them, e.g. as an initialisation or a zero-shot baseline.
 """
 
@@ -51,11 +52,13 @@ class Config:
     weight_decay: float = 1e-4  # AdamW weight decay; paper 1e-4
     betas: tuple[float, float] = (0.9, 0.999)  # AdamW betas; paper (0.9, 0.999)
     grad_clip: float = 0.01  # max global grad norm (official training: use_grad_clip, 0.01); 0 = off
+    prior_sigma: float = 2.0  # > 0: the global residual is over the blurred-MLE prior of sigma px (prior.py),
+    #                           not over the binary input; paper 0
 
 
 # Published sizes (Restormer, Gaussian/real denoising configuration).
 PAPER: dict = {"dim": 48, "num_blocks": (4, 6, 6, 8), "num_refinement_blocks": 4, "heads": (1, 2, 4, 8),
-                "ffn_expansion_factor": 2.66, "bias": False, "layernorm_type": "BiasFree"}
+                "ffn_expansion_factor": 2.66, "bias": False, "layernorm_type": "BiasFree", "prior_sigma": 0.0}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -217,7 +220,7 @@ class Upsample(nn.Module):
 
 
 class Restormer(nn.Module):
-    """The 4-level Restormer; ``forward`` returns input + predicted residual (no clamping)."""
+    """The 4-level Restormer; ``forward`` returns input (or ``base``) + predicted residual (no clamping)."""
 
     def __init__(self, cfg: Config, in_ch: int = 3, out_ch: int = 3):
         super().__init__()
@@ -248,7 +251,7 @@ class Restormer(nn.Module):
         self.refinement = stage(2 * d, hd[0], cfg.num_refinement_blocks)
         self.output = nn.Conv2d(2 * d, out_ch, 3, padding=1, bias=cfg.bias)
 
-    def forward(self, img: Tensor) -> Tensor:  # (B, 3, H, W), H and W multiples of 8
+    def forward(self, img: Tensor, base: Tensor | None = None) -> Tensor:  # (B, 3, H, W), H and W multiples of 8
         e1 = self.encoder_level1(self.patch_embed(img))  # (B, d, H, W)
         e2 = self.encoder_level2(self.down1_2(e1))  # (B, 2d, H/2, W/2)
         e3 = self.encoder_level3(self.down2_3(e2))  # (B, 4d, H/4, W/4)
@@ -256,7 +259,7 @@ class Restormer(nn.Module):
         d3 = self.decoder_level3(self.reduce_chan_level3(torch.cat([self.up4_3(lat), e3], 1)))
         d2 = self.decoder_level2(self.reduce_chan_level2(torch.cat([self.up3_2(d3), e2], 1)))
         d1 = self.decoder_level1(torch.cat([self.up2_1(d2), e1], 1))  # (B, 2d, H, W)
-        return self.output(self.refinement(d1)) + img  # global residual
+        return self.output(self.refinement(d1)) + (img if base is None else base)  # global residual
 
 
 # ----------------------------------------------------------------------------------------------
@@ -274,17 +277,27 @@ class Translator(TranslatorBase):
         self.cfg = cfg
         self.device = torch.device(device)
         self.net = Restormer(cfg).to(self.device)
+        self.make_prior(cfg.prior_sigma, self.net)
         self.opt = adam(self.net.parameters(), self.device, adamw=True, lr=cfg.lr, betas=tuple(cfg.betas),
                         weight_decay=cfg.weight_decay)
 
     def modules(self) -> dict[str, nn.Module]:
-        return {"net": self.net}
+        return self.with_prior({"net": self.net})
+
+    def run(self, binary: Tensor) -> Tensor:
+        """The network on a padded binary image in [0, 1]: the residual over the prior when there is one."""
+        if self.prior is None:
+            return self.net(binary)
+        return self.plus_prior(self.net(binary, torch.zeros_like(binary)), binary, signed=False)
 
     def optimizers(self) -> dict[str, torch.optim.Optimizer]:
         return {"net": self.opt}
 
     def load_pretrained(self, path) -> None:
         """Load an official Restormer ``.pth`` into the network (the Config must match its architecture)."""
+        if self.prior is not None:
+            raise ValueError(f"restormer: published weights ({path}) predict a residual over the input image, "
+                             "not over the physics prior; set stage1.restormer.prior_sigma: 0 to load them")
         sd = _official_state_dict(Path(path))
         check_state_dict(self.net, sd, str(path))
         self.net.load_state_dict(sd, strict=True)
@@ -293,7 +306,7 @@ class Translator(TranslatorBase):
         """One AdamW step on L1(net(binary), rgb); binary, rgb: (B, 3, h, w) in [0, 1]."""
         self.net.train()
         padded, (h, w) = pad_to_multiple(binary.to(self.device), self.multiple)  # crops need not divide by 8
-        out = self.net(padded)[..., :h, :w]
+        out = self.run(padded)[..., :h, :w]
         loss = F.l1_loss(out, rgb.to(self.device))
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -304,7 +317,7 @@ class Translator(TranslatorBase):
 
     def forward_image(self, binary: Tensor) -> Tensor:
         """(B, 3, H', W') padded binary image -> (B, 3, H', W') in [0, 1]."""
-        return self.net(binary.to(self.device)).clamp(0.0, 1.0)
+        return self.run(binary.to(self.device)).clamp(0.0, 1.0)
 
 
 # ----------------------------------------------------------------------------------------------

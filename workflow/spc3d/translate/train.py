@@ -39,7 +39,7 @@ from ..training import build_config, default_device, peak_rss_mb, run, seed_ever
 from .data import PairSampler, load_pairs
 from .model_io import build_translator, model_config, write_model_folder
 from .online import OnlineSampler, load_sources
-from .validate import Validator, load_views, validation_settings
+from .validate import Validator, load_views, score, validation_settings
 
 log = logging.getLogger(__name__)
 
@@ -97,6 +97,8 @@ class TranslatorTrainer:
         self.model.train(True)
         self.model.set_lr_scale(lr_scale(it, self.s))
         binary, rgb = (x.to(self.model.device) for x in self.sampler())
+        if self.model.prior is not None:
+            rgb = self.model.prior.relevel(binary, rgb)  # the brightness is the prior's (translate/prior.py)
         losses = self.model.train_step(binary, rgb)
         if it % self.s.log_every == 0 or it == self.s.iterations:
             self.curve.append({"iteration": it, **losses})
@@ -235,6 +237,8 @@ def setup_training(method: str, augment_dirs: list[str], settings: dict, train: 
     if pretrained:
         model.load_pretrained(pretrained)
     sampler = make_sampler(data, s, frames, seed, model.paired)
+    if model.prior is not None:
+        model.prior.fit(sampler.calibration_pairs())  # the training data's gain (restored as it is on resume)
     validator = make_validator(data, validation, frames, s.iterations)
     meta = {"method": method, "seed": seed, "frames": frames, "settings": dataclasses.asdict(cfg),
             "train": dataclasses.asdict(s), "pretrained": pretrained, "data": data.mode,
@@ -245,6 +249,16 @@ def setup_training(method: str, augment_dirs: list[str], settings: dict, train: 
         "pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)})) if checkpoint else None
     pairs = len(sampler.binary) if isinstance(sampler, PairSampler) else None
     return TrainingJob(model, sampler, s, ckpt, meta, pairs, validator)
+
+
+def prior_record(model, validator: Validator | None) -> dict | None:
+    """For train.json: the physics prior's blur and fitted gain, and its own validation score (what
+    the network's residual starts from and has to beat); None without a prior."""
+    if model.prior is None:
+        return None
+    prior = model.prior
+    scores = score(lambda b: prior(b.to(prior.gain.device)).clamp(0.0, 1.0), validator.views) if validator else {}
+    return {"sigma": prior.sigma, "gain": prior.gain.tolist(), **scores}
 
 
 def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.PathLike, settings: dict,
@@ -262,7 +276,8 @@ def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.Pat
                          input_digests, data, validation)
     result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method, validator=job.validator)
     best = job.validator.best_modules() if job.validator else None
-    record = {**job.meta, "pairs": job.pairs, "augment_dirs": list(data.augment_dirs),
+    record = {**job.meta, "prior": prior_record(job.model, job.validator), "pairs": job.pairs,
+              "augment_dirs": list(data.augment_dirs),
               "data": job.sampler.describe(), "validation": job.validator.record() if job.validator else None,
               "model_step": job.validator.best["step"] if best else result["stopped"]["step"],
               "parameters": job.model.parameter_count(), "device": str(job.model.device),

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,12 +74,13 @@ def load_views(scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.Path
     return views
 
 
-def score(model, views: list[ValidationView]) -> dict[str, float]:
-    """Mean PSNR (dB) and L1 error of the model's translations of ``views`` (views of one size batched)."""
+def score(translate: Callable[[Tensor], Tensor], views: list[ValidationView]) -> dict[str, float]:
+    """Mean PSNR (dB) and L1 error of ``translate`` ((B, 3, H, W) binary -> sRGB in [0, 1], e.g. a
+    model's ``translate``) on ``views`` (views of one size batched)."""
     psnrs, l1s = [], []
     for size in dict.fromkeys(tuple(v.binary.shape) for v in views):
         group = [v for v in views if tuple(v.binary.shape) == size]
-        out = model.translate(torch.stack([v.binary for v in group]).to(model.device)).cpu()
+        out = translate(torch.stack([v.binary for v in group])).cpu()
         for pred, v in zip(out, group):
             psnrs.append(psnr(pred, v.rgb))
             l1s.append(float((pred - v.rgb).abs().mean()))
@@ -102,7 +104,7 @@ class Validator:
 
     def update(self, it: int, model) -> dict[str, float]:
         """Validate the model at step ``it``; keep it if it is the best so far."""
-        scores = score(model, self.views)
+        scores = score(model.translate, self.views)
         self.history.append({"iteration": it, **scores})
         if self.best is None or scores["val_psnr"] > self.best["val_psnr"]:
             modules = {k: {n: t.detach().cpu().clone() for n, t in m.state_dict().items()}
