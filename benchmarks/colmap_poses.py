@@ -30,8 +30,15 @@ INPUTS = {"rgb": ("scene", "images"), "binary": ("spc", "binary"), "average": ("
 
 def scene_spec(name: str, width: int) -> dict | None:
     if name in LAYOUTS:
-        return {"kind": "builtin", "layout": name, "height": width * 3 // 4, "width": width,
-                "views": 24, "supersample": 3, "seed": 0}
+        return {
+            "kind": "builtin",
+            "layout": name,
+            "height": width * 3 // 4,
+            "width": width,
+            "views": 24,
+            "supersample": 3,
+            "seed": 0,
+        }
     path = LLFF_ROOT / name
     return {"kind": "llff", "path": str(path), "factor": 8, "width": width} if path.is_dir() else None
 
@@ -49,10 +56,12 @@ def run_scene(name: str, spec: dict, frames: int, work: Path) -> list[str]:
         t0 = time.perf_counter()
         rec = colmap_poses(dirs[base] / sub, dirs["scene"], work / "colmap" / name / kind)
         pose, rep = rec["pose"], rec["reprojection"] or {}
-        rows.append(f"{name:<10} {kind:<8} {rec['registered']:>3}/{rec['total']:<3} "
-                    f"{fmt((pose['rotation_deg'] or {}).get('median')):>8} "
-                    f"{fmt((pose['center_rel'] or {}).get('median'), 100, 1):>9} "
-                    f"{fmt(rep.get('median_px')):>9} {time.perf_counter() - t0:>7.1f}")
+        rows.append(
+            f"{name:<10} {kind:<8} {rec['registered']:>3}/{rec['total']:<3} "
+            f"{fmt((pose['rotation_deg'] or {}).get('median')):>8} "
+            f"{fmt((pose['center_rel'] or {}).get('median'), 100, 1):>9} "
+            f"{fmt(rep.get('median_px')):>9} {time.perf_counter() - t0:>7.1f}"
+        )
         print(rows[-1], flush=True)
     return rows
 

@@ -47,8 +47,10 @@ def seconds_per_step(step, steps: int) -> float:
 
 
 def translator_step(method: str, crop: int):
-    vgg = {k: np.random.default_rng(0).standard_normal(s).astype(np.float32) * 0.01
-           for k, s in lpips_specs.expected_shapes("vgg").items()}
+    vgg = {
+        k: np.random.default_rng(0).standard_normal(s).astype(np.float32) * 0.01
+        for k, s in lpips_specs.expected_shapes("vgg").items()
+    }
     model = TRANSLATORS[method].Translator(model_config(method, {"preset": "paper"}), torch.device("cpu"), vgg)
     x, y = torch.rand(1, 3, crop, crop).round(), torch.rand(1, 3, crop, crop)
     return lambda: model.train_step(x, y)
@@ -72,13 +74,24 @@ def main() -> None:
     p = yaml.safe_load(PRESET.read_text())
     runs = 14 * p["stage2"]["seeds"] * len(p["scenes"]["eval"])
     tr = p["stage1"]["train"]
-    rows = [(f"{m} (paper size, crop {tr['crop']})", translator_step(m, tr["crop"]), tr["iterations"])
-            for m in TRANSLATORS]
-    rows.append(("NeRF MLP (llff preset, 1024 rays) x 7 nerf rows x seeds", nerf_step(),
-                 p["stage2"]["nerf"]["n_iters"] * 7 * p["stage2"]["seeds"]))
+    rows = [
+        (f"{m} (paper size, crop {tr['crop']})", translator_step(m, tr["crop"]), tr["iterations"]) for m in TRANSLATORS
+    ]
+    rows.append(
+        (
+            "NeRF MLP (llff preset, 1024 rays) x 7 nerf rows x seeds",
+            nerf_step(),
+            p["stage2"]["nerf"]["n_iters"] * 7 * p["stage2"]["seeds"],
+        )
+    )
     gs = make_scene(100_000, 378, 504)
-    rows.append(("3DGS fwd+bwd 100k Gaussians 504x378 x 7 3dgs rows x seeds", lambda: train_step(gs, "native"),
-                 p["stage2"]["3dgs"]["iterations"] * 7 * p["stage2"]["seeds"]))
+    rows.append(
+        (
+            "3DGS fwd+bwd 100k Gaussians 504x378 x 7 3dgs rows x seeds",
+            lambda: train_step(gs, "native"),
+            p["stage2"]["3dgs"]["iterations"] * 7 * p["stage2"]["seeds"],
+        )
+    )
     total = 0.0
     print(f"threads {torch.get_num_threads()}; {runs} stage-2 runs")
     print(f"{'component':<62} {'s/step':>8} {'steps':>10} {'hours':>10}")

@@ -47,8 +47,11 @@ def make_scene(n: int, height: int, width: int, seed: int = 0) -> dict:
     sigma_px = 0.4 * 5 ** torch.rand(n, 1, generator=g)  # 0.4..2 px -> radii ~2..10 px
     scales = sigma_px * z[:, None] / f * torch.exp(0.3 * torch.randn(n, 3, generator=g))
     leaves = {
-        "means": means, "scales": scales, "quats": torch.randn(n, 4, generator=g),
-        "opacities": torch.sigmoid(1.5 * torch.randn(n, generator=g)), "colors": torch.rand(n, 3, generator=g),
+        "means": means,
+        "scales": scales,
+        "quats": torch.randn(n, 4, generator=g),
+        "opacities": torch.sigmoid(1.5 * torch.randn(n, generator=g)),
+        "colors": torch.rand(n, 3, generator=g),
         "background": torch.rand(3, generator=g),
     }
     leaves = {k: t.requires_grad_() for k, t in leaves.items()}
@@ -72,8 +75,18 @@ def train_step(scene: dict, variant: str) -> None:
     for t in p.values():
         t.grad = None
     proj = project(p["means"], p["scales"], p["quats"], **cam)
-    image, _ = rasterize(proj.means2d, proj.conics, p["opacities"], p["colors"], proj.depths, proj.radii,
-                         cam["height"], cam["width"], p["background"], backend=backend)
+    image, _ = rasterize(
+        proj.means2d,
+        proj.conics,
+        p["opacities"],
+        p["colors"],
+        proj.depths,
+        proj.radii,
+        cam["height"],
+        cam["width"],
+        p["background"],
+        backend=backend,
+    )
     (image - scene["target"]).abs().mean().backward()
 
 
@@ -120,10 +133,14 @@ def main() -> None:
         torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as cache:
         cold, warm = compile_seconds(cache), compile_seconds(cache)
-    print(f"numba first call: {cold:.1f} s with an empty cache, {warm:.2f} s from the cache "
-          f"(torch threads {torch.get_num_threads()})")
-    print(f"{'gaussians':>9} {'size':>7} {'native':>8} {'native raster':>14} {'reference':>10} {'speedup':>8}"
-          "   (iterations/s; speedup = native / reference)")
+    print(
+        f"numba first call: {cold:.1f} s with an empty cache, {warm:.2f} s from the cache "
+        f"(torch threads {torch.get_num_threads()})"
+    )
+    print(
+        f"{'gaussians':>9} {'size':>7} {'native':>8} {'native raster':>14} {'reference':>10} {'speedup':>8}"
+        "   (iterations/s; speedup = native / reference)"
+    )
     speedups = {}
     for n in (int(s) for s in args.sizes.split(",")):
         for height, width in SIZES:

@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from spc3d import spc
+from spc3d.flux_scale import calibrate_flux_scale
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -50,13 +51,20 @@ def _scene(height: int, width: int) -> np.ndarray:
 def run_case(mode: str, height: int, width: int, frames: int, repeats: int) -> dict:
     img = _scene(height, width)
     params = spc.SPCParams(mode=mode, frames=frames)
-    scale = spc.calibrate_flux_scale([img], params, 0.5)
+    scale = calibrate_flux_scale([img], params, 0.5)
     rng = spc.view_rng(0, "benchmark", 0)
     t_sim = _median_time(lambda: spc.simulate_frames(img, scale, params, rng), repeats)
     nbytes = -(-frames * img.size // 8)  # packed output: 1 bit per pixel and channel
     t_copy = _memcpy_time(nbytes)
-    return {"mode": mode, "size": f"{width}x{height}", "K": frames, "ms_per_frame": 1e3 * t_sim / frames,
-            "MB_per_s": nbytes / t_sim / 1e6, "memcpy_ms": 1e3 * t_copy, "ratio": t_sim / t_copy}
+    return {
+        "mode": mode,
+        "size": f"{width}x{height}",
+        "K": frames,
+        "ms_per_frame": 1e3 * t_sim / frames,
+        "MB_per_s": nbytes / t_sim / 1e6,
+        "memcpy_ms": 1e3 * t_copy,
+        "ratio": t_sim / t_copy,
+    }
 
 
 def main() -> None:
@@ -67,12 +75,15 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     sizes = [(args.height, args.width), (max(args.height // 4, 1), max(args.width // 4, 1))]
-    rows = [run_case(mode, h, w, k, args.repeats) for mode in spc.MODES for h, w in sizes
-            for k in sorted({1, args.frames})]
+    rows = [
+        run_case(mode, h, w, k, args.repeats) for mode in spc.MODES for h, w in sizes for k in sorted({1, args.frames})
+    ]
     print(f"{'mode':<10} {'size':>10} {'K':>3} {'ms/frame':>9} {'MB/s':>8} {'memcpy ms':>10} {'sim/memcpy':>11}")
     for r in rows:
-        print(f"{r['mode']:<10} {r['size']:>10} {r['K']:>3} {r['ms_per_frame']:>9.2f} {r['MB_per_s']:>8.1f} "
-              f"{r['memcpy_ms']:>10.4f} {r['ratio']:>11.0f}")
+        print(
+            f"{r['mode']:<10} {r['size']:>10} {r['K']:>3} {r['ms_per_frame']:>9.2f} {r['MB_per_s']:>8.1f} "
+            f"{r['memcpy_ms']:>10.4f} {r['ratio']:>11.0f}"
+        )
     head = rows[0]  # bernoulli, the given size, K = 1
     print(f"ratio_{head['mode']}_{head['size']}_K{head['K']}: {head['ratio']:.1f}")
 

@@ -32,15 +32,27 @@ METHODS = ["pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion"]
 def run_mode(work: Path, mode: str, args) -> None:
     """Stage 1 of every method in ``work`` with ``stage1.data: mode``."""
     work.mkdir(parents=True, exist_ok=True)
-    overrides = {"stage1": {"data": mode, "train": {"iterations": args.iterations},
-                            "validation": {"every": 25, "patience": 0}}}
+    overrides = {
+        "stage1": {"data": mode, "train": {"iterations": args.iterations}, "validation": {"every": 25, "patience": 0}}
+    }
     (work / "mode.yaml").write_text(yaml.safe_dump(overrides))
     scenes = [yaml.safe_load(p.read_text()).get("scenes", {}) for p in [REPO / "config.yaml", *args.configfile]]
     scene = [s["eval"] for s in scenes if "eval" in s][-1][0]  # the (last configured) first evaluation scene
     targets = [f"results/stage1/{scene}/{m}.json" for m in args.methods]
     configs = ["--configfile", *map(str, args.configfile), str(work / "mode.yaml")]
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(work),
-           "--cores", str(args.cores), *targets, *configs]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "-s",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(work),
+        "--cores",
+        str(args.cores),
+        *targets,
+        *configs,
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"{mode}: snakemake failed:\n{proc.stderr[-3000:]}")
@@ -53,10 +65,17 @@ def row(work: Path, mode: str, method: str) -> dict:
     mean = json.loads(scores.read_text())["mean"]
     curve = record["validation"]["curve"]
     bench = pd.read_csv(work / "benchmarks" / "train_translator" / f"{method}.tsv", sep="\t")
-    return {"mode": mode, "method": method, "eval_psnr": round(mean["psnr"], 2), "eval_ssim": round(mean["ssim"], 3),
-            "val_best": round(record["validation"]["best_psnr"], 2), "best_step": record["validation"]["best_step"],
-            "val_last": round(curve[-1]["val_psnr"], 2), "distinct_samples": record["data"]["distinct_samples"],
-            "cpu_s": round(float(bench["cpu_time"].iloc[0]), 1)}
+    return {
+        "mode": mode,
+        "method": method,
+        "eval_psnr": round(mean["psnr"], 2),
+        "eval_ssim": round(mean["ssim"], 3),
+        "val_best": round(record["validation"]["best_psnr"], 2),
+        "best_step": record["validation"]["best_step"],
+        "val_last": round(curve[-1]["val_psnr"], 2),
+        "distinct_samples": record["data"]["distinct_samples"],
+        "cpu_s": round(float(bench["cpu_time"].iloc[0]), 1),
+    }
 
 
 def main() -> None:

@@ -43,11 +43,21 @@ def main() -> None:
         prior = PhysicsPrior(sigma)
         gain = prior.fit(zip(binary, rgb)).tolist()
         scores = score(lambda b, p=prior: p(b).clamp(0.0, 1.0), views)
-        rows.append({"sigma (px)": sigma, "gain R": gain[0], "gain G": gain[1], "gain B": gain[2],
-                     "val PSNR (dB)": scores["val_psnr"], "val L1": scores["val_l1"]})
+        rows.append(
+            {
+                "sigma (px)": sigma,
+                "gain R": gain[0],
+                "gain G": gain[1],
+                "gain B": gain[2],
+                "val PSNR (dB)": scores["val_psnr"],
+                "val L1": scores["val_l1"],
+            }
+        )
     df = pd.DataFrame(rows)
-    print(f"physics prior alone on {len(views)} held-out views of {', '.join(args.train)} "
-          f"(gain fitted on {len(binary)} augmented pairs, K = {args.frames})")
+    print(
+        f"physics prior alone on {len(views)} held-out views of {', '.join(args.train)} "
+        f"(gain fitted on {len(binary)} augmented pairs, K = {args.frames})"
+    )
     print(df.to_markdown(index=False, floatfmt=".3f"))
     best = df.loc[df["val PSNR (dB)"].idxmax(), "sigma (px)"]
     print(f"best sigma: {best:g} px")

@@ -37,8 +37,15 @@ def build_scene(name: str, width: int, work: Path) -> tuple[Path, Path]:
     if (LLFF_ROOT / name).is_dir():
         spec = {"kind": "llff", "path": str(LLFF_ROOT / name), "factor": 8, "width": width}
     else:
-        spec = {"kind": "builtin", "layout": name, "height": width * 3 // 4, "width": width, "views": 24,
-                "supersample": 3, "seed": 0}
+        spec = {
+            "kind": "builtin",
+            "layout": name,
+            "height": width * 3 // 4,
+            "width": width,
+            "views": 24,
+            "supersample": 3,
+            "seed": 0,
+        }
     prepare_scene(spec, scene_dir)
     simulate_scene(scene_dir, spc_dir, SPCParams(frames=16), seed=0)
     return scene_dir, spc_dir
@@ -47,8 +54,10 @@ def build_scene(name: str, width: int, work: Path) -> tuple[Path, Path]:
 def held_out_psnr(trainer, scene) -> tuple[float, float]:
     _, test = split_views(len(scene.names))
     renders = [trainer.render(scene.cameras, int(i)).numpy() for i in test]
-    return (float(np.mean([metrics.psnr(r, scene.images[i]) for r, i in zip(renders, test)])),
-            float(np.mean([metrics.ssim(r, scene.images[i]) for r, i in zip(renders, test)])))
+    return (
+        float(np.mean([metrics.psnr(r, scene.images[i]) for r, i in zip(renders, test)])),
+        float(np.mean([metrics.ssim(r, scene.images[i]) for r, i in zip(renders, test)])),
+    )
 
 
 def train_combo(combo: str, scene_dir: Path, spc_dir: Path, settings: dict, marks: list[float]) -> str:
@@ -67,16 +76,21 @@ def train_combo(combo: str, scene_dir: Path, spc_dir: Path, settings: dict, mark
             pending.pop(0)
     psnr, ssim = held_out_psnr(trainer, scene)
     at += ["     -"] * len(pending)
-    return (f"{combo:<18} {' '.join(f'{a:>11}' for a in at)} {psnr:8.2f} {ssim:7.4f} {it:6d} {clock:8.1f}  "
-            f"{trainer.capacity()}")
+    return (
+        f"{combo:<18} {' '.join(f'{a:>11}' for a in at)} {psnr:8.2f} {ssim:7.4f} {it:6d} {clock:8.1f}  "
+        f"{trainer.capacity()}"
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="courtyard")
     ap.add_argument("--width", type=int, default=128)
-    ap.add_argument("--combos", nargs="+", default=["gt+3dgs", "gt+nerf-grid", "none+3dgs", "none+nerf-grid",
-                                                     "mle+3dgs", "bernoulli+3dgs"])
+    ap.add_argument(
+        "--combos",
+        nargs="+",
+        default=["gt+3dgs", "gt+nerf-grid", "none+3dgs", "none+nerf-grid", "mle+3dgs", "bernoulli+3dgs"],
+    )
     ap.add_argument("--marks", nargs="+", type=float, default=[30, 60, 120], help="seconds of training")
     ap.add_argument("--config", default=str(REPO / "config.yaml"), help="settings from its stage2 section")
     ap.add_argument("--threads", type=int, default=1)
@@ -85,8 +99,10 @@ def main() -> None:
     settings = yaml.safe_load(Path(args.config).read_text())["stage2"]
     settings["nerf"] = settings.get("nerf", {})
     print(f"scene {args.scene} width {args.width}, {args.threads} thread(s); PSNR (dB) @ iteration at each mark")
-    print(f"{'combination':<18} {' '.join(f'{m:>10.0f}s' for m in args.marks)} {'PSNR':>8} {'SSIM':>7} "
-          f"{'iters':>6} {'train_s':>8}  capacity")
+    print(
+        f"{'combination':<18} {' '.join(f'{m:>10.0f}s' for m in args.marks)} {'PSNR':>8} {'SSIM':>7} "
+        f"{'iters':>6} {'train_s':>8}  capacity"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         scene_dir, spc_dir = build_scene(args.scene, args.width, Path(tmp))
         for combo in args.combos:

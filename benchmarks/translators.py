@@ -84,8 +84,12 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=6, help="timed steps per round")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--methods", default=",".join(TRANSLATORS), help="comma-separated methods")
-    ap.add_argument("--allocator", choices=("keep", "default"), default="keep",
-                    help="keep: as a workflow job (freed memory reused); default: glibc's own behaviour")
+    ap.add_argument(
+        "--allocator",
+        choices=("keep", "default"),
+        default="keep",
+        help="keep: as a workflow job (freed memory reused); default: glibc's own behaviour",
+    )
     args = ap.parse_args()
     if args.allocator == "keep":
         from spc3d.runtime import keep_freed_memory
@@ -98,8 +102,10 @@ def main() -> None:
         torch.set_num_threads(threads)
         models = {m: build(m) for m in methods}  # fresh models: every thread count starts alike
         results[threads] = measure(models, batch, args.steps, args.rounds)
-    print(f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, torch {torch.__version__}, "
-          f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}, load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, torch {torch.__version__}, "
+        f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}, load average {os.getloadavg()[0]:.1f}"
+    )
     print(f"{'method':<10} {'threads':>7} {'steps/s':>8} {'CPU s/step':>11} {'kernel':>7}")
     for threads, rows in results.items():
         for m, r in rows.items():

@@ -1,4 +1,5 @@
 """Shared fixtures: paths to the repository and to the real LLFF scenes (skipped when absent)."""
+
 import os
 import subprocess
 import sys
@@ -97,14 +98,20 @@ class InterruptAt:
 
 # --- killing and resuming runs (tests/test_reliability.py) ---------------------------------------
 
+
 def snakemake_process(workdir, *args, log_name="snakemake.out"):
     """Start snakemake like :func:`run_snakemake`, in a new session (its process group is its pid, so
     ``os.killpg`` reaches it and every job); its output goes to ``workdir/log_name``."""
     cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
     out = open(Path(workdir) / log_name, "w")
     try:
-        return subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        return subprocess.Popen(
+            cmd,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
     finally:
         out.close()  # the child holds its own copy
 
@@ -128,7 +135,7 @@ def child_processes(pid: int) -> list[tuple[int, str]]:
                 cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
             except OSError:
                 continue
-            parents[int(entry.name)] = (int(stat[stat.rindex(")") + 2:].split()[1]), cmd)
+            parents[int(entry.name)] = (int(stat[stat.rindex(")") + 2 :].split()[1]), cmd)
     found, frontier = [], {pid}
     while frontier:
         frontier = {p for p, (ppid, _) in parents.items() if ppid in frontier}

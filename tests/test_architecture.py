@@ -1,6 +1,7 @@
 """The library's layering, read from the source: stage 1 (spc3d.translate) and stage 2
 (spc3d.reconstruct and the modules that drive it) never import each other; both may use the neutral
 modules (training, checkpoints, io, metrics, ...). The workflow vocabulary stays torch-free."""
+
 import ast
 import subprocess
 import sys
@@ -66,7 +67,9 @@ def test_stage1_and_stage2_do_not_import_each_other(side, other):
 
 def test_workflow_vocabulary_does_not_import_torch():
     """Parsing the Snakefile imports spc3d.workflow and spc3d.config: they must stay torch-free."""
-    code = ("import sys; sys.path.insert(0, 'workflow'); import spc3d.workflow, spc3d.config, spc3d.scenes; "
-            "print('torch' in sys.modules)")
+    code = (
+        "import sys; sys.path.insert(0, 'workflow'); import spc3d.workflow, spc3d.config, spc3d.scenes; "
+        "print('torch' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

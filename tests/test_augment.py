@@ -1,4 +1,5 @@
 """Augmentation: the affine maps, determinism, pixel-aligned (RGB, binary) pairs, bad settings."""
+
 import numpy as np
 import pytest
 
@@ -32,8 +33,10 @@ def test_sampled_parameters_respect_ranges():
     s = augment.AugmentSettings(zoom=(0.9, 1.1), rotation_deg=5, shear_deg=2, flip_prob=0.0)
     rng = np.random.default_rng(2)
     draws = [augment.sample_params(rng, s) for _ in range(200)]
-    assert all(0.9 <= d["zoom"] <= 1.1 and abs(d["rotation_deg"]) <= 5 and abs(d["shear_deg"]) <= 2
-               and not d["flip"] for d in draws)
+    assert all(
+        0.9 <= d["zoom"] <= 1.1 and abs(d["rotation_deg"]) <= 5 and abs(d["shear_deg"]) <= 2 and not d["flip"]
+        for d in draws
+    )
 
 
 def test_split_count_sums_to_total():
@@ -41,8 +44,10 @@ def test_split_count_sums_to_total():
     assert sum(augment.split_count(15000, 7, i) for i in range(7)) == 15000
 
 
-@pytest.mark.parametrize("kwargs,match", [({"zoom": (1.2, 0.8)}, "zoom"), ({"flip_prob": 1.5}, "flip_prob"),
-                                          ({"rotation_deg": -1}, "rotation_deg")])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [({"zoom": (1.2, 0.8)}, "zoom"), ({"flip_prob": 1.5}, "flip_prob"), ({"rotation_deg": -1}, "rotation_deg")],
+)
 def test_bad_settings_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
         augment.AugmentSettings(**kwargs)
@@ -74,5 +79,7 @@ def test_augmented_pairs_are_aligned_and_deterministic(tiny_scene):
         np.testing.assert_array_equal(io.read_rgb(tiny_scene / "aug" / "binary" / f"{i:05d}.png") > 0.5, frames[0])
     again = augment.augment_scene(tiny_scene / "scene", tiny_scene / "spc", tiny_scene / "aug2", 3, s, seed=7)
     assert again["samples"] == rec["samples"]
-    assert np.array_equal(io.load_frames(tiny_scene / "aug" / "frames" / "00001.npz")[0],
-                          io.load_frames(tiny_scene / "aug2" / "frames" / "00001.npz")[0])
+    assert np.array_equal(
+        io.load_frames(tiny_scene / "aug" / "frames" / "00001.npz")[0],
+        io.load_frames(tiny_scene / "aug2" / "frames" / "00001.npz")[0],
+    )

@@ -6,6 +6,7 @@ right; fail at the earliest stage that has the information (``parse``: before Sn
 its DAG, so no job starts; else the named rule); leave nothing a rerun would trust (no result of
 the failing stage, no temporary folder); and a corrected run in the same folder must succeed.
 """
+
 import re
 import subprocess
 import sys
@@ -42,12 +43,14 @@ def _poses(fn):
         pb = np.load(folder / "poses_bounds.npy")
         fn(pb)
         np.save(folder / "poses_bounds.npy", pb)
+
     return damage
 
 
 def _image(fn):
     def damage(folder):
         fn(sorted((folder / "images").glob("*.png"))[2])
+
     return damage
 
 
@@ -78,80 +81,167 @@ CASES = [
     Case("impossible-exposure", r"spc\.exposure_s = -0\.001: must be > 0", {"spc": {"exposure_s": -1e-3}}),
     Case("checkpoint-rhythm", r"checkpoints\.fraction = 2: must be <= 1", {"checkpoints": {"fraction": 2}}),
     Case("no-eval-scene", r"scenes\.eval = \[\]: needs at least 1 item", {"scenes": {"eval": []}}),
-    Case("bad-combination", r"stage2\.combinations\.0 = 'pix2pixhd': must match",
-         {"stage2": {"combinations": ["pix2pixhd"]}}),
-    Case("3dgs-zero-iterations", r"stage2\.3dgs\.iterations = 0: must be >= 1",
-         {"stage2": {"3dgs": {"iterations": 0}}}),
-    Case("grid-zero-iterations", r"stage2\.nerf-grid\.n_iters = 0: must be >= 1",
-         {"stage2": {"nerf-grid": {"n_iters": 0}}}),
-    Case("iterations-not-a-number", r"stage2\.3dgs\.iterations = 'abc': expected integer",
-         {"stage2": {"3dgs": {"iterations": "abc"}}}),
+    Case(
+        "bad-combination",
+        r"stage2\.combinations\.0 = 'pix2pixhd': must match",
+        {"stage2": {"combinations": ["pix2pixhd"]}},
+    ),
+    Case(
+        "3dgs-zero-iterations", r"stage2\.3dgs\.iterations = 0: must be >= 1", {"stage2": {"3dgs": {"iterations": 0}}}
+    ),
+    Case(
+        "grid-zero-iterations",
+        r"stage2\.nerf-grid\.n_iters = 0: must be >= 1",
+        {"stage2": {"nerf-grid": {"n_iters": 0}}},
+    ),
+    Case(
+        "iterations-not-a-number",
+        r"stage2\.3dgs\.iterations = 'abc': expected integer",
+        {"stage2": {"3dgs": {"iterations": "abc"}}},
+    ),
     # --- config keys: values checked against each other and against the models ------------------
     Case("unknown-source", r"unknown source 'magic'", {"stage2": {"combinations": ["magic+3dgs"]}}),
     Case("unknown-scene", r"scenes\.eval: unknown scene 'mars'; use a built-in layout", {"scenes": {"eval": ["mars"]}}),
-    Case("train-eval-overlap", r"share \['courtyard'\]: evaluation scenes must be held out",
-         {"scenes": {"train": ["courtyard"], "eval": ["courtyard"]}}),
-    Case("missing-llff-folder", r"llff_scenes\.gone: /nonexistent/gone is not an LLFF folder",
-         {"llff_scenes": {"gone": "/nonexistent/gone"}, "scenes": {"eval": ["gone"]}}),
-    Case("3dgs-typo", r"stage2\.3dgs: unknown setting\(s\) \['iteratons'\]; did you mean 'iterations'",
-         {"stage2": {"3dgs": {"iteratons": 5}}}),
-    Case("3dgs-float-count", r"stage2\.3dgs\.init_points = 1\.5: expected int",
-         {"stage2": {"3dgs": {"init_points": 1.5}}}),
-    Case("translator-typo", r"stage1\.pix2pixhd: unknown setting\(s\) \['ngff'\]; did you mean 'ngf'",
-         {"stage1": {"pix2pixhd": {"ngff": 8}}}),
-    Case("untrained-translator", r"stage1\.train\.iterations = 0 for pix2pixhd: an untrained network is not a result",
-         {"stage1": {"train": {"iterations": 0}}}),
-    Case("more-frames-than-simulated", r"stage1\.frames = 8: more than the spc\.frames = 4",
-         {"stage1": {"frames": 8}}),
-    Case("no-training-pairs", r"augment\.count = 0: the translators .* need at least one augmented pair",
-         {"augment": {"count": 0}, "stage1": {"data": "fixed"}}),
-    Case("stage1-data-mode", r"stage1\.data = 'onlin': use one of \['fixed', 'online'\]",
-         {"stage1": {"data": "onlin"}}),
-    Case("validation-typo", r"stage1\.diffusion\.validation: unknown setting\(s\) \['evry'\]; did you mean 'every'",
-         {"stage1": {"diffusion": {"validation": {"evry": 50}}}}),
+    Case(
+        "train-eval-overlap",
+        r"share \['courtyard'\]: evaluation scenes must be held out",
+        {"scenes": {"train": ["courtyard"], "eval": ["courtyard"]}},
+    ),
+    Case(
+        "missing-llff-folder",
+        r"llff_scenes\.gone: /nonexistent/gone is not an LLFF folder",
+        {"llff_scenes": {"gone": "/nonexistent/gone"}, "scenes": {"eval": ["gone"]}},
+    ),
+    Case(
+        "3dgs-typo",
+        r"stage2\.3dgs: unknown setting\(s\) \['iteratons'\]; did you mean 'iterations'",
+        {"stage2": {"3dgs": {"iteratons": 5}}},
+    ),
+    Case(
+        "3dgs-float-count",
+        r"stage2\.3dgs\.init_points = 1\.5: expected int",
+        {"stage2": {"3dgs": {"init_points": 1.5}}},
+    ),
+    Case(
+        "translator-typo",
+        r"stage1\.pix2pixhd: unknown setting\(s\) \['ngff'\]; did you mean 'ngf'",
+        {"stage1": {"pix2pixhd": {"ngff": 8}}},
+    ),
+    Case(
+        "untrained-translator",
+        r"stage1\.train\.iterations = 0 for pix2pixhd: an untrained network is not a result",
+        {"stage1": {"train": {"iterations": 0}}},
+    ),
+    Case("more-frames-than-simulated", r"stage1\.frames = 8: more than the spc\.frames = 4", {"stage1": {"frames": 8}}),
+    Case(
+        "no-training-pairs",
+        r"augment\.count = 0: the translators .* need at least one augmented pair",
+        {"augment": {"count": 0}, "stage1": {"data": "fixed"}},
+    ),
+    Case(
+        "stage1-data-mode", r"stage1\.data = 'onlin': use one of \['fixed', 'online'\]", {"stage1": {"data": "onlin"}}
+    ),
+    Case(
+        "validation-typo",
+        r"stage1\.diffusion\.validation: unknown setting\(s\) \['evry'\]; did you mean 'every'",
+        {"stage1": {"diffusion": {"validation": {"evry": 50}}}},
+    ),
     Case("stage1-without-train-scenes", r"scenes\.train is empty", {"scenes": {"train": []}}),
-    Case("paper-mode-physics-rows", r"spc\.mode = 'paper': the rows \['bernoulli\+3dgs', 'mle\+3dgs'\] invert the "
-         r"exact Bernoulli model",
-         {"spc": {"mode": "paper"}, "stage2": {"combinations": ["gt+3dgs", "mle+3dgs", "bernoulli+3dgs"]}}),
+    Case(
+        "paper-mode-physics-rows",
+        r"spc\.mode = 'paper': the rows \['bernoulli\+3dgs', 'mle\+3dgs'\] invert the "
+        r"exact Bernoulli model",
+        {"spc": {"mode": "paper"}, "stage2": {"combinations": ["gt+3dgs", "mle+3dgs", "bernoulli+3dgs"]}},
+    ),
     # --- files the config names --------------------------------------------------------------------
-    Case("missing-pretrained-weights", r"stage1\.restormer\.checkpoint: .*/missing\.pth does not exist",
-         {"stage1": {"restormer": {"checkpoint": "WORK/missing.pth"}}}),
-    Case("corrupt-pretrained-weights", r"weights\.pth is not a readable Restormer checkpoint",
-         {"stage1": {"restormer": {"checkpoint": "WORK/weights.pth"}}}, files={"weights.pth": b"\x00garbage" * 64},
-         forbid=r"weights_only=False"),
-    Case("pickled-code-in-weights", r"evil\.pth is not a readable Restormer checkpoint \(it holds pickled Python",
-         {"stage1": {"restormer": {"checkpoint": "WORK/evil.pth"}}}, files={"evil.pth": "EVIL"},
-         forbid=r"weights_only=False|code from a weight file ran"),
-    Case("missing-lpips-source", r"metrics\.lpips_source: .*/no-such-weights does not exist",
-         {"metrics": {"lpips_source": "WORK/no-such-weights"}}),
-    Case("ragged-sweep-table", r"ragged\.tsv: not a tab-separated table .*every row needs one value per column",
-         {"tradeoff": {"table": "WORK/ragged.tsv"}}, files={"ragged.tsv": b"iters\tres\n100\t32\n200\t32\t5\n"}),
+    Case(
+        "missing-pretrained-weights",
+        r"stage1\.restormer\.checkpoint: .*/missing\.pth does not exist",
+        {"stage1": {"restormer": {"checkpoint": "WORK/missing.pth"}}},
+    ),
+    Case(
+        "pretrained-weights-with-prior",
+        r"restormer: published weights \(.*weights\.pth\) predict a residual over the input image.*prior_sigma: 0",
+        {"stage1": {"restormer": {"checkpoint": "WORK/weights.pth"}}},
+        files={"weights.pth": b"\x00garbage" * 64},
+    ),
+    Case(
+        "corrupt-pretrained-weights",
+        r"weights\.pth is not a readable Restormer checkpoint",
+        {"stage1": {"restormer": {"checkpoint": "WORK/weights.pth", "prior_sigma": 0.0}}},
+        files={"weights.pth": b"\x00garbage" * 64},
+        forbid=r"weights_only=False",
+    ),
+    Case(
+        "pickled-code-in-weights",
+        r"evil\.pth is not a readable Restormer checkpoint \(it holds pickled Python",
+        {"stage1": {"restormer": {"checkpoint": "WORK/evil.pth"}}},
+        files={"evil.pth": "EVIL"},
+        forbid=r"weights_only=False|code from a weight file ran",
+    ),
+    Case(
+        "missing-lpips-source",
+        r"metrics\.lpips_source: .*/no-such-weights does not exist",
+        {"metrics": {"lpips_source": "WORK/no-such-weights"}},
+    ),
+    Case(
+        "ragged-sweep-table",
+        r"ragged\.tsv: not a tab-separated table .*every row needs one value per column",
+        {"tradeoff": {"table": "WORK/ragged.tsv"}},
+        files={"ragged.tsv": b"iters\tres\n100\t32\n200\t32\t5\n"},
+    ),
     # --- scene data: a real LLFF folder, damaged -----------------------------------------------
-    Case("nan-pose", r"poses_bounds\.npy: non-finite poses \(NaN or inf\) in view\(s\) 3",
-         scene=_poses(lambda pb: pb.__setitem__((3, 7), np.nan))),
-    Case("negative-near-bound", r"view\(s\) 0, 1, 2, 3, 4 \(and 5 more\) have bounds near=-1.*need 0 < near < far",
-         scene=_poses(lambda pb: pb.__setitem__((slice(None), 15), -1.0))),
-    Case("not-a-rotation", r"the 3x3 part of view\(s\) 5 is not a rotation",
-         scene=_poses(lambda pb: pb.__setitem__((5, slice(0, 3)), 2.0 * pb[5, 0:3]))),
-    Case("wrong-poses-shape", r"array of shape \(10, 15\).*N x 17",
-         scene=lambda f: np.save(f / "poses_bounds.npy", np.load(f / "poses_bounds.npy")[:, :15])),
-    Case("pose-image-mismatch", r"holds 9 images but .*poses_bounds\.npy has 10 poses; they must match",
-         scene=_image(Path.unlink)),
+    Case(
+        "nan-pose",
+        r"poses_bounds\.npy: non-finite poses \(NaN or inf\) in view\(s\) 3",
+        scene=_poses(lambda pb: pb.__setitem__((3, 7), np.nan)),
+    ),
+    Case(
+        "negative-near-bound",
+        r"view\(s\) 0, 1, 2, 3, 4 \(and 5 more\) have bounds near=-1.*need 0 < near < far",
+        scene=_poses(lambda pb: pb.__setitem__((slice(None), 15), -1.0)),
+    ),
+    Case(
+        "not-a-rotation",
+        r"the 3x3 part of view\(s\) 5 is not a rotation",
+        scene=_poses(lambda pb: pb.__setitem__((5, slice(0, 3)), 2.0 * pb[5, 0:3])),
+    ),
+    Case(
+        "wrong-poses-shape",
+        r"array of shape \(10, 15\).*N x 17",
+        scene=lambda f: np.save(f / "poses_bounds.npy", np.load(f / "poses_bounds.npy")[:, :15]),
+    ),
+    Case(
+        "pose-image-mismatch",
+        r"holds 9 images but .*poses_bounds\.npy has 10 poses; they must match",
+        scene=_image(Path.unlink),
+    ),
     Case("image-of-another-size", r"image002\.png is 30x20 pixels but image000\.png is 48x36", scene=_image(_resize)),
     Case("grayscale-image", r"image002\.png: 1 channel\(s\); the views of a scene must be RGB", scene=_image(_gray)),
-    Case("corrupt-png", r"image002\.png", scene=_image(_truncate), stage="scene_prepare"),
-    Case("no-image-folder", r"images_8 does not exist; choose an LLFF factor whose folder is present",
-         {"resolution": {"llff_factor": 8}}, scene=lambda f: None),
+    Case("corrupt-png", r"image002\.png", scene=_image(_truncate), stage="prepare_scene"),
+    Case(
+        "no-image-folder",
+        r"images_8 does not exist; choose an LLFF factor whose folder is present",
+        {"resolution": {"llff_factor": 8}},
+        scene=lambda f: None,
+    ),
     # --- environment ---------------------------------------------------------------------------
-    Case("lpips-folder-without-weights", r"lpips_v0\.1_alex\.npz", {"metrics": {"lpips_source": "WORK/empty"}},
-         files={"empty/README": b"no weights here"}, stage="lpips_weights"),
+    Case(
+        "lpips-folder-without-weights",
+        r"lpips_v0\.1_alex\.npz",
+        {"metrics": {"lpips_source": "WORK/empty"}},
+        files={"empty/README": b"no weights here"},
+        stage="lpips_weights",
+    ),
 ]
-TARGETS = {"scene_prepare": "results/scenes/mini", "lpips_weights": "results/cache/lpips/lpips_v0.1_alex.npz"}
+TARGETS = {"prepare_scene": "results/scenes/mini", "lpips_weights": "results/cache/lpips/lpips_v0.1_alex.npz"}
 # Cases run in groups, one work folder each (the groups run in parallel under xdist).
-GROUPS = {"config-1": [c for c in CASES[:14] if c.scene is None and c.stage == "parse"],
-          "config-2": [c for c in CASES[14:] if c.scene is None and c.stage == "parse"],
-          "scene": [c for c in CASES if c.scene is not None and c.stage == "parse"],
-          "jobs": [c for c in CASES if c.stage != "parse"]}
+GROUPS = {
+    "config-1": [c for c in CASES[:14] if c.scene is None and c.stage == "parse"],
+    "config-2": [c for c in CASES[14:] if c.scene is None and c.stage == "parse"],
+    "scene": [c for c in CASES if c.scene is not None and c.stage == "parse"],
+    "jobs": [c for c in CASES if c.stage != "parse"],
+}
 
 
 def _resolve(value, work: Path):
@@ -183,12 +273,16 @@ class World:
 
     def config(self, case: Case | None = None) -> dict:
         """The case's config over the "mini" scene's (for scene cases) or alone; None: corrected."""
-        scene = {"llff_scenes": {"mini": str(self.mini)}, "scenes": {"eval": ["mini"]},
-                 "resolution": {"llff_factor": 1}}
+        scene = {
+            "llff_scenes": {"mini": str(self.mini)},
+            "scenes": {"eval": ["mini"]},
+            "resolution": {"llff_factor": 1},
+        }
         if case is None:
             return scene
-        return (scene if case.scene is not None or case.stage == "scene_prepare" else {}) | _resolve(case.config,
-                                                                                                       self.work)
+        return (scene if case.scene is not None or case.stage == "prepare_scene" else {}) | _resolve(
+            case.config, self.work
+        )
 
     def restore(self) -> None:
         for p in [p for p in self.mini.rglob("*") if p.is_file()]:
@@ -203,8 +297,9 @@ class World:
 
     def snapshot(self) -> dict:
         results = self.work / "results"
-        return {str(p.relative_to(results)): p.stat().st_mtime_ns for p in results.rglob("*")} if results.exists() \
-            else {}
+        return (
+            {str(p.relative_to(results)): p.stat().st_mtime_ns for p in results.rglob("*")} if results.exists() else {}
+        )
 
 
 def _leftovers(work: Path) -> list[str]:
@@ -264,8 +359,9 @@ def test_yaml_syntax_error_in_config_yaml_names_file_and_line(tmp_path):
     proc = run_snakemake(tmp_path, "-n", "-s", str(repo / "Snakefile"), timeout=120)
     out = proc.stdout + proc.stderr
     line = text.splitlines().index("seed: [0") + 1  # the parser notices further down; it names both lines
-    assert proc.returncode != 0 and re.search(rf"config\.yaml:\d+:\d+: not valid YAML .*flow sequence at line {line}\)",
-                                              out), out[-2000:]
+    assert proc.returncode != 0 and re.search(
+        rf"config\.yaml:\d+:\d+: not valid YAML .*flow sequence at line {line}\)", out
+    ), out[-2000:]
 
 
 def test_read_yaml_and_the_config_checker_cli(tmp_path):
@@ -279,16 +375,20 @@ def test_read_yaml_and_the_config_checker_cli(tmp_path):
         read_yaml(listed)
     wrong = tmp_path / "wrong.yaml"
     wrong.write_text("spc: {frame: 4}\n")
-    proc = subprocess.run([sys.executable, "-m", "spc3d.config", str(wrong), str(SMOKE)], capture_output=True,
-                          text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "spc3d.config", str(wrong), str(SMOKE)], capture_output=True, text=True
+    )
     assert proc.returncode == 1 and "spc.frame: unknown key; did you mean 'frames'" in proc.stdout + proc.stderr
     assert f"{SMOKE}: ok" in proc.stdout
 
 
 def test_one_path_rule_every_relative_path_from_the_repository_root(tmp_path):
-    config = {"llff_scenes": {"fern": "data/fern", "abs": "/data/abs"}, "tradeoff": {"table": "workflow/t.tsv"},
-              "metrics": {"lpips_source": None},
-              "stage1": {"restormer": {"checkpoint": "w/restormer.pth"}, "pix2pix": {}, "train": {}}}
+    config = {
+        "llff_scenes": {"fern": "data/fern", "abs": "/data/abs"},
+        "tradeoff": {"table": "workflow/t.tsv"},
+        "metrics": {"lpips_source": None},
+        "stage1": {"restormer": {"checkpoint": "w/restormer.pth"}, "pix2pix": {}, "train": {}},
+    }
     resolve_paths(config, tmp_path)
     assert config["llff_scenes"] == {"fern": str(tmp_path / "data" / "fern"), "abs": "/data/abs"}
     assert config["tradeoff"]["table"] == str(tmp_path / "workflow" / "t.tsv")
@@ -306,5 +406,5 @@ def test_relative_paths_do_not_follow_the_working_directory(tmp_path):
 
 def test_case_table_is_large_and_covers_every_stage():
     assert len(CASES) >= 25 and len({c.id for c in CASES}) == len(CASES)
-    assert {c.stage for c in CASES} == {"parse", "scene_prepare", "lpips_weights"}
+    assert {c.stage for c in CASES} == {"parse", "prepare_scene", "lpips_weights"}
     assert sum(map(len, GROUPS.values())) == len(CASES)

@@ -1,4 +1,5 @@
 """Camera conventions: LLFF <-> internal round trips, projection, similarity alignment."""
+
 import numpy as np
 import pytest
 
@@ -9,9 +10,13 @@ def random_rotation(rng):
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
     w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def grid_cameras(n=12, seed=0):
@@ -51,8 +56,10 @@ def test_llff_focal_rescaled_to_loaded_images():
 def test_look_at_points_forward_and_upright():
     w2c = C.look_at(np.zeros(3), np.array([0.0, 0.0, 5.0]))
     np.testing.assert_allclose(w2c[:, :3], np.eye(3), atol=1e-12)  # world y down == image y down
-    uv, z = C.project(C.Cameras(w2c[None], np.array([[10.0, 10, 8, 6]]), 12, 16, np.ones((1, 2))),
-                      np.array([[0.0, 0.0, 5.0], [0.0, -1.0, 5.0]]))
+    uv, z = C.project(
+        C.Cameras(w2c[None], np.array([[10.0, 10, 8, 6]]), 12, 16, np.ones((1, 2))),
+        np.array([[0.0, 0.0, 5.0], [0.0, -1.0, 5.0]]),
+    )
     np.testing.assert_allclose(uv[0, 0], [8, 6])  # the target lands on the image centre
     assert uv[0, 1, 1] < 6 and z[0, 1] == 5.0  # world "up" (-y) projects above the centre
 

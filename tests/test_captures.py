@@ -1,5 +1,6 @@
 """Captured SPAD data: photon-cube formats, CFA sensors, the masked likelihood, hot pixels, and the
 simulated export read back as a capture."""
+
 import gzip
 import shutil
 import subprocess
@@ -96,16 +97,21 @@ def test_png_frames_are_single_channel_0_255_in_natural_order(tmp_path):
     assert np.array_equal(photon_cubes.read_cube(folder), cube)
 
 
-@pytest.mark.parametrize("make,message", [
-    (lambda p: np.save(p / "c.npy", np.zeros((2, 3, 4), np.float32)),
-     r"c.npy: holds a float32 .*expected uint8 \(K, H, ceil\(W/8\)\)"),
-    (lambda p: np.save(p / "c.npy", np.zeros((3, 4), np.uint8)), r"c.npy: holds a uint8 array of shape \(3, 4\)"),
-    (lambda p: np.save(p / "c.npy", np.zeros((2, 3, 4), bool)), r"c.npy: .*bool.*unpacked cube"),
-    (lambda p: (p / "c.npy").write_bytes(b"\x93NUMPY garbage"), r"cannot read photon cube .*c.npy"),
-    (lambda p: (p / "c.npy.gz").write_bytes(b"not gzip at all"), r"c.npy.gz: .*gzip"),
-    (lambda p: (p / "c.npz").write_bytes(b"nope"), r"c.npz"),
-    (lambda p: (p / "c.tif").write_bytes(b"x"), r"c.tif: unknown photon-cube format"),
-])
+@pytest.mark.parametrize(
+    "make,message",
+    [
+        (
+            lambda p: np.save(p / "c.npy", np.zeros((2, 3, 4), np.float32)),
+            r"c.npy: holds a float32 .*expected uint8 \(K, H, ceil\(W/8\)\)",
+        ),
+        (lambda p: np.save(p / "c.npy", np.zeros((3, 4), np.uint8)), r"c.npy: holds a uint8 array of shape \(3, 4\)"),
+        (lambda p: np.save(p / "c.npy", np.zeros((2, 3, 4), bool)), r"c.npy: .*bool.*unpacked cube"),
+        (lambda p: (p / "c.npy").write_bytes(b"\x93NUMPY garbage"), r"cannot read photon cube .*c.npy"),
+        (lambda p: (p / "c.npy.gz").write_bytes(b"not gzip at all"), r"c.npy.gz: .*gzip"),
+        (lambda p: (p / "c.npz").write_bytes(b"nope"), r"c.npz"),
+        (lambda p: (p / "c.tif").write_bytes(b"x"), r"c.tif: unknown photon-cube format"),
+    ],
+)
 def test_bad_files_name_the_file_and_the_expectation(tmp_path, make, message):
     make(tmp_path)
     path = next(p for p in tmp_path.iterdir())
@@ -204,11 +210,14 @@ def test_pattern_from_a_tile_image_or_array(tmp_path):
     assert sensors.cfa_mask(sensors.cfa_pattern(quad), 2, 8)[0, 5].tolist() == [1, 0, 0]
 
 
-@pytest.mark.parametrize("tile,message", [
-    (np.full((2, 2, 3), 128), "values other than 0 and 255"),
-    (np.array([[[255, 0, 0], [0, 0, 0]]]), r"pixel \(row 0, column 1\) is black"),
-    (np.zeros((2, 2)), r"shape \(2, 2\); expected \(th, tw, 3\)"),
-])
+@pytest.mark.parametrize(
+    "tile,message",
+    [
+        (np.full((2, 2, 3), 128), "values other than 0 and 255"),
+        (np.array([[[255, 0, 0], [0, 0, 0]]]), r"pixel \(row 0, column 1\) is black"),
+        (np.zeros((2, 2)), r"shape \(2, 2\); expected \(th, tw, 3\)"),
+    ],
+)
 def test_bad_tiles_are_explained(tile, message):
     with pytest.raises(ValueError, match=message):
         sensors.cfa_pattern(tile)
@@ -281,8 +290,9 @@ def test_bayer_demosaic_is_classic_bilinear():
 def test_average_demosaic_and_channel_stack():
     pattern = sensors.cfa_pattern("RGBW")
     cube = random_cube((6, 4, 6), 0.4)
-    np.testing.assert_allclose(sensors.demosaic_average(cube, pattern),
-                               sensors.demosaic_bilinear(cube.mean(0), pattern))
+    np.testing.assert_allclose(
+        sensors.demosaic_average(cube, pattern), sensors.demosaic_bilinear(cube.mean(0), pattern)
+    )
     valid = np.ones((4, 6), bool)
     valid[1, 1] = False
     stack, names = sensors.channel_stack(cube.mean(0), pattern, valid)
@@ -322,8 +332,9 @@ def test_all_ones_rgb_mask_equals_bernoulli_objective(dtype):
     assert torch.equal(sensors.channel_bernoulli_loss(OBJ, pred, target, ones), OBJ.loss(pred, target))
     assert torch.equal(sensors.channel_bernoulli_loss(OBJ, pred, target), OBJ.loss(pred, target))
     rays, bits = pred.reshape(-1, 3), target.reshape(-1, 3)  # a ray batch, as the NeRF trainer passes
-    assert torch.equal(sensors.channel_bernoulli_loss(OBJ, rays, bits, torch.ones(3, dtype=torch.bool)),
-                       OBJ.loss(rays, bits))
+    assert torch.equal(
+        sensors.channel_bernoulli_loss(OBJ, rays, bits, torch.ones(3, dtype=torch.bool)), OBJ.loss(rays, bits)
+    )
 
 
 @pytest.mark.parametrize("name", BAYER)
@@ -378,9 +389,12 @@ def test_packed_target_objective_matches_the_function():
     assert packed.shape == (6, 8, 5)
     assert torch.equal(obj.loss(pred, packed), sensors.mosaic_bernoulli_loss(OBJ, pred, raw, w, valid))
     i = torch.tensor([0, 5, 17, 40])  # a ray batch gathers targets with their weights
-    assert torch.equal(obj.loss(pred.reshape(-1, 3)[i], packed.reshape(-1, 5)[i]),
-                       sensors.mosaic_bernoulli_loss(OBJ, pred.reshape(-1, 3)[i], raw.reshape(-1)[i],
-                                                     w.reshape(-1, 3)[i], valid.reshape(-1)[i]))
+    assert torch.equal(
+        obj.loss(pred.reshape(-1, 3)[i], packed.reshape(-1, 5)[i]),
+        sensors.mosaic_bernoulli_loss(
+            OBJ, pred.reshape(-1, 3)[i], raw.reshape(-1)[i], w.reshape(-1, 3)[i], valid.reshape(-1)[i]
+        ),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -560,8 +574,9 @@ CAPTURE_TOOL = REPO / "workflow" / "tools" / "capture.py"
 
 
 def capture_tool(*args):
-    return subprocess.run([sys.executable, str(CAPTURE_TOOL), *map(str, args)], capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run(
+        [sys.executable, str(CAPTURE_TOOL), *map(str, args)], capture_output=True, text=True, timeout=300
+    )
 
 
 def test_capture_tool_exports_and_inspects_a_capture_with_a_planted_hot_pixel(tmp_path):
@@ -569,8 +584,9 @@ def test_capture_tool_exports_and_inspects_a_capture_with_a_planted_hot_pixel(tm
     write_builtin_scene("courtyard", tmp_path / "scene", height=36, width=48, views=4, supersample=1, seed=0)
     simulate_scene(tmp_path / "scene", tmp_path / "spc", spc.SPCParams(frames=64), target_detection=0.3, seed=4)
     cap, out = tmp_path / "cap", tmp_path / "inspect"
-    proc = capture_tool("export", tmp_path / "spc", cap, "--cfa", "RGGB", "--format", "npz",
-                        "--scene", tmp_path / "scene")
+    proc = capture_tool(
+        "export", tmp_path / "spc", cap, "--cfa", "RGGB", "--format", "npz", "--scene", tmp_path / "scene"
+    )
     assert proc.returncode == 0, proc.stderr
     assert "64 frames of 48x36, cfa RGGB" in proc.stdout
     for path in sorted((cap / "frames").glob("*.npz")):  # pixel (row 9, column 13) fires in 63 of 64 frames
@@ -583,8 +599,7 @@ def test_capture_tool_exports_and_inspects_a_capture_with_a_planted_hot_pixel(tm
     assert "hot pixels: 1 (" in proc.stdout
     rec = io.read_json(out / "capture.json")
     assert rec["hot_pixels"]["positions"] == [[9, 13]] and rec["frames"] == 64 and rec["cfa"] == "RGGB"
-    assert np.array_equal(hot_pixels.read_hot_pixel_map(out / "hot_pixels.png"),
-                          np.pad([[True]], ((9, 26), (13, 34))))
+    assert np.array_equal(hot_pixels.read_hot_pixel_map(out / "hot_pixels.png"), np.pad([[True]], ((9, 26), (13, 34))))
     # the simulation's exposure: 0.3 mean detection (rates per colour around it, R > G > B on this scene)
     rates = rec["detection_rate"]
     assert set(rates) == {"R", "G", "B"} and 0.15 < np.mean(list(rates.values())) < 0.45

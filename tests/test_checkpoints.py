@@ -1,6 +1,7 @@
 """Checkpoints belong to their settings: after a change, Snakemake reruns the job and the job
 retrains from scratch (the old checkpoint discarded, the reason logged and recorded) instead of
 "resuming" a model trained under the old settings. Also: edited LLFF images rerun their scene."""
+
 import shutil
 
 import numpy as np
@@ -42,14 +43,17 @@ def test_checkpoint_is_resumed_only_by_its_own_job(tmp_path):
     same = Checkpoint(path, fp)
     counter = Counter()
     assert run(counter, 10, same)["resumed_from"] == 6 and float(counter.value) == sum(range(1, 11))
-    for change, why in [({"settings": {"iterations": 10, "width": 12}, "seed": 0}, "settings.width: 8 -> 12"),
-                        ({"settings": {"iterations": 10, "width": 8}, "seed": 1}, "seed: 0 -> 1")]:
+    for change, why in [
+        ({"settings": {"iterations": 10, "width": 12}, "seed": 0}, "settings.width: 8 -> 12"),
+        ({"settings": {"iterations": 10, "width": 8}, "seed": 1}, "seed: 0 -> 1"),
+    ]:
         other = Checkpoint(path, fingerprint("test", change, {"data": "abc"}))
         rec = run(Counter(), 10, other)
         assert rec["resumed_from"] == 0 and other.record["discarded"] == why
         run(Counter(), 10, Checkpoint(path, fp))  # back to the first job's checkpoint
-    changed = Checkpoint(path, fingerprint("test", {"settings": {"iterations": 10, "width": 8}, "seed": 0},
-                                           {"data": "xyz"}))
+    changed = Checkpoint(
+        path, fingerprint("test", {"settings": {"iterations": 10, "width": 8}, "seed": 0}, {"data": "xyz"})
+    )
     assert run(Counter(), 10, changed)["resumed_from"] == 0 and changed.record["discarded"] == "inputs.data changed"
 
 
@@ -87,8 +91,10 @@ def test_digests_see_content_not_hidden_temporaries(tmp_path):
     assert digest_path(tmp_path / "a") == before
     (tmp_path / "a" / "x.txt").write_text("2")
     assert digest_path(tmp_path / "a") != before
-    assert differences({"a": {"b": 1}, "inputs": {"s": "1"}}, {"a": {"b": 2}, "inputs": {"s": "2"}}) == \
-        "a.b: 1 -> 2; inputs.s changed"
+    assert (
+        differences({"a": {"b": 1}, "inputs": {"s": "1"}}, {"a": {"b": 2}, "inputs": {"s": "2"}})
+        == "a.b: 1 -> 2; inputs.s changed"
+    )
 
 
 def _run(workdir, *configs, target=GT3DGS):
@@ -113,9 +119,11 @@ def test_settings_changes_retrain_stage2(tmp_path, lpips_cache):
     _run(tmp_path, lp)
     first = _record(tmp_path, "results/recon/courtyard/gt+3dgs")
     assert first["checkpoint"]["resumed_from"] == 0 and first["checkpoint"]["saves"] >= 10
-    steps = [({"stage2": {"3dgs": {"iterations": 20}}}, "settings.iterations: 40 -> 20"),
-             ({"stage2": {"3dgs": {"iterations": 20, "init_points": 300}}}, "settings.init_points: 500 -> 300"),
-             ({"stage2": {"3dgs": {"iterations": 20, "init_points": 300}}, "seed": 1}, "seed: 0 -> 1")]
+    steps = [
+        ({"stage2": {"3dgs": {"iterations": 20}}}, "settings.iterations: 40 -> 20"),
+        ({"stage2": {"3dgs": {"iterations": 20, "init_points": 300}}}, "settings.init_points: 500 -> 300"),
+        ({"stage2": {"3dgs": {"iterations": 20, "init_points": 300}}, "seed": 1}, "seed: 0 -> 1"),
+    ]
     for i, (change, why) in enumerate(steps):
         _run(tmp_path, lp, _yaml(tmp_path / f"change{i}.yaml", change))
         rec = _record(tmp_path, "results/recon/courtyard/gt+3dgs")
@@ -138,8 +146,10 @@ def test_settings_changes_retrain_a_translator(tmp_path, lpips_cache):
     rec = _record(tmp_path, target)
     assert rec["resumed_from"] == 0 and "inputs.pairs[0] changed" in rec["checkpoint"]["discarded"]
     assert (tmp_path / target / "model.pt").read_bytes() != model
-    wider = {"spc": {"target_detection": 0.3}, "stage1": {"pix2pix": {"ngf": 12, "ndf": 8, "num_downs": 3,
-                                                                      "n_layers_D": 2}}}
+    wider = {
+        "spc": {"target_detection": 0.3},
+        "stage1": {"pix2pix": {"ngf": 12, "ndf": 8, "num_downs": 3, "n_layers_D": 2}},
+    }
     _run(tmp_path, lp, _yaml(tmp_path / "wide.yaml", wider), target=target)
     rec = _record(tmp_path, target)
     assert rec["resumed_from"] == 0 and "settings.ngf: 8 -> 12" in rec["checkpoint"]["discarded"]
@@ -154,9 +164,14 @@ def test_an_edited_llff_image_reruns_its_scene_and_retrains(tmp_path, lpips_cach
     copy.mkdir()
     shutil.copy(fern / "poses_bounds.npy", copy)
     shutil.copytree(fern / "images_8", copy / "images_8")
-    cfg = _yaml(tmp_path / "fern.yaml", {
-        "metrics": {"lpips_source": str(lpips_cache)}, "llff_scenes": {"fern": str(copy)},
-        "scenes": {"train": ["tabletop"], "eval": ["fern"]}})
+    cfg = _yaml(
+        tmp_path / "fern.yaml",
+        {
+            "metrics": {"lpips_source": str(lpips_cache)},
+            "llff_scenes": {"fern": str(copy)},
+            "scenes": {"train": ["tabletop"], "eval": ["fern"]},
+        },
+    )
     target = "results/recon/fern/gt+3dgs"
     _run(tmp_path, cfg, target=target)
     dry = run_snakemake(tmp_path, target, "-n", "--configfile", str(SMOKE), str(cfg))
@@ -168,7 +183,7 @@ def test_an_edited_llff_image_reruns_its_scene_and_retrains(tmp_path, lpips_cach
     if image.suffix.lower() != ".png":
         image.unlink()
     proc = _run(tmp_path, cfg, target=target)
-    assert "scene_prepare" in proc.stdout + proc.stderr
+    assert "prepare_scene" in proc.stdout + proc.stderr
     rec = _record(tmp_path, target)
     assert rec["resumed_from"] == 0 and "inputs.scene changed" in rec["checkpoint"]["discarded"]
     assert np.abs(io.read_rgb(prepared) - (1.0 - before)).mean() < 0.02  # the edited image, not the old one

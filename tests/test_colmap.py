@@ -105,8 +105,14 @@ def test_centre_only_alignment_is_ill_conditioned_for_coplanar_centres():
 def synthetic_reconstruction() -> pycolmap.Reconstruction:
     """A noise-free pycolmap reconstruction: 6 PINHOLE views, 50 points, exact keypoints."""
     opts = pycolmap.SyntheticDatasetOptions(
-        num_rigs=1, num_cameras_per_rig=1, num_frames_per_rig=6, num_points3D=50, camera_width=320,
-        camera_height=240, camera_model_id=pycolmap.CameraModelId.PINHOLE, camera_params=[300.0, 310.0, 160.0, 120.0],
+        num_rigs=1,
+        num_cameras_per_rig=1,
+        num_frames_per_rig=6,
+        num_points3D=50,
+        camera_width=320,
+        camera_height=240,
+        camera_model_id=pycolmap.CameraModelId.PINHOLE,
+        camera_params=[300.0, 310.0, 160.0, 120.0],
     )
     pycolmap.set_random_seed(1)
     return pycolmap.synthesize_dataset(opts)

@@ -28,20 +28,30 @@ W2C_ATOL, INTR_RTOL, BOUNDS_RTOL = 1e-9, 1e-12, 1e-9
 
 def quaternion_wxyz(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of rotation R: eigenvector of Bar-Itzhack's symmetric 4x4 matrix."""
-    K = np.array([
-        [R[0, 0] - R[1, 1] - R[2, 2], R[1, 0] + R[0, 1], R[2, 0] + R[0, 2], R[2, 1] - R[1, 2]],
-        [R[1, 0] + R[0, 1], R[1, 1] - R[0, 0] - R[2, 2], R[2, 1] + R[1, 2], R[0, 2] - R[2, 0]],
-        [R[2, 0] + R[0, 2], R[2, 1] + R[1, 2], R[2, 2] - R[0, 0] - R[1, 1], R[1, 0] - R[0, 1]],
-        [R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], R[0, 0] + R[1, 1] + R[2, 2]]]) / 3.0
+    K = (
+        np.array(
+            [
+                [R[0, 0] - R[1, 1] - R[2, 2], R[1, 0] + R[0, 1], R[2, 0] + R[0, 2], R[2, 1] - R[1, 2]],
+                [R[1, 0] + R[0, 1], R[1, 1] - R[0, 0] - R[2, 2], R[2, 1] + R[1, 2], R[0, 2] - R[2, 0]],
+                [R[2, 0] + R[0, 2], R[2, 1] + R[1, 2], R[2, 2] - R[0, 0] - R[1, 1], R[1, 0] - R[0, 1]],
+                [R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1], R[0, 0] + R[1, 1] + R[2, 2]],
+            ]
+        )
+        / 3.0
+    )
     x, y, z, w = np.linalg.eigh(K)[1][:, -1]
     return np.array([w, x, y, z]) * (1.0 if w >= 0 else -1.0)
 
 
 def rotation_of(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def twin_points(cams: Cameras, n_shared: int = 300, seed: int = 0) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -96,9 +106,13 @@ def write_model(folder, cams: Cameras, names: list[str], points=None, seen=None,
         for k, p in enumerate(seen[i]):
             tracks[p] += [int(ids[i]), k]
     (folder / "images.txt").write_text("".join(images))
-    (folder / "points3D.txt").write_text("".join(
-        " ".join(map(str, [p + 1, *map(repr, map(float, xyz)), 128, 128, 128, 0.5, *tracks[p]])) + "\n"
-        for p, xyz in enumerate(points) if tracks[p]))
+    (folder / "points3D.txt").write_text(
+        "".join(
+            " ".join(map(str, [p + 1, *map(repr, map(float, xyz)), 128, 128, 128, 0.5, *tracks[p]])) + "\n"
+            for p, xyz in enumerate(points)
+            if tracks[p]
+        )
+    )
     if fmt == "bin":
         rec = pycolmap.Reconstruction()
         rec.read_text(str(folder))
@@ -114,8 +128,9 @@ def colmap_twin(llff_dir, out, fmt="txt", camera_lines=None):
     """A COLMAP-format copy of a canonical scene folder: its images/ and a model of its cameras."""
     scene = llff.read_scene(llff_dir, with_images=False)
     shutil.copytree(llff_dir / "images", out / "images")
-    write_model(out / "sparse" / "0", scene.cameras, [f"{n}.png" for n in scene.names], fmt=fmt,
-                camera_lines=camera_lines)
+    write_model(
+        out / "sparse" / "0", scene.cameras, [f"{n}.png" for n in scene.names], fmt=fmt, camera_lines=camera_lines
+    )
     return out
 
 
@@ -171,8 +186,13 @@ def test_fern_twin_at_factor_8_reads_as_fern(fern, tmp_path):
 
 
 def test_bounds_are_llffs_percentiles_of_observed_depths(tmp_path):
-    cams = Cameras(np.array([[[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]]), np.array([[30.0, 30, 16, 12]]),
-                   24, 32, np.array([[1.0, 2.0]]))
+    cams = Cameras(
+        np.array([[[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]]]),
+        np.array([[30.0, 30, 16, 12]]),
+        24,
+        32,
+        np.array([[1.0, 2.0]]),
+    )
     rng = np.random.default_rng(2)
     n = 2500  # > 1000 observations: the percentiles interpolate between distinct depths
     z = rng.lognormal(1.0, 0.5, n)
@@ -246,15 +266,19 @@ def test_intrinsics_file_refers_to_the_hwf_size(builtin, tmp_path):
     np.testing.assert_allclose(llff.read_scene(folder).cameras.intrinsics, intr / 2, rtol=INTR_RTOL)  # 32 x 24
 
 
-@pytest.mark.parametrize("line, words", [
-    ("OPENCV 32 24 30 30 16 12 0.05 0 0 0", ["camera 1: OPENCV", "k1=0.05", "image_undistorter"]),
-    ("SIMPLE_RADIAL 32 24 30 16 12 -0.1", ["SIMPLE_RADIAL", "k=-0.1", "undistort=True"]),
-    ("OPENCV_FISHEYE 32 24 30 30 16 12 0 0 0 0", ["OPENCV_FISHEYE", "k1=0"]),
-])
+@pytest.mark.parametrize(
+    "line, words",
+    [
+        ("OPENCV 32 24 30 30 16 12 0.05 0 0 0", ["camera 1: OPENCV", "k1=0.05", "image_undistorter"]),
+        ("SIMPLE_RADIAL 32 24 30 16 12 -0.1", ["SIMPLE_RADIAL", "k=-0.1", "undistort=True"]),
+        ("OPENCV_FISHEYE 32 24 30 30 16 12 0 0 0 0", ["OPENCV_FISHEYE", "k1=0"]),
+    ],
+)
 def test_distorted_cameras_are_refused_by_name(builtin, tmp_path, line, words):
     cams = llff.read_scene(builtin, with_images=False).cameras
-    twin = colmap_twin(builtin, tmp_path / "twin", camera_lines=[line] + [camera_line(cams, i)
-                                                                          for i in range(1, len(cams))])
+    twin = colmap_twin(
+        builtin, tmp_path / "twin", camera_lines=[line] + [camera_line(cams, i) for i in range(1, len(cams))]
+    )
     with pytest.raises(ValueError, match="cameras.txt") as err:
         colmap_scene.load_colmap(twin)
     for word in words:
@@ -318,8 +342,11 @@ def test_scene_layout(builtin, tmp_path, caplog):
     (empty / "sparse" / "0").mkdir(parents=True)
     (empty / "sparse" / "0" / "cameras.bin").write_bytes(b"")
     (empty / "notes.txt").write_text("")
-    with pytest.raises(FileNotFoundError, match=r"neither an LLFF .* holds: notes\.txt, sparse/; sparse/0/ holds: "
-                                                r"cameras\.bin"):
+    with pytest.raises(
+        FileNotFoundError,
+        match=r"neither an LLFF .* holds: notes\.txt, sparse/; sparse/0/ holds: "
+        r"cameras\.bin",
+    ):
         prepare.scene_layout(empty)
     with pytest.raises(FileNotFoundError, match="does not exist"):
         prepare.scene_layout(tmp_path / "nowhere")

@@ -1,5 +1,6 @@
 """3DGS model and training: density control keeps Adam consistent, resume is exact, the SPAD
 likelihood objective is finite and recovers the maximum-likelihood flux."""
+
 import dataclasses
 import math
 
@@ -72,8 +73,17 @@ def test_split_children_are_smaller_and_near_the_parent():
 
 
 def test_densification_grows_where_gradients_demand(scene):
-    cfg = GaussianConfig(iterations=60, densify_from=10, densify_until=60, densify_every=20, init_points=300,
-                         opacity_reset_every=10_000, densify_grad=1e-9, backend="native", sh_interval=1000)
+    cfg = GaussianConfig(
+        iterations=60,
+        densify_from=10,
+        densify_until=60,
+        densify_every=20,
+        init_points=300,
+        opacity_reset_every=10_000,
+        densify_grad=1e-9,
+        backend="native",
+        sh_interval=1000,
+    )
     t = SplatTrainer(tiny_views(scene), RGBObjective("l1", 0.2), cfg, seed=0)
     run(t, 60, desc="densify")
     assert len(t.model) > 300  # every Gaussian with a gradient was cloned or split
@@ -83,11 +93,17 @@ def test_densification_grows_where_gradients_demand(scene):
     assert len(t2.model) <= 320
 
 
-
-
 def test_resume_matches_uninterrupted_run(scene, tmp_path, one_thread):
-    cfg = GaussianConfig(iterations=24, densify_from=5, densify_until=20, densify_every=5, init_points=200,
-                         opacity_reset_every=1000, backend="native", sh_interval=8)
+    cfg = GaussianConfig(
+        iterations=24,
+        densify_from=5,
+        densify_until=20,
+        densify_every=5,
+        init_points=200,
+        opacity_reset_every=1000,
+        backend="native",
+        sh_interval=8,
+    )
     views = tiny_views(scene)
     full = SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=3)
     run(full, 24, desc="full")
@@ -104,8 +120,9 @@ def test_resume_matches_uninterrupted_run(scene, tmp_path, one_thread):
 
 def test_bernoulli_objective_recovers_the_mle_flux():
     params = spc.SPCParams(frames=16)
-    obj = BernoulliObjective(flux_scale=2e4, q=params.q, exposure_s=params.exposure_s,
-                             dark_count_rate=params.dark_count_rate)
+    obj = BernoulliObjective(
+        flux_scale=2e4, q=params.q, exposure_s=params.exposure_s, dark_count_rate=params.dark_count_rate
+    )
     S = torch.arange(1, 16, dtype=torch.float64)  # S = 0 and S = K have their optimum at 0 / infinity
     f = S / 16
     log_lin = torch.full_like(f, -1.0, requires_grad=True)  # optimise log-intensity: stays positive

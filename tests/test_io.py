@@ -1,4 +1,5 @@
 """Image and frame files: exact round trips through OpenImageIO and the packed .npz format."""
+
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
 """LLFF reading: real folders, focal rescaling, area downscaling, bad input, canonical round trip."""
+
 import shutil
 
 import numpy as np
@@ -83,8 +84,13 @@ def test_canonical_scene_round_trip(tmp_path):
     rng = np.random.default_rng(0)
     w2c = np.stack([cameras.look_at(np.array([x, 0.0, 0.0]), np.array([0.0, 0.0, 5.0])) for x in (-0.2, 0.0, 0.2)])
     cams = cameras.Cameras(w2c, np.tile([40.0, 40.0, 16.0, 12.0], (3, 1)), 24, 32, np.tile([1.0, 9.0], (3, 1)))
-    scene = llff.SceneData(rng.random((3, 24, 32, 3)).astype(np.float32), cams, ["a", "b", "c"],
-                           rng.uniform(1, 9, (3, 24, 32)).astype(np.float32), {"layout": "test"})
+    scene = llff.SceneData(
+        rng.random((3, 24, 32, 3)).astype(np.float32),
+        cams,
+        ["a", "b", "c"],
+        rng.uniform(1, 9, (3, 24, 32)).astype(np.float32),
+        {"layout": "test"},
+    )
     llff.write_scene(tmp_path / "s", scene, {"seed": 3})
     back = llff.read_scene(tmp_path / "s", with_depth=True)
     assert back.names == ["a", "b", "c"] and back.meta["seed"] == 3 and back.meta["layout"] == "test"

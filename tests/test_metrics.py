@@ -1,4 +1,5 @@
 """Tests of spc3d.metrics (PSNR, SSIM, LPIPS), spc3d.lpips_net and spc3d.lpips_weights (weights, safe unpickling)."""
+
 import io
 import json
 import os
@@ -18,8 +19,9 @@ LPIPS_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "l
 
 
 def skimage_ssim(a: np.ndarray, b: np.ndarray) -> float:
-    return structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                 data_range=1, channel_axis=-1)
+    return structural_similarity(
+        a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1
+    )
 
 
 def fixture_image(name: str) -> np.ndarray:
@@ -81,8 +83,7 @@ def test_ssim_matches_skimage(case):
 def test_ssim_matches_skimage_real(other):
     ref, img = fixture_image("ex_ref.png"), fixture_image(other)
     assert metrics.ssim(ref, img) == pytest.approx(skimage_ssim(ref, img), abs=1e-4)
-    assert metrics.ssim(torch.from_numpy(ref), torch.from_numpy(img)) == pytest.approx(
-        skimage_ssim(ref, img), abs=1e-4)
+    assert metrics.ssim(torch.from_numpy(ref), torch.from_numpy(img)) == pytest.approx(skimage_ssim(ref, img), abs=1e-4)
 
 
 def test_ssim_map_shapes_and_small_images():
@@ -91,8 +92,6 @@ def test_ssim_map_shapes_and_small_images():
     assert metrics.ssim_map(x, x, padding="same").shape == (2, 3, 16, 12)
     with pytest.raises(ValueError, match="at least 11x11"):
         metrics.ssim(np.zeros((8, 8, 3)), np.zeros((8, 8, 3)))
-
-
 
 
 def test_ssim_loss_gradcheck(one_thread):
@@ -104,8 +103,10 @@ def test_ssim_loss_gradcheck(one_thread):
 
 
 def test_ssim_loss_constant_images_finite():
-    for pred, target in [(torch.zeros(1, 3, 16, 16), torch.zeros(1, 3, 16, 16)),
-                         (torch.full((1, 3, 16, 16), 0.3), torch.full((1, 3, 16, 16), 0.7))]:
+    for pred, target in [
+        (torch.zeros(1, 3, 16, 16), torch.zeros(1, 3, 16, 16)),
+        (torch.full((1, 3, 16, 16), 0.3), torch.full((1, 3, 16, 16), 0.7)),
+    ]:
         pred = pred.clone().requires_grad_(True)
         loss = metrics.gs_photometric_loss(pred, target)
         loss.backward()
@@ -123,8 +124,10 @@ def _expected_pairs():
     return [(key, net, values["official_code"]) for key, nets in pairs.items() for net, values in nets.items()]
 
 
-@pytest.mark.parametrize("pair,net,expected", _expected_pairs() or [pytest.param(
-    None, None, None, marks=pytest.mark.skip(reason=f"{LPIPS_DATA} not available"))])
+@pytest.mark.parametrize(
+    "pair,net,expected",
+    _expected_pairs() or [pytest.param(None, None, None, marks=pytest.mark.skip(reason=f"{LPIPS_DATA} not available"))],
+)
 def test_lpips_matches_official(lpips_cache, pair, net, expected):
     ref_name, other_name = pair.split("|")
     ref, other = fixture_image(ref_name), fixture_image(other_name)

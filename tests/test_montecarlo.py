@@ -62,8 +62,9 @@ def test_mc_detection_probability_is_unaffected_by_dead_time(load):
     phi = _flux_for_load(load, PARAMS)
     params = spc.SPCParams(tau_d=TAU, exposure_s=TAU / load, dark_count_rate=PARAMS.dark_count_rate)
     n = 40_000
-    counts = simulate_counts(float(spc.detection_rate(phi, params)), params.exposure_s, TAU, n,
-                             np.random.default_rng(3))
+    counts = simulate_counts(
+        float(spc.detection_rate(phi, params)), params.exposure_s, TAU, n, np.random.default_rng(3)
+    )
     p = float(spc.detection_probability(phi, params))
     assert p == pytest.approx(1 - math.exp(-1), rel=1e-9)
     assert abs(np.mean(counts >= 1) - p) <= 5 * math.sqrt(p * (1 - p) / n)

@@ -1,4 +1,5 @@
 """NeRF components: rays and NDC, volume compositing, the grid field, and tiny overfitting runs."""
+
 import math
 from dataclasses import replace
 
@@ -9,8 +10,15 @@ import torch
 from spc3d.cameras import project, rotation_angle_deg
 from spc3d.metrics import psnr
 from spc3d.reconstruct import nerf, nerf_grid
-from spc3d.reconstruct.rays import (average_pose, camera_rays, ndc_points_to_world, ndc_rays, ndc_t_to_depth,
-                                    recenter, view_dirs)
+from spc3d.reconstruct.rays import (
+    average_pose,
+    camera_rays,
+    ndc_points_to_world,
+    ndc_rays,
+    ndc_t_to_depth,
+    recenter,
+    view_dirs,
+)
 from spc3d.reconstruct.volume import composite, sample_pdf
 from spc3d.scenes import render_scene
 
@@ -52,8 +60,9 @@ def test_ndc_maps_near_to_zero_and_infinity_to_one():
     assert torch.allclose(o_n[:, 2], torch.full((100,), -1.0, dtype=torch.float64))  # depth near -> t = 0
     for depth in (1.0, 2.0, 7.5, 1e3):
         p = o + (depth - o[:, 2:]) * d  # points at camera depth `depth`
-        direct = torch.stack([2 * fx / W * p[:, 0] / p[:, 2], 2 * fy / H * p[:, 1] / p[:, 2],
-                              1 - 2 * near / p[:, 2]], 1)
+        direct = torch.stack(
+            [2 * fx / W * p[:, 0] / p[:, 2], 2 * fy / H * p[:, 1] / p[:, 2], 1 - 2 * near / p[:, 2]], 1
+        )
         t = 1 - near / p[:, 2:]
         assert torch.allclose(o_n + t * d_n, direct, atol=1e-9)
         assert torch.allclose(ndc_t_to_depth(t, near), p[:, 2:], rtol=1e-9)
@@ -111,8 +120,10 @@ def test_gradients_finite(value):
     out = composite(sig, rgb, _edges(2, 16, torch.float64))
     (out["rgb"].sum() + out["depth"].sum() + out["acc"].sum()).backward()
     assert torch.isfinite(sig.grad).all() and torch.isfinite(rgb.grad).all()
-    assert torch.autograd.gradcheck(lambda s: composite(s, rgb.detach(), _edges(2, 16, torch.float64))["rgb"],
-                                    (torch.rand(2, 16, dtype=torch.float64, requires_grad=True) * 3,))
+    assert torch.autograd.gradcheck(
+        lambda s: composite(s, rgb.detach(), _edges(2, 16, torch.float64))["rgb"],
+        (torch.rand(2, 16, dtype=torch.float64, requires_grad=True) * 3,),
+    )
 
 
 def test_constant_density_matches_beer_lambert():
@@ -168,8 +179,9 @@ def test_upsample_preserves_field():
 
 def test_occupancy_marks_trained_empty_space():
     torch.manual_seed(0)
-    cfg = replace(nerf_grid.GridConfig(), res_schedule=((0, 12),), n_samples=24, xy_extent=1.0, perturb=False,
-                  white_bkgd=True)
+    cfg = replace(
+        nerf_grid.GridConfig(), res_schedule=((0, 12),), n_samples=24, xy_extent=1.0, perturb=False, white_bkgd=True
+    )
     model = nerf_grid.GridNeRF(cfg)
     assert model.update_occupancy() == 11**3  # α_init is above the threshold: all occupied at first
     opt = torch.optim.Adam([model.density], lr=0.3)  # the grey colour head cannot explain white: density must go

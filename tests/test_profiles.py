@@ -1,6 +1,7 @@
 """The SLURM profiles (workflow/profiles/slurm, and slurm-local on top of it): a dry run through
 snakemake-executor-plugin-slurm submits nothing and shows what every job would ask SLURM for.
 tests/test_slurm.py runs them on a real (local) cluster."""
+
 import re
 import subprocess
 
@@ -78,7 +79,7 @@ def test_slurm_profile_dry_run(tmp_path):
             assert int(res["mem_mb"]) == 32000 and int(res["runtime"]) >= 720, (rule, res)
     res = resources(jobs["evaluate"][0])
     assert "gpu" not in res and int(res["mem_mb"]) == 8000 and int(res["runtime"]) == 30
-    res = resources(jobs["scene_prepare"][0])  # the defaults
+    res = resources(jobs["prepare_scene"][0])  # the defaults
     assert "slurm_partition" not in res and int(res["mem_mb"]) == 4000 and int(res["runtime"]) == 60
     # A dry run counts as 1 core (threads are capped by --cores); with more, set-threads shows.
     threads = snakemake(tmp_path, "--profile", str(PROFILE), "-n", "--cores", "8", path_prefix=bin_dir)

@@ -19,6 +19,7 @@ TINY_PIX2PIX = {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2}
 
 # --- the metered display --------------------------------------------------------------------------
 
+
 def test_metered_display_is_exposure_invariant_and_the_fit_finds_the_known_level():
     rng = np.random.default_rng(0)
     linear = [rng.uniform(0.0, 0.5, (2, 6, 8, 3)), rng.uniform(0.0, 0.5, (2, 6, 8, 3))]
@@ -40,6 +41,7 @@ def test_metered_display_is_exposure_invariant_and_the_fit_finds_the_known_level
 
 # --- no oracle information outside oracle rows ----------------------------------------------------
 
+
 def _products(root, out):
     """Every non-oracle product of the evaluation scene: metered MLE images, translated images (and
     the translator's physics prior alone) and the stage-2 renders of none / mle / bernoulli / a
@@ -47,9 +49,12 @@ def _products(root, out):
     scene, frames = root / "scenes" / "courtyard", root / "spc" / "courtyard"
     exposure.write_display(frames, root / "display-k2.json", 2, out / "mle")
     translate_scene(root / "model", frames, scene, out / "translate", frames=1, threads=1)
-    runs = {"none": {}, "mle-k2": {"display_dir": out / "mle", "frames": 2},
-            "bernoulli-k2": {"display_dir": out / "mle", "frames": 2},
-            "pix2pix": {"image_dir": out / "translate" / "images"}}
+    runs = {
+        "none": {},
+        "mle-k2": {"display_dir": out / "mle", "frames": 2},
+        "bernoulli-k2": {"display_dir": out / "mle", "frames": 2},
+        "pix2pix": {"image_dir": out / "translate" / "images"},
+    }
     for source, kw in runs.items():
         reconstruct(scene, out / source, source, "3dgs", TINY_3DGS, seed=1, spc_dir=frames, threads=1, **kw)
     return sorted(p for p in out.rglob("*.png"))
@@ -64,8 +69,14 @@ def test_replacing_the_ground_truth_changes_no_non_oracle_image_or_render(tmp_pa
         simulate_scene(root / "scenes" / name, root / "spc" / name, spc.SPCParams(frames=2), seed=0)
     augment_scene(root / "scenes" / "tabletop", root / "spc" / "tabletop", root / "augment", 4, AugmentSettings())
     exposure.calibrate_display([root / "scenes" / "tabletop"], [root / "spc" / "tabletop"], 2, root / "display-k2.json")
-    train_translator("pix2pix", [root / "augment"], root / "model", TINY_PIX2PIX,
-                     {"iterations": 2, "batch_size": 2, "crop": 16}, threads=1)
+    train_translator(
+        "pix2pix",
+        [root / "augment"],
+        root / "model",
+        TINY_PIX2PIX,
+        {"iterations": 2, "batch_size": 2, "crop": 16},
+        threads=1,
+    )
     before = _products(root, root / "a")
     images = sorted((root / "scenes" / "courtyard" / "images").glob("*.png"))
     for i, path in enumerate(images):  # another picture entirely, same cameras
@@ -77,11 +88,14 @@ def test_replacing_the_ground_truth_changes_no_non_oracle_image_or_render(tmp_pa
         assert a.read_bytes() == b.read_bytes(), a.relative_to(root / "a")
     oracle = reconstruct(root / "scenes" / "courtyard", root / "gt", "gt", "3dgs", TINY_3DGS, seed=1, threads=1)
     assert oracle["iterations"] == TINY_3DGS["iterations"]  # the oracle row does read the (new) ground truth
-    assert not np.array_equal(io.read_rgb(root / "gt" / "renders" / "image000.png"),
-                              io.read_rgb(root / "a" / "none" / "renders" / "image000.png"))
+    assert not np.array_equal(
+        io.read_rgb(root / "gt" / "renders" / "image000.png"),
+        io.read_rgb(root / "a" / "none" / "renders" / "image000.png"),
+    )
 
 
 # --- claims with intervals ----------------------------------------------------------------------------
+
 
 def test_bootstrap_interval_on_known_answers():
     const = np.full(20, 1.5)
@@ -112,28 +126,40 @@ def test_verdicts_follow_the_interval():
 
 
 def _metrics(path, combo, K, psnrs, seed=0):
-    io.write_json(path, {"scene": "s", "combination": combo, "seed": seed, "frames": K,
-                         "per_view": [{"view": f"v{i}", "psnr": p} for i, p in enumerate(psnrs)],
-                         "mean": {"psnr": float(np.mean(psnrs))}})
+    io.write_json(
+        path,
+        {
+            "scene": "s",
+            "combination": combo,
+            "seed": seed,
+            "frames": K,
+            "per_view": [{"view": f"v{i}", "psnr": p} for i, p in enumerate(psnrs)],
+            "mean": {"psnr": float(np.mean(psnrs))},
+        },
+    )
     return str(path)
 
 
 def test_findings_pair_views_and_compare_equal_budgets_only(tmp_path):
     base = np.array([20.0, 21.0, 19.5, 22.0, 20.5, 21.5])
-    files = [_metrics(tmp_path / "1.json", "pix2pixhd+nerf-grid", 1, base + 2.0),
-             _metrics(tmp_path / "2.json", "pix2pixhd+3dgs", 1, base + 1.0),
-             _metrics(tmp_path / "3.json", "restormer+nerf-grid", 1, base + [0.5, -0.5, 0.4, -0.6, 0.3, 0.1]),
-             _metrics(tmp_path / "4.json", "none+nerf-grid", 1, base - 3.0),
-             _metrics(tmp_path / "5.json", "bernoulli+3dgs", 1, base + 0.1),
-             _metrics(tmp_path / "6.json", "mle+3dgs", 1, base),
-             _metrics(tmp_path / "7.json", "mle-k16+3dgs", 16, base + 9.0),  # more photons: never compared
-             _metrics(tmp_path / "8.json", "gt+3dgs", None, base + 10.0)]
+    files = [
+        _metrics(tmp_path / "1.json", "pix2pixhd+nerf-grid", 1, base + 2.0),
+        _metrics(tmp_path / "2.json", "pix2pixhd+3dgs", 1, base + 1.0),
+        _metrics(tmp_path / "3.json", "restormer+nerf-grid", 1, base + [0.5, -0.5, 0.4, -0.6, 0.3, 0.1]),
+        _metrics(tmp_path / "4.json", "none+nerf-grid", 1, base - 3.0),
+        _metrics(tmp_path / "5.json", "bernoulli+3dgs", 1, base + 0.1),
+        _metrics(tmp_path / "6.json", "mle+3dgs", 1, base),
+        _metrics(tmp_path / "7.json", "mle-k16+3dgs", 16, base + 9.0),  # more photons: never compared
+        _metrics(tmp_path / "8.json", "gt+3dgs", None, base + 10.0),
+    ]
     results = {r["claim"]: r for r in evaluate_claims(per_view(files), "nerf-grid")}
     best = results["Pix2PixHD + NeRF [nerf-grid] is the best two-stage combination"]
     assert best["verdict"] == "HOLDS" and best["n"] == 6
     assert best["closest"]["worse"] == "pix2pixhd+3dgs" and best["closest"]["mean"] == pytest.approx(1.0)
-    assert results["Two-stage beats single-stage with NeRF [nerf-grid] (Pix2PixHD + NeRF vs NeRF on binary)"][
-        "verdict"] == "HOLDS"
+    assert (
+        results["Two-stage beats single-stage with NeRF [nerf-grid] (Pix2PixHD + NeRF vs NeRF on binary)"]["verdict"]
+        == "HOLDS"
+    )
     spad = results["The SPAD likelihood on binary frames (3DGS) beats the best two-stage row at equal K"]
     assert spad["verdict"] == "DOES NOT HOLD" and "mle-k16+3dgs" not in str(spad)
     assert results["The SPAD likelihood beats the MLE image at equal K (both + 3DGS)"]["verdict"] == "HOLDS"

@@ -14,6 +14,7 @@ uninterrupted run with the same seed on one thread (--cores 1) bit for bit; noth
 LPIPS weights) are built once per test session and copied. Also: a kill while the SPC data
 is written, and same-seed determinism of stage 2 in-process.
 """
+
 import contextlib
 import fcntl
 import math
@@ -44,19 +45,44 @@ TRADEOFF_TABLE = "iters\tres\n100\t64\n"
 KILL_CONFIG = {
     "checkpoints": {"fraction": FRACTION, "minutes": 0},
     # online samples (their RNG resumed) and validation (its state resumed), never stopped early
-    "stage1": {"data": "online", "validation": {"every": 10, "patience": 0},
-               "pix2pix": {"train": {"iterations": 200}}, "restormer": {"train": {"iterations": 60}},
-               "diffusion": {"train": {"iterations": 100}}},
-    "stage2": {"combinations": ["gt+3dgs", "gt+nerf", "gt+nerf-grid"], "nerf_variant": "nerf",
-               "3dgs": {"iterations": 100, "densify_from": 10, "densify_until": 80, "densify_every": 10,
-                        "init_points": 500, "sh_interval": 30},
-               "nerf-grid": {"n_iters": 80},
-               "nerf": {"preset": "cpu", "n_iters": 120, "batch_rays": 256, "n_coarse": 16, "n_fine": 16,
-                        "depth": 2, "width": 32, "skips": []}},
+    "stage1": {
+        "data": "online",
+        "validation": {"every": 10, "patience": 0},
+        "pix2pix": {"train": {"iterations": 200}},
+        "restormer": {"train": {"iterations": 60}},
+        "diffusion": {"train": {"iterations": 100}},
+    },
+    "stage2": {
+        "combinations": ["gt+3dgs", "gt+nerf", "gt+nerf-grid"],
+        "nerf_variant": "nerf",
+        "3dgs": {
+            "iterations": 100,
+            "densify_from": 10,
+            "densify_until": 80,
+            "densify_every": 10,
+            "init_points": 500,
+            "sh_interval": 30,
+        },
+        "nerf-grid": {"n_iters": 80},
+        "nerf": {
+            "preset": "cpu",
+            "n_iters": 120,
+            "batch_rays": 256,
+            "n_coarse": 16,
+            "n_fine": 16,
+            "depth": 2,
+            "width": 32,
+            "skips": [],
+        },
+    },
     "tradeoff": {"combinations": ["gt+3dgs"]},
 }
-UPSTREAM = ["results/cache/lpips/lpips_v0.1_alex.npz", "results/cache/lpips/lpips_v0.1_vgg.npz",
-            "results/spc/courtyard", "results/spc/tabletop"]
+UPSTREAM = [
+    "results/cache/lpips/lpips_v0.1_alex.npz",
+    "results/cache/lpips/lpips_v0.1_vgg.npz",
+    "results/spc/courtyard",
+    "results/spc/tabletop",
+]
 
 
 @dataclass(frozen=True)
@@ -70,30 +96,72 @@ class Kind:
 
 
 KINDS = {
-    "3dgs": Kind("results/eval/courtyard/gt+3dgs/metrics.json", "reconstruct", "results/recon/courtyard/gt+3dgs",
-                 "results/checkpoints/courtyard/gt+3dgs/checkpoint.pt", 100, "snakemake"),
-    "nerf-grid": Kind("results/eval/courtyard/gt+nerf-grid/metrics.json", "reconstruct",
-                      "results/recon/courtyard/gt+nerf-grid",
-                      "results/checkpoints/courtyard/gt+nerf-grid/checkpoint.pt", 80, "job"),
-    "nerf": Kind("results/eval/courtyard/gt+nerf/metrics.json", "reconstruct", "results/recon/courtyard/gt+nerf",
-                 "results/checkpoints/courtyard/gt+nerf/checkpoint.pt", 120, "group"),
-    "pix2pix": Kind("results/stage1/courtyard/pix2pix.json", "train_translator", "results/models/pix2pix",
-                    "results/checkpoints/models/pix2pix/checkpoint.pt", 200, "group"),
-    "restormer": Kind("results/stage1/courtyard/restormer.json", "train_translator", "results/models/restormer",
-                      "results/checkpoints/models/restormer/checkpoint.pt", 60, "job"),
-    "diffusion": Kind("results/stage1/courtyard/diffusion.json", "train_translator", "results/models/diffusion",
-                      "results/checkpoints/models/diffusion/checkpoint.pt", 100, "snakemake"),
-    "tradeoff": Kind(f"results/tradeoff/gt+3dgs/{POINT}/metrics.json", "tradeoff_point",
-                     f"results/tradeoff/gt+3dgs/{POINT}/recon",
-                     f"results/checkpoints/tradeoff/gt+3dgs/{POINT}/reconstruct.pt", 100, "job"),
+    "3dgs": Kind(
+        "results/eval/courtyard/gt+3dgs/metrics.json",
+        "reconstruct",
+        "results/recon/courtyard/gt+3dgs",
+        "results/checkpoints/courtyard/gt+3dgs/checkpoint.pt",
+        100,
+        "snakemake",
+    ),
+    "nerf-grid": Kind(
+        "results/eval/courtyard/gt+nerf-grid/metrics.json",
+        "reconstruct",
+        "results/recon/courtyard/gt+nerf-grid",
+        "results/checkpoints/courtyard/gt+nerf-grid/checkpoint.pt",
+        80,
+        "job",
+    ),
+    "nerf": Kind(
+        "results/eval/courtyard/gt+nerf/metrics.json",
+        "reconstruct",
+        "results/recon/courtyard/gt+nerf",
+        "results/checkpoints/courtyard/gt+nerf/checkpoint.pt",
+        120,
+        "group",
+    ),
+    "pix2pix": Kind(
+        "results/stage1/courtyard/pix2pix.json",
+        "train_translator",
+        "results/models/pix2pix",
+        "results/checkpoints/models/pix2pix/checkpoint.pt",
+        200,
+        "group",
+    ),
+    "restormer": Kind(
+        "results/stage1/courtyard/restormer.json",
+        "train_translator",
+        "results/models/restormer",
+        "results/checkpoints/models/restormer/checkpoint.pt",
+        60,
+        "job",
+    ),
+    "diffusion": Kind(
+        "results/stage1/courtyard/diffusion.json",
+        "train_translator",
+        "results/models/diffusion",
+        "results/checkpoints/models/diffusion/checkpoint.pt",
+        100,
+        "snakemake",
+    ),
+    "tradeoff": Kind(
+        f"results/tradeoff/gt+3dgs/{POINT}/metrics.json",
+        "tradeoff_point",
+        f"results/tradeoff/gt+3dgs/{POINT}/recon",
+        f"results/checkpoints/tradeoff/gt+3dgs/{POINT}/reconstruct.pt",
+        100,
+        "job",
+    ),
 }
 
 
 def _configs(folder, lpips_cache) -> list[str]:
     """``--configfile`` arguments: the smoke preset and KILL_CONFIG (written into ``folder``)."""
     (folder / "tradeoff.tsv").write_text(TRADEOFF_TABLE)
-    config = KILL_CONFIG | {"metrics": {"lpips_source": str(lpips_cache)},
-                            "tradeoff": KILL_CONFIG["tradeoff"] | {"table": str(folder / "tradeoff.tsv")}}
+    config = KILL_CONFIG | {
+        "metrics": {"lpips_source": str(lpips_cache)},
+        "tradeoff": KILL_CONFIG["tradeoff"] | {"table": str(folder / "tradeoff.tsv")},
+    }
     (folder / "kill.yaml").write_text(yaml.safe_dump(config))
     return ["--configfile", str(SMOKE), str(folder / "kill.yaml")]
 
@@ -191,10 +259,13 @@ def test_killed_training_resumes_where_it_stopped(name, upstream, tmp_path, lpip
 
 @pytest.mark.slow
 def test_a_kill_while_spc_data_is_written_leaves_nothing_behind(tmp_path, lpips_cache):
-    """A killed spc_simulate leaves its hidden work folder; the rerun removes it (and writes the data)."""
+    """A killed simulate_scene leaves its hidden work folder; the rerun removes it (and writes the data)."""
     config = tmp_path / "spc.yaml"
-    config.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}, "spc": {"frames": 256},
-                                      "builtin": {"views": 24}}))  # ~1 s of writing to kill it in
+    config.write_text(
+        yaml.safe_dump(
+            {"metrics": {"lpips_source": str(lpips_cache)}, "spc": {"frames": 256}, "builtin": {"views": 24}}
+        )
+    )  # ~1 s of writing to kill it in
     command = ["--cores", "1", "results/spc/courtyard", "--configfile", str(SMOKE), str(config)]
     proc = snakemake_process(tmp_path, *command)
     spc_root = tmp_path / "results" / "spc"
@@ -225,18 +296,40 @@ def _renders(folder):
     return np.stack([io.read_rgb(p) for p in sorted((folder / "renders").glob("*.png"))])
 
 
-@pytest.mark.parametrize("source,model,settings", [
-    ("gt", "3dgs", TINY_3DGS),
-    ("bernoulli", "nerf-grid", {"n_iters": 20, "batch_rays": 256, "n_samples": 16, "res_schedule": [[0, 12]],
-                                "occupancy_warmup": 10, "occupancy_every": 10}),
-])
+@pytest.mark.parametrize(
+    "source,model,settings",
+    [
+        ("gt", "3dgs", TINY_3DGS),
+        (
+            "bernoulli",
+            "nerf-grid",
+            {
+                "n_iters": 20,
+                "batch_rays": 256,
+                "n_samples": 16,
+                "res_schedule": [[0, 12]],
+                "occupancy_warmup": 10,
+                "occupancy_every": 10,
+            },
+        ),
+    ],
+)
 def test_same_seed_same_result(scene, tmp_path, source, model, settings):
     """One thread: identical renders; two threads (summation order varies): within 0.05 dB."""
     runs, before = {}, torch.get_num_threads()
     try:
         for name, threads in (("a", 1), ("b", 1), ("c", 2), ("d", 2)):
-            reconstruct(scene / "scene", tmp_path / name, source, model, settings, seed=7, spc_dir=scene / "spc",
-                        threads=threads, display_dir=scene / "display" if source == "bernoulli" else None)
+            reconstruct(
+                scene / "scene",
+                tmp_path / name,
+                source,
+                model,
+                settings,
+                seed=7,
+                spc_dir=scene / "spc",
+                threads=threads,
+                display_dir=scene / "display" if source == "bernoulli" else None,
+            )
             runs[name] = _renders(tmp_path / name)
     finally:
         torch.set_num_threads(before)

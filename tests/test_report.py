@@ -1,5 +1,6 @@
 """The HTML report: `snakemake --report` on a smoke run is one self-contained page with the tables,
 figures, captions and run times, and (where Chromium is installed) it renders in a real browser."""
+
 import base64
 import importlib.util
 import json
@@ -56,8 +57,11 @@ def test_screenshot_tool_names_what_a_page_never_finished(tmp_path):
     page = tmp_path / "plain.html"
     page.write_text("<html><body><p>not a report</p></body></html>")
     png = tmp_path / "plain.png"
-    with pytest.raises(RuntimeError, match=r"plain.html: the page did not settle in time "
-                                           r"\(the report's React app has not mounted\)"):
+    with pytest.raises(
+        RuntimeError,
+        match=r"plain.html: the page did not settle in time "
+        r"\(the report's React app has not mounted\)",
+    ):
         tool.screenshot(page, png, timeout_s=2)
     assert not png.exists() and not list(tmp_path.glob("*.part"))
     assert tool.main([str(page), str(png), "--timeout", "1"]) == 1
@@ -79,13 +83,14 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     assert report.stat().st_size > 500_000  # libraries and figures inline
     assert not re.search(r"<script[^>]+src=|<link[^>]+href=\"https?:", html)  # nothing fetched from the web
     results = embedded_json(html, "results")
-    expected = {"results/tables/two_stage.html": "1. Paper tables",
-                "results/tables/single_stage.html": "1. Paper tables",
-                "results/tables/stage1.html": "1. Paper tables",
-                "results/figures/qualitative_courtyard.png": "2. Qualitative",
-                "results/summary/data_summary.png": "3. Data",
-                **{f"results/models/{m}/curve.png": "4. Stage 1 training"
-                   for m in ("pix2pixhd", "restormer", "diffusion")}}
+    expected = {
+        "results/tables/two_stage.html": "1. Paper tables",
+        "results/tables/single_stage.html": "1. Paper tables",
+        "results/tables/stage1.html": "1. Paper tables",
+        "results/figures/qualitative_courtyard.png": "2. Qualitative",
+        "results/summary/data_summary.png": "3. Data",
+        **{f"results/models/{m}/curve.png": "4. Stage 1 training" for m in ("pix2pixhd", "restormer", "diffusion")},
+    }
     assert set(expected) <= set(results), sorted(results)
     categories = embedded_json(html, "categories")
     for path, category in expected.items():
@@ -98,8 +103,10 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     assert "nerf-grid" in captions["results/figures/qualitative_courtyard.png"]
     assert "K = 4 stored frames" in captions["results/summary/data_summary.png"]  # smoke: spc.frames 4
     assert "DiffBIR stand-in" in captions["results/models/diffusion/curve.png"]
-    assert results["results/models/restormer/curve.png"]["labels"] == {"translator": "restormer",
-                                                                       "figure": "training curve"}
+    assert results["results/models/restormer/curve.png"]["labels"] == {
+        "translator": "restormer",
+        "figure": "training curve",
+    }
     assert "LPIPS v0.1" in html and "spc3d: binary SPC frames to colour novel views" in html  # workflow.rst
     # Files are embedded as data URIs: the figure decodes to the PNG on disk.
     uri = results["results/figures/qualitative_courtyard.png"]["data_uri"]
@@ -114,8 +121,11 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     except tool.BrowserMissing as exc:  # the report is checked; only the browser part is left out
         warnings.warn(f"report not rendered in a browser: {exc}", stacklevel=2)
         return
-    for name, show in (("landing", None), ("qualitative", "results/figures/qualitative_courtyard.png"),
-                       ("two_stage", "results/tables/two_stage.html")):
+    for name, show in (
+        ("landing", None),
+        ("qualitative", "results/figures/qualitative_courtyard.png"),
+        ("two_stage", "results/tables/two_stage.html"),
+    ):
         png = tool.screenshot(report, tmp_path / f"report_{name}.png", show=show)
         img = imread(png)[..., :3]  # (1000, 1400, 3) in [0, 1]
         assert img.shape[:2] == (1000, 1400)

@@ -35,8 +35,9 @@ def _faults(mode: str) -> list[int]:
     return json.loads(out.stdout)
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc",
-                    reason="glibc malloc only")
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or platform.libc_ver()[0] != "glibc", reason="glibc malloc only"
+)
 def test_freed_memory_is_reused_not_faulted_in_again():
     default, keep = _faults("default"), _faults("keep")
     assert min(default) > 10_000, default  # the probe sees glibc's default: a fresh mapping each time

@@ -97,8 +97,9 @@ def _reprojection_errors(scene, a: int, b: int):
     x0, y0 = np.clip(np.floor(px).astype(int), 0, w - 2), np.clip(np.floor(py).astype(int), 0, h - 2)
     fx_, fy_ = (px - x0)[:, None], (py - y0)[:, None]
     img = scene.images[b]
-    warped = (img[y0, x0] * (1 - fx_) + img[y0, x0 + 1] * fx_) * (1 - fy_) + \
-             (img[y0 + 1, x0] * (1 - fx_) + img[y0 + 1, x0 + 1] * fx_) * fy_
+    warped = (img[y0, x0] * (1 - fx_) + img[y0, x0 + 1] * fx_) * (1 - fy_) + (
+        img[y0 + 1, x0] * (1 - fx_) + img[y0 + 1, x0 + 1] * fx_
+    ) * fy_
     src = scene.images[a].reshape(-1, 3)
     err = np.abs(warped - src)[keep].mean()
     baseline = np.abs(img.reshape(-1, 3) - src)[keep].mean()  # same pixels, no warp
@@ -186,6 +187,7 @@ def test_textures_are_cached_linear_and_filtered():
 
 
 # --- held-out content -------------------------------------------------------------------------
+
 
 def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
     from spc3d.scenes import LAYOUT_ROLES, content

@@ -1,4 +1,5 @@
 """Scene-level SPC simulation: calibrated exposure, consistent products, determinism, records."""
+
 import numpy as np
 import pytest
 
@@ -26,8 +27,9 @@ def test_calibrated_scene_products(scene_dir, tmp_path):
     S = frames.sum(0)
     np.testing.assert_array_equal(io.read_rgb(tmp_path / "spc" / "binary" / f"{name}.png") > 0.5, frames[0])
     np.testing.assert_allclose(io.read_rgb(tmp_path / "spc" / "average" / f"{name}.png"), S / 32, atol=1e-4)
-    np.testing.assert_allclose(io.read_image(tmp_path / "spc" / "mle" / f"{name}.exr"),
-                               spc.mle_flux(S, 32, params), rtol=1e-6)
+    np.testing.assert_allclose(
+        io.read_image(tmp_path / "spc" / "mle" / f"{name}.exr"), spc.mle_flux(S, 32, params), rtol=1e-6
+    )
     # 32 frames recover the image far better than one binary frame does (shown at the exact gain here;
     # the table rows meter theirs: spc3d.exposure). No display image that used the exact gain is written.
     gt = io.read_rgb(scene_dir / "images" / f"{name}.png")

@@ -4,6 +4,7 @@ training cancelled mid-way is resubmitted by Snakemake's retry and resumes from 
 tables equal a local one-thread run; a request the cluster cannot satisfy stops the run before
 anything is submitted. Skipped where SLURM is not installed (`apt-get install slurm-wlm munge`;
 .ci/run installs it and sets SPC3D_REQUIRE_SLURM=1, which turns the skip into a failure)."""
+
 import os
 import re
 import shutil
@@ -25,8 +26,12 @@ pytestmark = [pytest.mark.slurm, pytest.mark.slow]
 
 SCRIPT = REPO / "workflow" / "tools" / "slurm_local.sh"
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
-PROFILES = ["--profile", str(REPO / "workflow" / "profiles" / "slurm"),
-            "--profile", str(REPO / "workflow" / "profiles" / "slurm-local")]
+PROFILES = [
+    "--profile",
+    str(REPO / "workflow" / "profiles" / "slurm"),
+    "--profile",
+    str(REPO / "workflow" / "profiles" / "slurm-local"),
+]
 TOOLS = ("munged", "slurmctld", "slurmd", "sbatch", "srun", "squeue", "scancel", "sinfo")
 TABLES = [f"results/tables/{name}.csv" for name in ("two_stage", "single_stage", "stage1")]
 LONG = 200  # Restormer iterations: long enough to cancel it mid-way (a checkpoint every 20)
@@ -91,8 +96,13 @@ def _finish(proc, log: Path, timeout=900) -> str:
 
 def _jobs(env, run_id: str) -> dict[str, dict]:
     """SLURM's record of every job of one Snakemake run (its jobs are named by the run id)."""
-    out = subprocess.run(["squeue", "--states=all", "--noheader", "--name", run_id, "--format=%i|%T|%m|%k"],
-                         env=env, capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        ["squeue", "--states=all", "--noheader", "--name", run_id, "--format=%i|%T|%m|%k"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     rows = (line.split("|", 3) for line in out.splitlines())
     return {jid: {"state": state, "mem": mem, "comment": comment} for jid, state, mem, comment in rows}
 
@@ -119,11 +129,16 @@ def test_smoke_preset_on_slurm_with_a_cancelled_training(cluster, tmp_path, lpip
     here, and every job starts Snakemake twice), its translator trained long enough to be cancelled
     mid-way."""
     extra = tmp_path / "extra.yaml"
-    extra.write_text(yaml.safe_dump({
-        "metrics": {"lpips_source": str(lpips_cache)},
-        "checkpoints": {"fraction": 0.1, "minutes": 0},
-        "stage1": {"restormer": {"train": {"iterations": LONG}}},
-        "stage2": {"combinations": ["restormer+3dgs"]}}))
+    extra.write_text(
+        yaml.safe_dump(
+            {
+                "metrics": {"lpips_source": str(lpips_cache)},
+                "checkpoints": {"fraction": 0.1, "minutes": 0},
+                "stage1": {"restormer": {"train": {"iterations": LONG}}},
+                "stage2": {"combinations": ["restormer+3dgs"]},
+            }
+        )
+    )
     configs = [*TABLES, "--configfile", str(SMOKE), str(extra)]
     work, ref = tmp_path / "slurm", tmp_path / "local"
     # The reference runs alongside: uninterrupted, local, one thread (as every SLURM job is).
@@ -144,7 +159,7 @@ def test_smoke_preset_on_slurm_with_a_cancelled_training(cluster, tmp_path, lpip
     jobs = _jobs(cluster, run_id)
     submitted = re.findall(r"Job \d+ has been submitted with SLURM jobid (\d+)", out)
     remote = re.findall(r"^rule (\w+):", out, re.M)  # the local rule lpips_weights prints as `localrule`
-    assert {"train_translator", "translate", "reconstruct", "evaluate", "paper_tables"} <= set(remote)
+    assert {"train_translator", "translate_scene", "reconstruct", "evaluate", "write_all_tables"} <= set(remote)
     assert len(remote) == len(submitted) == len(jobs), (remote, submitted, jobs)
     assert set(submitted) == set(jobs)
     assert {j["state"] for i, j in jobs.items() if i != cancelled} == {"COMPLETED"}
@@ -173,15 +188,31 @@ def test_smoke_preset_on_slurm_with_a_cancelled_training(cluster, tmp_path, lpip
     assert not (ref / ".snakemake" / "slurm_logs").exists()  # the reference did not use SLURM
 
 
-@pytest.mark.parametrize("args,expected", [
-    (["--set-resources", "reconstruct:mem_mb=10000000", "train_translator:gpu=0", "reconstruct:gpu=0"],
-     ["rule reconstruct (", "mem_mb=10000000: more memory than any node in the default partition has ("]),
-    (["--default-resources", "slurm_partition=nosuch", "mem_mb=1000", "runtime=30",
-      "--set-resources", "train_translator:gpu=0", "reconstruct:gpu=0"],
-     ["slurm_partition=nosuch: no such partition (there are local*)"]),
-], ids=["memory", "partition"])
-def test_a_request_the_cluster_cannot_satisfy_stops_before_any_submission(cluster, tmp_path, lpips_cache,
-                                                                            args, expected):
+@pytest.mark.parametrize(
+    "args,expected",
+    [
+        (
+            ["--set-resources", "reconstruct:mem_mb=10000000", "train_translator:gpu=0", "reconstruct:gpu=0"],
+            ["rule reconstruct (", "mem_mb=10000000: more memory than any node in the default partition has ("],
+        ),
+        (
+            [
+                "--default-resources",
+                "slurm_partition=nosuch",
+                "mem_mb=1000",
+                "runtime=30",
+                "--set-resources",
+                "train_translator:gpu=0",
+                "reconstruct:gpu=0",
+            ],
+            ["slurm_partition=nosuch: no such partition (there are local*)"],
+        ),
+    ],
+    ids=["memory", "partition"],
+)
+def test_a_request_the_cluster_cannot_satisfy_stops_before_any_submission(
+    cluster, tmp_path, lpips_cache, args, expected
+):
     extra = tmp_path / "extra.yaml"
     extra.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
     log = tmp_path / "snakemake.log"

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from spc3d import spc
+from spc3d.flux_scale import calibrate_flux_scale, frame_probability
 
 pytestmark = pytest.mark.filterwarnings("error")  # any RuntimeWarning (overflow, log(0), ...) fails
 
@@ -187,44 +188,53 @@ def test_saturated_and_dark_frames_at_extremes(mode, T, K):
 # --------------------------------------------------------------------------------- validation
 
 
-@pytest.mark.parametrize("field, value, match", [
-    ("q", 0.0, r"q=0.0: quantum efficiency must be in \(0, 1\]"),
-    ("q", 1.2, r"q=1.2: quantum efficiency"),
-    ("q", float("nan"), r"q=nan"),
-    ("q", "0.5", r"q='0.5'"),
-    ("tau_d", -1e-9, r"tau_d=-1e-09: dead time"),
-    ("exposure_s", 0.0, r"exposure_s=0.0: exposure must be finite and > 0"),
-    ("exposure_s", -1e-4, r"exposure_s=-0.0001"),
-    ("exposure_s", float("inf"), r"exposure_s=inf"),
-    ("dark_count_rate", float("nan"), r"dark_count_rate=nan"),
-    ("mode", "poisson", r"mode='poisson': unknown SPC mode; use one of \('bernoulli', 'paper'\)"),
-    ("frames", 0, r"frames=0: must be an integer >= 1"),
-    ("frames", 2.0, r"frames=2.0"),
-    ("frames", True, r"frames=True"),
-])
+@pytest.mark.parametrize(
+    "field, value, match",
+    [
+        ("q", 0.0, r"q=0.0: quantum efficiency must be in \(0, 1\]"),
+        ("q", 1.2, r"q=1.2: quantum efficiency"),
+        ("q", float("nan"), r"q=nan"),
+        ("q", "0.5", r"q='0.5'"),
+        ("tau_d", -1e-9, r"tau_d=-1e-09: dead time"),
+        ("exposure_s", 0.0, r"exposure_s=0.0: exposure must be finite and > 0"),
+        ("exposure_s", -1e-4, r"exposure_s=-0.0001"),
+        ("exposure_s", float("inf"), r"exposure_s=inf"),
+        ("dark_count_rate", float("nan"), r"dark_count_rate=nan"),
+        ("mode", "poisson", r"mode='poisson': unknown SPC mode; use one of \('bernoulli', 'paper'\)"),
+        ("frames", 0, r"frames=0: must be an integer >= 1"),
+        ("frames", 2.0, r"frames=2.0"),
+        ("frames", True, r"frames=True"),
+    ],
+)
 def test_params_validation_names_field_and_value(field, value, match):
     with pytest.raises(ValueError, match=match):
         spc.SPCParams(**{field: value})
 
 
-@pytest.mark.parametrize("phi, match", [
-    (np.array([1.0, -2.0, -3.0]), r"phi: 0 NaN, 2 negative .*minimum -3.0"),
-    (np.array([np.nan, 1.0]), r"phi: 1 NaN, 0 negative .*minimum 1.0"),
-    (np.array([np.inf]), r"phi: .*1 infinite"),
-])
+@pytest.mark.parametrize(
+    "phi, match",
+    [
+        (np.array([1.0, -2.0, -3.0]), r"phi: 0 NaN, 2 negative .*minimum -3.0"),
+        (np.array([np.nan, 1.0]), r"phi: 1 NaN, 0 negative .*minimum 1.0"),
+        (np.array([np.inf]), r"phi: .*1 infinite"),
+    ],
+)
 def test_flux_validation(phi, match):
     for f in (spc.detection_probability, spc.log_detection_probability, spc.expected_counts):
         with pytest.raises(ValueError, match=match):
             f(phi, DEFAULT)
 
 
-@pytest.mark.parametrize("img, match", [
-    (np.zeros((4, 4)), r"srgb: shape \(4, 4\) must be \(H, W, C\)"),
-    (np.zeros((2, 4, 4, 3)), r"srgb: shape \(2, 4, 4, 3\)"),
-    (np.zeros((4, 4, 3), np.uint8), r"srgb: dtype uint8 must be floating"),
-    (np.full((4, 4, 3), 1.5), r"srgb: values span \[1.5, 1.5\]"),
-    (np.full((4, 4, 3), np.nan), r"NaN: 48"),
-])
+@pytest.mark.parametrize(
+    "img, match",
+    [
+        (np.zeros((4, 4)), r"srgb: shape \(4, 4\) must be \(H, W, C\)"),
+        (np.zeros((2, 4, 4, 3)), r"srgb: shape \(2, 4, 4, 3\)"),
+        (np.zeros((4, 4, 3), np.uint8), r"srgb: dtype uint8 must be floating"),
+        (np.full((4, 4, 3), 1.5), r"srgb: values span \[1.5, 1.5\]"),
+        (np.full((4, 4, 3), np.nan), r"NaN: 48"),
+    ],
+)
 def test_simulate_frames_validation(img, match):
     with pytest.raises(ValueError, match=match):
         spc.simulate_frames(img, 1e4, DEFAULT, np.random.default_rng())
@@ -292,7 +302,7 @@ def _scenes() -> np.ndarray:
 def test_calibration_hits_target(target):
     imgs = _scenes()
     for given in (imgs, list(imgs)):
-        s = spc.calibrate_flux_scale(given, DEFAULT, target)
+        s = calibrate_flux_scale(given, DEFAULT, target)
         p = spc.detection_probability(spc.flux_from_srgb(imgs, s), DEFAULT)
         assert abs(p.mean() - target) < 1e-4
 
@@ -303,13 +313,13 @@ def test_paper_mode_calibration_hits_target_in_its_own_frames(target):
     its calibration uses its own probability, so simulated paper frames reach the target."""
     imgs = _scenes()
     params = spc.SPCParams(mode="paper", frames=64)
-    s = spc.calibrate_flux_scale(imgs, params, target)
-    p = spc.frame_probability(spc.flux_from_srgb(imgs, s), params)
+    s = calibrate_flux_scale(imgs, params, target)
+    p = frame_probability(spc.flux_from_srgb(imgs, s), params)
     assert abs(p.mean() - target) < 1e-4
     rng = np.random.default_rng(4)
     fired = np.mean([spc.simulate_frames(im, s, params, rng).mean() for im in imgs])
     assert abs(fired - target) < 0.003  # Monte Carlo of the sampler itself: 3 x 64 x 6000 bits
-    exact = spc.calibrate_flux_scale(imgs, spc.SPCParams(frames=64), target)
+    exact = calibrate_flux_scale(imgs, spc.SPCParams(frames=64), target)
     assert s != pytest.approx(exact, rel=1e-3)
 
 
@@ -317,7 +327,7 @@ def test_calibration_subsample_keeps_all_channels():
     # 3.1M values -> stride 3 would see only the red channel; the stride is made coprime to C.
     img = np.empty((1000, 1024, 3), np.float32)
     img[..., 0], img[..., 1], img[..., 2] = 1.0, 0.2, 0.05
-    s = spc.calibrate_flux_scale([img], DEFAULT, 0.5)
+    s = calibrate_flux_scale([img], DEFAULT, 0.5)
     p = spc.detection_probability(spc.flux_from_srgb(img[:1, :3], s), DEFAULT)
     assert abs(p.mean() - 0.5) < 1e-3
 
@@ -327,14 +337,14 @@ def test_calibration_rejects_unreachable_targets():
     p_dark = -math.expm1(-DEFAULT.dark_count_rate * DEFAULT.exposure_s)
     for bad in (0.0, p_dark, 1.0, 1.5, float("nan")):
         with pytest.raises(ValueError, match=r"target_mean_detection=.*reachable mean detection"):
-            spc.calibrate_flux_scale(imgs, DEFAULT, bad)
+            calibrate_flux_scale(imgs, DEFAULT, bad)
     half_black = np.zeros((1, 4, 4, 3))
     half_black[:, :2] = 0.5
     with pytest.raises(ValueError, match=r"share of black pixels \(50.000%\)"):
-        spc.calibrate_flux_scale(half_black, DEFAULT, 0.8)
-    assert spc.calibrate_flux_scale(half_black, DEFAULT, 0.4) > 0
+        calibrate_flux_scale(half_black, DEFAULT, 0.8)
+    assert calibrate_flux_scale(half_black, DEFAULT, 0.4) > 0
     with pytest.raises(ValueError, match=r"srgb_images\[0\]: shape"):
-        spc.calibrate_flux_scale([np.zeros((4, 4))], DEFAULT)
+        calibrate_flux_scale([np.zeros((4, 4))], DEFAULT)
 
 
 # ---------------------------------------------------------------------------- flux inversion
@@ -375,10 +385,10 @@ def test_mle_of_simulated_frames_recovers_flux():
     S = frames.sum(axis=0).mean(axis=(1, 2)) * 1.0  # per-level mean ones count
     phi_hat = spc.mle_flux(np.round(S), K, params)
     tol = 5 * np.sqrt(p * (1 - p) / (12 * K)) / (params.q * params.exposure_s * (1 - p)) + 0.5 / (
-        K * params.q * params.exposure_s * (1 - p))  # binomial over 12 pixels + rounding of S
+        K * params.q * params.exposure_s * (1 - p)
+    )  # binomial over 12 pixels + rounding of S
     assert np.all(np.abs(phi_hat - phi)[1:] <= tol[1:])
-    assert np.all(np.abs(spc.mle_srgb(frames.sum(axis=0), K, scale, params)[1:-1] - _level_image()[1:-1])
-                  < 0.05)
+    assert np.all(np.abs(spc.mle_srgb(frames.sum(axis=0), K, scale, params)[1:-1] - _level_image()[1:-1]) < 0.05)
 
 
 @pytest.mark.parametrize("tau", [0.0, 150e-9])

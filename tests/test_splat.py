@@ -11,7 +11,13 @@ import pytest
 import torch
 
 from spc3d.reconstruct.splat import (
-    BACKENDS, eval_sh, project_gaussians, project_gaussians_native, rasterize, rasterize_dense, rasterize_native,
+    BACKENDS,
+    eval_sh,
+    project_gaussians,
+    project_gaussians_native,
+    rasterize,
+    rasterize_dense,
+    rasterize_native,
     rasterize_reference,
 )
 from spc3d.reconstruct.splat.project import SH_C0
@@ -78,13 +84,18 @@ def test_native_boxes_are_the_reference_boxes_tightened_to_visible_pixels():
     means2d, conics, opacities, _, depths, radii, *_ = screen_scene(500, 24, 32, seed=8)
     means2d, radii = means2d * 1.5 - 8, radii.clone()  # many partly or fully off-image
     means2d[0], radii[1], opacities[2] = torch.tensor([1e12, -1e12]), 0, 0.001  # far off, culled, invisible
-    _, boxes, *_ = prepare_tiles(means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(),
-                                 radii.numpy(), 24, 32, np.float32)
+    _, boxes, *_ = prepare_tiles(
+        means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(), radii.numpy(), 24, 32, np.float32
+    )
     ref = pixel_boxes(means2d, radii, 24, 32).numpy()
     empty = (boxes[:, 1] < boxes[:, 0]) | (boxes[:, 3] < boxes[:, 2])
     assert empty[:3].all()
-    inside = ((boxes[:, 0] >= ref[:, 0]) & (boxes[:, 1] <= ref[:, 1])
-              & (boxes[:, 2] >= ref[:, 2]) & (boxes[:, 3] <= ref[:, 3]))
+    inside = (
+        (boxes[:, 0] >= ref[:, 0])
+        & (boxes[:, 1] <= ref[:, 1])
+        & (boxes[:, 2] >= ref[:, 2])
+        & (boxes[:, 3] <= ref[:, 3])
+    )
     assert (inside | empty).all()
     assert (boxes[~empty, 1] - boxes[~empty, 0]).sum() < 0.9 * (ref[~empty, 1] - ref[~empty, 0]).sum()
     ys, xs = torch.meshgrid(torch.arange(24), torch.arange(32), indexing="ij")
@@ -127,8 +138,11 @@ def test_reference_matches_dense():
 
 def test_native_gradients_match_reference():
     args = screen_scene(200, 24, 32, seed=7)
-    for name, gn, gr in zip(("means2d", "conics", "opacities", "colors", "background"),
-                            grads(rasterize_native, args), grads(rasterize_reference, args)):
+    for name, gn, gr in zip(
+        ("means2d", "conics", "opacities", "colors", "background"),
+        grads(rasterize_native, args),
+        grads(rasterize_reference, args),
+    ):
         rel = (gn - gr).norm() / gr.norm()
         assert rel < 1e-4, f"{name}: relative error {rel:.2e}"
 
@@ -170,8 +184,11 @@ def test_native_float32_simd_matches_float64_path():
     for a, b in zip(rasterize_native(*args), rasterize_native(*args64)):
         assert a.dtype == torch.float32 and b.dtype == torch.float64
         assert (a.double() - b).abs().max() < 1e-5
-    for name, g32, g64 in zip(("means2d", "conics", "opacities", "colors", "background"),
-                              grads(rasterize_native, args), grads(rasterize_native, args64)):
+    for name, g32, g64 in zip(
+        ("means2d", "conics", "opacities", "colors", "background"),
+        grads(rasterize_native, args),
+        grads(rasterize_native, args64),
+    ):
         assert (g32.double() - g64).norm() / g64.norm() < 1e-4, name
 
 
@@ -196,6 +213,7 @@ def test_native_worker_threads_run_every_share_once(use_openmp, monkeypatch):
     def fail(w):
         if w == 3:
             raise KeyError("worker 3")
+
     with pytest.raises(KeyError, match="worker 3"):
         native_threads.run_parallel(fail, 4)
 
@@ -252,10 +270,26 @@ def test_native_projection_and_tile_lists_do_not_depend_on_threads(monkeypatch):
         leaves = [t.clone().float().requires_grad_() for t in (means, scales, quats)]
         p = project_gaussians_native(*leaves, **cam)
         (p.means2d.sum() + p.conics.sum() + p.depths.sum()).backward()
-        lists = prepare_tiles(p.means2d.detach().numpy(), p.conics.detach().numpy(), opacities,
-                              p.depths.detach().numpy(), p.radii.numpy(), 24, 32, np.float32)
-        results.append([p.means2d, p.conics, p.depths, p.radii, *(t.grad for t in leaves),
-                        *(torch.from_numpy(np.asarray(a)) for a in lists[2:4])])
+        lists = prepare_tiles(
+            p.means2d.detach().numpy(),
+            p.conics.detach().numpy(),
+            opacities,
+            p.depths.detach().numpy(),
+            p.radii.numpy(),
+            24,
+            32,
+            np.float32,
+        )
+        results.append(
+            [
+                p.means2d,
+                p.conics,
+                p.depths,
+                p.radii,
+                *(t.grad for t in leaves),
+                *(torch.from_numpy(np.asarray(a)) for a in lists[2:4]),
+            ]
+        )
     for out in zip(*results):
         assert all(torch.equal(out[0], other) for other in out[1:])
 
@@ -268,15 +302,43 @@ def test_float32_forward_refuses_a_too_small_pair_cache():
 
     means2d, conics, opacities, colors, depths, radii, height, width, bg = screen_scene(300, 24, 32, seed=9)
     gs, boxes, offsets, ids, keys, key_bytes, _ = prepare_tiles(
-        means2d.numpy(), conics.numpy(), opacities.numpy(), depths.numpy(), radii.numpy(), height, width,
-        np.float32, sort=False)
-    out = [np.empty((height, width, 3), np.float32), np.empty((height, width), np.float32),
-           np.empty((height, width), np.float32), np.empty((height, width), np.int32)]
+        means2d.numpy(),
+        conics.numpy(),
+        opacities.numpy(),
+        depths.numpy(),
+        radii.numpy(),
+        height,
+        width,
+        np.float32,
+        sort=False,
+    )
+    out = [
+        np.empty((height, width, 3), np.float32),
+        np.empty((height, width), np.float32),
+        np.empty((height, width), np.float32),
+        np.empty((height, width), np.int32),
+    ]
     tiles = np.arange(len(offsets) - 1)
     with pytest.raises(RuntimeError, match="cache_rows"):
-        forward_tiles32(gs, boxes, colors.numpy(), bg.numpy(), offsets, ids, tiles, np.zeros(1, np.int64), height,
-                        width, 2, *out, keys, key_bytes, np.empty(len(ids), np.int64), np.empty((8, 16), np.float32),
-                        np.zeros(1, np.int64))
+        forward_tiles32(
+            gs,
+            boxes,
+            colors.numpy(),
+            bg.numpy(),
+            offsets,
+            ids,
+            tiles,
+            np.zeros(1, np.int64),
+            height,
+            width,
+            2,
+            *out,
+            keys,
+            key_bytes,
+            np.empty(len(ids), np.int64),
+            np.empty((8, 16), np.float32),
+            np.zeros(1, np.int64),
+        )
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
@@ -335,8 +397,15 @@ def test_dispatch_registry():
 
 
 def camera(height=24, width=32):
-    return dict(w2c=torch.cat([torch.eye(3), torch.zeros(3, 1)], 1).double(), fx=30.0, fy=30.0,
-                cx=width / 2, cy=height / 2, height=height, width=width)
+    return dict(
+        w2c=torch.cat([torch.eye(3), torch.zeros(3, 1)], 1).double(),
+        fx=30.0,
+        fy=30.0,
+        cx=width / 2,
+        cy=height / 2,
+        height=height,
+        width=width,
+    )
 
 
 def gaussians3d(n, seed=0, dtype=torch.float64):
@@ -402,8 +471,12 @@ def test_native_projection_matches_torch():
 
 
 def test_centre_projects_to_image_centre():
-    p = project_gaussians(torch.tensor([[0.0, 0.0, 3.0]]), torch.full((1, 3), 0.1), torch.tensor([[1.0, 0, 0, 0]]),
-                          **{**camera(24, 32), "w2c": torch.cat([torch.eye(3), torch.zeros(3, 1)], 1)})
+    p = project_gaussians(
+        torch.tensor([[0.0, 0.0, 3.0]]),
+        torch.full((1, 3), 0.1),
+        torch.tensor([[1.0, 0, 0, 0]]),
+        **{**camera(24, 32), "w2c": torch.cat([torch.eye(3), torch.zeros(3, 1)], 1)},
+    )
     assert torch.allclose(p.means2d, torch.tensor([[16.0, 12.0]])) and p.radii[0] > 0
 
 
@@ -417,8 +490,9 @@ def test_view_space_gradient_for_densification():
     for project, backend in ((project_gaussians, "reference"), (project_gaussians_native, "native")):
         p = project(means.clone().requires_grad_(), scales, quats, **cam)
         p.means2d.retain_grad()
-        image, _ = rasterize(p.means2d, p.conics, opacities, colors, p.depths, p.radii, 24, 32, torch.zeros(3),
-                             backend=backend)
+        image, _ = rasterize(
+            p.means2d, p.conics, opacities, colors, p.depths, p.radii, 24, 32, torch.zeros(3), backend=backend
+        )
         image.square().sum().backward()
         grads2d.append(p.means2d.grad)
     assert grads2d[0].abs().sum() > 0

@@ -45,6 +45,7 @@ DTYPES = ("float32", "float64")  # float32 RGB: SIMD kernels; float64: the float
 
 # ---------------------------------------------------------------- the table
 
+
 def _scene(n: int = 200, seed: int = 0, height: int = H, width: int = W) -> dict:
     """3-D Gaussians in front of a slightly rotated camera (leaf values, float64)."""
     g = torch.Generator().manual_seed(seed)
@@ -79,7 +80,8 @@ def _screen(n: int = 200, seed: int = 1, height: int = H, width: int = W) -> dic
         "colors": torch.rand(n, 3, generator=g, dtype=torch.float64),
         "depths": torch.rand(n, generator=g, dtype=torch.float64),
         "radii": torch.ceil(3 * sig.max(1).values).int(),
-        "height": height, "width": width,
+        "height": height,
+        "width": width,
     }
 
 
@@ -95,6 +97,7 @@ def _set(key, value, cols=None, idx=IDX):
             for col in cols:
                 t[idx, col] = value
         return d
+
     return edit
 
 
@@ -111,55 +114,90 @@ def _mixed(d: dict, keys: dict) -> dict:
 # name -> (kind, build): kind "scene" (projection + rasterizer), "screen" (rasterizer), or
 # "error" (build raises; the third entry: words the ValueError must contain)
 CASES: dict[str, tuple] = {}
-for key, cols in (("means", (0,)), ("means", (2,)), ("scales", (1,)), ("quats", (0, 1, 2, 3)), ("opacities", None),
-                  ("colors", (1,))):
-    for label, value in (("nan", NAN), ("inf", INF), ("-inf", -INF), ("huge", 1e30), ("tiny", 1e-30), ("zero", 0.0),
-                         ("negative", -1.0)):
+for key, cols in (
+    ("means", (0,)),
+    ("means", (2,)),
+    ("scales", (1,)),
+    ("quats", (0, 1, 2, 3)),
+    ("opacities", None),
+    ("colors", (1,)),
+):
+    for label, value in (
+        ("nan", NAN),
+        ("inf", INF),
+        ("-inf", -INF),
+        ("huge", 1e30),
+        ("tiny", 1e-30),
+        ("zero", 0.0),
+        ("negative", -1.0),
+    ):
         col = "" if cols is None or len(cols) > 1 else f"[{cols[0]}]"
-        CASES[f"scene {key}{col} {label}"] = ("scene", lambda key=key, cols=cols, value=value: _set(key, value, cols)(
-            _scene()))
-CASES.update({
-    "scene means all 1e30": ("scene", lambda: _set("means", 1e30)(_scene())),
-    "scene means at the camera centre": ("scene", lambda: _set("means", 0.0)(_scene())),
-    "scene scales huge (cover the image)": ("scene", lambda: _set("scales", 1e30, idx=slice(None))(_scene(40))),
-    "scene scales 100 (cover the image)": ("scene", lambda: _set("scales", 100.0, idx=slice(None))(_scene(40))),
-    "scene all NaN": ("scene", lambda: {**_scene(60), **{k: torch.full_like(v, NAN) for k, v in _scene(60).items()
-                                                          if k != "camera"}}),
-    "scene all behind the camera": ("scene", lambda: (lambda d: (d["means"].__setitem__((slice(None), 2),
-                                                                                        -d["means"][:, 2]), d)[1])(
-        _scene())),
-    "scene no Gaussians": ("scene", lambda: _scene(0)),
-    "scene image 1x1": ("scene", lambda: {**_scene(50, height=1, width=1),
-                                          "camera": {**_scene(1)["camera"], "height": 1, "width": 1, "fx": 1.0,
-                                                     "fy": 1.0, "cx": 0.5, "cy": 0.5}}),
-    "scene 5000 mixed (all threads)": ("scene", lambda: _mixed(_scene(5000, seed=3),
-                                                               {"means": 0, "scales": 0, "quats": 0, "opacities": 0,
-                                                                "colors": 0})),
-    "screen means2d nan": ("screen", lambda: _set("means2d", NAN, (0,))(_screen())),
-    "screen means2d inf": ("screen", lambda: _set("means2d", INF, (1,))(_screen())),
-    "screen means2d -inf": ("screen", lambda: _set("means2d", -INF, (0, 1))(_screen())),
-    "screen means2d huge": ("screen", lambda: _set("means2d", 1e30, (0,))(_screen())),
-    "screen conics nan": ("screen", lambda: _set("conics", NAN, (1,))(_screen())),
-    "screen conics inf": ("screen", lambda: _set("conics", INF, (0,))(_screen())),
-    "screen conics zero": ("screen", lambda: _set("conics", 0.0)(_screen())),
-    "screen conics negative": ("screen", lambda: _set("conics", -1.0, (0, 2))(_screen())),
-    "screen conics overflow (NaN exponents)": ("screen", lambda: (lambda d: (
-        d["conics"].__setitem__(IDX, torch.tensor([3e38, -3e38, 3e38], dtype=torch.float64)),
-        d["radii"].__setitem__(IDX, 40), d)[2])(_screen())),
-    "screen radii huge": ("screen", lambda: _set("radii", 2**31 - 1)(_screen())),
-    "screen radii negative": ("screen", lambda: _set("radii", -5)(_screen())),
-    "screen opacities nan": ("screen", lambda: _set("opacities", NAN)(_screen())),
-    "screen opacities inf": ("screen", lambda: _set("opacities", INF)(_screen())),
-    "screen opacities 1e7": ("screen", lambda: _set("opacities", 1e7)(_screen())),
-    "screen no Gaussians": ("screen", lambda: _screen(0)),
-    "screen image 1x1": ("screen", lambda: _screen(30, height=1, width=1)),
-    "screen depths nan": ("screen", lambda: _set("depths", NAN)(_screen())),
-    "screen depths -inf": ("screen", lambda: _set("depths", -INF)(_screen())),
-    "screen colors inf": ("screen", lambda: _set("colors", INF, (2,))(_screen())),
-    "screen 5000 mixed (all threads)": ("screen", lambda: _mixed(_screen(5000, seed=4),
-                                                                 {"means2d": 0, "conics": 0, "opacities": 1e5,
-                                                                  "colors": 0, "depths": 0})),
-})
+        CASES[f"scene {key}{col} {label}"] = (
+            "scene",
+            lambda key=key, cols=cols, value=value: _set(key, value, cols)(_scene()),
+        )
+CASES.update(
+    {
+        "scene means all 1e30": ("scene", lambda: _set("means", 1e30)(_scene())),
+        "scene means at the camera centre": ("scene", lambda: _set("means", 0.0)(_scene())),
+        "scene scales huge (cover the image)": ("scene", lambda: _set("scales", 1e30, idx=slice(None))(_scene(40))),
+        "scene scales 100 (cover the image)": ("scene", lambda: _set("scales", 100.0, idx=slice(None))(_scene(40))),
+        "scene all NaN": (
+            "scene",
+            lambda: {**_scene(60), **{k: torch.full_like(v, NAN) for k, v in _scene(60).items() if k != "camera"}},
+        ),
+        "scene all behind the camera": (
+            "scene",
+            lambda: (lambda d: (d["means"].__setitem__((slice(None), 2), -d["means"][:, 2]), d)[1])(_scene()),
+        ),
+        "scene no Gaussians": ("scene", lambda: _scene(0)),
+        "scene image 1x1": (
+            "scene",
+            lambda: {
+                **_scene(50, height=1, width=1),
+                "camera": {**_scene(1)["camera"], "height": 1, "width": 1, "fx": 1.0, "fy": 1.0, "cx": 0.5, "cy": 0.5},
+            },
+        ),
+        "scene 5000 mixed (all threads)": (
+            "scene",
+            lambda: _mixed(_scene(5000, seed=3), {"means": 0, "scales": 0, "quats": 0, "opacities": 0, "colors": 0}),
+        ),
+        "screen means2d nan": ("screen", lambda: _set("means2d", NAN, (0,))(_screen())),
+        "screen means2d inf": ("screen", lambda: _set("means2d", INF, (1,))(_screen())),
+        "screen means2d -inf": ("screen", lambda: _set("means2d", -INF, (0, 1))(_screen())),
+        "screen means2d huge": ("screen", lambda: _set("means2d", 1e30, (0,))(_screen())),
+        "screen conics nan": ("screen", lambda: _set("conics", NAN, (1,))(_screen())),
+        "screen conics inf": ("screen", lambda: _set("conics", INF, (0,))(_screen())),
+        "screen conics zero": ("screen", lambda: _set("conics", 0.0)(_screen())),
+        "screen conics negative": ("screen", lambda: _set("conics", -1.0, (0, 2))(_screen())),
+        "screen conics overflow (NaN exponents)": (
+            "screen",
+            lambda: (
+                lambda d: (
+                    d["conics"].__setitem__(IDX, torch.tensor([3e38, -3e38, 3e38], dtype=torch.float64)),
+                    d["radii"].__setitem__(IDX, 40),
+                    d,
+                )[2]
+            )(_screen()),
+        ),
+        "screen radii huge": ("screen", lambda: _set("radii", 2**31 - 1)(_screen())),
+        "screen radii negative": ("screen", lambda: _set("radii", -5)(_screen())),
+        "screen opacities nan": ("screen", lambda: _set("opacities", NAN)(_screen())),
+        "screen opacities inf": ("screen", lambda: _set("opacities", INF)(_screen())),
+        "screen opacities 1e7": ("screen", lambda: _set("opacities", 1e7)(_screen())),
+        "screen no Gaussians": ("screen", lambda: _screen(0)),
+        "screen image 1x1": ("screen", lambda: _screen(30, height=1, width=1)),
+        "screen depths nan": ("screen", lambda: _set("depths", NAN)(_screen())),
+        "screen depths -inf": ("screen", lambda: _set("depths", -INF)(_screen())),
+        "screen colors inf": ("screen", lambda: _set("colors", INF, (2,))(_screen())),
+        "screen 5000 mixed (all threads)": (
+            "screen",
+            lambda: _mixed(
+                _screen(5000, seed=4), {"means2d": 0, "conics": 0, "opacities": 1e5, "colors": 0, "depths": 0}
+            ),
+        ),
+    }
+)
 
 
 def _camera_case(**change):
@@ -174,31 +212,50 @@ def _camera_case(**change):
                 cam[k] = v
         d["camera"] = cam
         return d
+
     return build
 
 
 for name, change, words in (
-        ("w2c nan", {"w2c": ((1, 3), NAN)}, ("w2c", "nan", "row 1, column 3")),
-        ("w2c inf", {"w2c": ((0, 0), INF)}, ("w2c", "inf", "row 0, column 0")),
-        ("fx nan", {"fx": NAN}, ("fx = nan",)), ("fx inf", {"fx": INF}, ("fx = inf",)),
-        ("fx zero", {"fx": 0.0}, ("fx = 0.0", "> 0")), ("fx negative", {"fx": -30.0}, ("fx = -30.0", "> 0")),
-        ("fy zero", {"fy": 0.0}, ("fy = 0.0",)), ("cx nan", {"cx": NAN}, ("cx = nan",)),
-        ("cy -inf", {"cy": -INF}, ("cy = -inf",)), ("height zero", {"height": 0}, ("height=0",)),
-        ("width negative", {"width": -4}, ("width=-4",)), ("width float", {"width": 32.5}, ("width=32.5",))):
+    ("w2c nan", {"w2c": ((1, 3), NAN)}, ("w2c", "nan", "row 1, column 3")),
+    ("w2c inf", {"w2c": ((0, 0), INF)}, ("w2c", "inf", "row 0, column 0")),
+    ("fx nan", {"fx": NAN}, ("fx = nan",)),
+    ("fx inf", {"fx": INF}, ("fx = inf",)),
+    ("fx zero", {"fx": 0.0}, ("fx = 0.0", "> 0")),
+    ("fx negative", {"fx": -30.0}, ("fx = -30.0", "> 0")),
+    ("fy zero", {"fy": 0.0}, ("fy = 0.0",)),
+    ("cx nan", {"cx": NAN}, ("cx = nan",)),
+    ("cy -inf", {"cy": -INF}, ("cy = -inf",)),
+    ("height zero", {"height": 0}, ("height=0",)),
+    ("width negative", {"width": -4}, ("width=-4",)),
+    ("width float", {"width": 32.5}, ("width=32.5",)),
+):
     CASES[f"camera {name}"] = ("error", _camera_case(**change), words)
-CASES.update({
-    "rasterize image 0x5": ("error", lambda: {**_screen(10), "height": 0, "width": 5}, ("height=0",)),
-    "rasterize colors rows": ("error", lambda: {**_screen(10), "colors": torch.rand(9, 3, dtype=torch.float64)},
-                              ("colors", "(9, 3)")),
-    "rasterize background nan": ("error", lambda: {**_screen(10), "background": torch.tensor([0.0, NAN, 0.0])},
-                                 ("background", "nan")),
-    "rasterize background size": ("error", lambda: {**_screen(10), "background": torch.zeros(2)}, ("background",)),
-    "project quats shape": ("error", lambda: {**_scene(10), "quats": torch.rand(10, 3, dtype=torch.float64)},
-                            ("quats", "(10, 3)")),
-})
+CASES.update(
+    {
+        "rasterize image 0x5": ("error", lambda: {**_screen(10), "height": 0, "width": 5}, ("height=0",)),
+        "rasterize colors rows": (
+            "error",
+            lambda: {**_screen(10), "colors": torch.rand(9, 3, dtype=torch.float64)},
+            ("colors", "(9, 3)"),
+        ),
+        "rasterize background nan": (
+            "error",
+            lambda: {**_screen(10), "background": torch.tensor([0.0, NAN, 0.0])},
+            ("background", "nan"),
+        ),
+        "rasterize background size": ("error", lambda: {**_screen(10), "background": torch.zeros(2)}, ("background",)),
+        "project quats shape": (
+            "error",
+            lambda: {**_scene(10), "quats": torch.rand(10, 3, dtype=torch.float64)},
+            ("quats", "(10, 3)"),
+        ),
+    }
+)
 
 
 # ---------------------------------------------------------------- running one case
+
 
 def _leaves(d: dict, keys, dtype) -> dict:
     return {k: d[k].to(dtype).detach().clone().requires_grad_() for k in keys}
@@ -261,15 +318,20 @@ def run_case(name: str, dtype_name: str) -> str:
     outs, leaves = _render(kind, d, dtype)
     problems = [f"{n} not finite" for n, t in (("image", outs[0]), ("alpha", outs[1])) if not torch.isfinite(t).all()]
     problems += [f"d{k} not finite" for k, t in leaves.items() if not torch.isfinite(t.grad).all()]
-    bad = _bad_rows(kind, {k: v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v
-                           for k, v in d.items()})
+    bad = _bad_rows(kind, {k: v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v for k, v in d.items()})
     if bad.any() and not problems:
         problems += [f"d{k} of a non-finite Gaussian is not 0" for k, t in leaves.items() if t.grad[bad].any()]
         ref_outs, ref_leaves = _render(kind, d, dtype, keep=~bad)
-        problems += [f"{n} differs without the non-finite Gaussians" for n, a, b in
-                     zip(("image", "alpha"), outs, ref_outs) if not torch.equal(a, b)]
-        problems += [f"d{k} differs without the non-finite Gaussians" for k in leaves
-                     if not torch.equal(leaves[k].grad[~bad], ref_leaves[k].grad)]
+        problems += [
+            f"{n} differs without the non-finite Gaussians"
+            for n, a, b in zip(("image", "alpha"), outs, ref_outs)
+            if not torch.equal(a, b)
+        ]
+        problems += [
+            f"d{k} differs without the non-finite Gaussians"
+            for k in leaves
+            if not torch.equal(leaves[k].grad[~bad], ref_leaves[k].grad)
+        ]
     op = d["opacities"][torch.isfinite(d["opacities"])]
     if kind == "screen" and not problems and not (op > 1e6).any():
         # the reference back-end draws the same (it culls alike); not for opacities > e^20 / 255
@@ -278,10 +340,19 @@ def run_case(name: str, dtype_name: str) -> str:
         from spc3d.reconstruct.splat import rasterize_reference
 
         with torch.no_grad():
-            ref = rasterize_reference(*(leaves[k].detach() for k in SCREEN_KEYS), d["depths"].to(dtype), d["radii"],
-                                      d["height"], d["width"], torch.tensor([0.2, 0.4, 0.6], dtype=dtype))
-        problems += [f"{n} differs from the reference by {(a - b).abs().max():.2e}" for n, a, b in
-                     zip(("image", "alpha"), outs, ref) if not ((a - b).abs() <= 1e-5 * (1 + b.abs())).all()]
+            ref = rasterize_reference(
+                *(leaves[k].detach() for k in SCREEN_KEYS),
+                d["depths"].to(dtype),
+                d["radii"],
+                d["height"],
+                d["width"],
+                torch.tensor([0.2, 0.4, 0.6], dtype=dtype),
+            )
+        problems += [
+            f"{n} differs from the reference by {(a - b).abs().max():.2e}"
+            for n, a, b in zip(("image", "alpha"), outs, ref)
+            if not ((a - b).abs() <= 1e-5 * (1 + b.abs())).all()
+        ]
     return "ok" if not problems else "; ".join(problems)
 
 
@@ -315,8 +386,14 @@ def _run_cases(threads: int, env: dict | None = None, timeout: int = 300) -> dic
     # counts, 3x less CPU on a busy machine (the other pytest worker runs beside this one)
     env = {"OMP_WAIT_POLICY": "PASSIVE", **(os.environ if env is None else env)}
     while todo:
-        proc = subprocess.run([sys.executable, __file__, "--threads", str(threads), *todo], capture_output=True,
-                              text=True, timeout=timeout, env=env, cwd=Path(__file__).resolve().parents[1])
+        proc = subprocess.run(
+            [sys.executable, __file__, "--threads", str(threads), *todo],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            env=env,
+            cwd=Path(__file__).resolve().parents[1],
+        )
         current = None
         for line in proc.stdout.splitlines():
             if not line.startswith("{"):
@@ -332,7 +409,7 @@ def _run_cases(threads: int, env: dict | None = None, timeout: int = 300) -> dic
                 raise AssertionError(f"case runner failed (exit {proc.returncode}):\n{proc.stderr[-3000:]}")
             break
         results[current] = f"process died (exit {proc.returncode}) in this case:\n{proc.stderr[-1500:]}"
-        todo = todo[todo.index(current[0]) + (current[1] == DTYPES[-1]):]
+        todo = todo[todo.index(current[0]) + (current[1] == DTYPES[-1]) :]
         if current[1] != DTYPES[-1]:  # the other dtype of the crashed case still runs
             todo = todo[1:]
             results[(current[0], DTYPES[-1])] = "not run (the process died in the other dtype)"
@@ -403,12 +480,9 @@ def _trainer(**changes):
     cams = Cameras(w2c, np.tile([30.0, 30.0, 16.0, 12.0], (3, 1)), H, W, np.tile([1.0, 8.0], (3, 1)))
     g = torch.Generator().manual_seed(0)
     views = Views(torch.rand(3, H, W, 3, generator=g), cams, ["a", "b", "c"])
-    cfg = GaussianConfig(**{"iterations": 20, "densify_every": 5, "densify_from": 100, "sh_interval": 1000,
-                            **changes})
+    cfg = GaussianConfig(**{"iterations": 20, "densify_every": 5, "densify_from": 100, "sh_interval": 1000, **changes})
     points = torch.randn(200, 3, generator=g).numpy() * 0.5
     return SplatTrainer(views, RGBObjective("l1", 0.2), cfg, seed=0, points=points, colors=np.full((200, 3), 0.5))
-
-
 
 
 def test_trainer_stops_on_a_non_finite_loss_naming_the_iteration(one_thread):
@@ -450,8 +524,9 @@ def test_trainer_names_the_camera_it_cannot_render(one_thread):
 def test_crash_in_a_case_is_reported_and_the_rest_still_run(monkeypatch):
     """The case runner itself: a case whose process dies is named, the others still get results."""
     # the parent lists the cases; the subprocess builds its own table, told through the environment
-    monkeypatch.setattr(sys.modules[__name__], "CASES", {"scene means[0] nan": CASES["scene means[0] nan"],
-                                                          "zz crashes": None})
+    monkeypatch.setattr(
+        sys.modules[__name__], "CASES", {"scene means[0] nan": CASES["scene means[0] nan"], "zz crashes": None}
+    )
     res = _run_cases(1, env=dict(os.environ, SPC3D_ROBUST_TEST_ABORT="zz crashes"))
     assert res[("scene means[0] nan", "float32")] == "ok"
     assert "process died" in res[("zz crashes", "float32")]

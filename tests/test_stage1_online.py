@@ -2,6 +2,7 @@
 their seed; validation stops on a plateau, keeps the best model, and a killed run resumes exactly.
 
 Tiny built-in scenes (32 x 40, 9 views) and tiny translators: the plumbing, not the models."""
+
 import dataclasses
 import types
 
@@ -45,6 +46,7 @@ def _sampler(world, names=tuple(FLUX), frames=1, seed=0, crop=16, batch=3, paire
 
 # --- online sampling -------------------------------------------------------------------------------
 
+
 def test_sources_hold_the_training_views_only(world):
     sources = online.load_sources(*_dirs(world), frames=2)
     assert [s.name for s in sources] == list(FLUX) and [s.flux_scale for s in sources] == list(FLUX.values())
@@ -70,7 +72,7 @@ def test_the_target_is_the_augmented_view_cropped(world):
     y, x = (int(replay.integers(0, n - 16 + 1)) for n in (32, 40))
     full = augment.augment_image(spc.linear_to_srgb(view).astype(np.float32), p)
     assert scene is source
-    np.testing.assert_allclose(rgb.permute(1, 2, 0).numpy(), full[y:y + 16, x:x + 16], atol=2e-5)
+    np.testing.assert_allclose(rgb.permute(1, 2, 0).numpy(), full[y : y + 16, x : x + 16], atol=2e-5)
 
 
 def test_online_pairs_are_aligned(world):
@@ -78,8 +80,9 @@ def test_online_pairs_are_aligned(world):
     sampler = _sampler(world, names=("gallery",), frames=4000, crop=16)
     for _ in range(2):
         source, binary, rgb = sampler.sample()
-        p = spc.detection_probability(spc.flux_from_srgb(rgb.permute(1, 2, 0).numpy(), source.flux_scale),
-                                      source.params)
+        p = spc.detection_probability(
+            spc.flux_from_srgb(rgb.permute(1, 2, 0).numpy(), source.flux_scale), source.params
+        )
         mean = binary.permute(1, 2, 0).numpy()
         assert np.abs(mean - p).mean() < 0.01 and np.abs(mean - p).max() < 0.05  # sd <= 0.008 per pixel
         assert np.abs(mean - p[::-1]).mean() > 3 * np.abs(mean - p).mean()  # a misaligned map does not fit
@@ -122,13 +125,15 @@ def test_seeds_reproduce_and_state_resumes(world):
 
 
 def test_fixed_pairs_exclude_the_validation_views(world, tmp_path):
-    rec = augment.augment_scene(world / "scenes" / "orchard", world / "spc" / "orchard", tmp_path / "aug", 12,
-                                AugmentSettings(), seed=0)
+    rec = augment.augment_scene(
+        world / "scenes" / "orchard", world / "spc" / "orchard", tmp_path / "aug", 12, AugmentSettings(), seed=0
+    )
     held_out = {f"image{i:03d}" for i in split_views(9)[1]}
     assert not {s["view"] for s in rec["samples"]} & held_out
 
 
 # --- validation and early stopping -------------------------------------------------------------------
+
 
 @dataclasses.dataclass(frozen=True)
 class ScriptConfig:
@@ -193,8 +198,9 @@ def test_validation_stops_on_a_plateau_and_keeps_the_best(world, tmp_path):
     assert result["stopped_early"] and result["steps"] == 12
     assert trainer.validator.best["step"] == 6
     assert trainer.validator.best["modules"]["G"]["level"] == pytest.approx(0.45)
-    assert [round(h["val_psnr"], 3) for h in trainer.validator.history] == \
-        [round(-20 * np.log10(abs(v - 0.5)), 3) for v in (0.1, 0.3, 0.45, 0.3, 0.35, 0.2)]
+    assert [round(h["val_psnr"], 3) for h in trainer.validator.history] == [
+        round(-20 * np.log10(abs(v - 0.5)), 3) for v in (0.1, 0.3, 0.45, 0.3, 0.35, 0.2)
+    ]
     assert float(trainer.model.net.level.detach()) == pytest.approx(0.2)  # the last model is not the kept one
     assert trainer.curve[-1]["iteration"] == 12 and ckpt.record["saves"] == 1  # checkpointed at the stop
     again = _grey_trainer(world)  # resumed from the stop's checkpoint: stops without another step
@@ -207,8 +213,12 @@ def test_a_kill_between_the_best_and_the_stop_resumes_the_count(world, tmp_path)
     """Checkpointed at step 8 (best at 6, one validation since), killed at 11: the rerun stops at 12
     with the same history and best model as the uninterrupted run."""
     with pytest.raises(Interrupted):
-        run(InterruptAt(_grey_trainer(world), 11), 40, Checkpoint(tmp_path / "c.pt", {"job": "grey"}),
-            CheckpointPolicy(fraction=0.1, minutes=0))
+        run(
+            InterruptAt(_grey_trainer(world), 11),
+            40,
+            Checkpoint(tmp_path / "c.pt", {"job": "grey"}),
+            CheckpointPolicy(fraction=0.1, minutes=0),
+        )
     resumed, uninterrupted = _grey_trainer(world), _grey_trainer(world)
     result = run(resumed, 40, Checkpoint(tmp_path / "c.pt", {"job": "grey"}))
     run(uninterrupted, 40)
@@ -251,13 +261,23 @@ def test_the_shared_loop_stops_when_asked(tmp_path):
 
 
 def _online_job(world, tmp_path, iterations=24):
-    return dict(data=train.training_data("online", (), *_dirs(world), {"count": 99, "zoom": [0.9, 1.1]}),
-                validation={"every": 4, "patience": 2}, checkpoint=tmp_path / "ckpt.pt", seed=1)
+    return dict(
+        data=train.training_data("online", (), *_dirs(world), {"count": 99, "zoom": [0.9, 1.1]}),
+        validation={"every": 4, "patience": 2},
+        checkpoint=tmp_path / "ckpt.pt",
+        seed=1,
+    )
 
 
 def test_online_training_records_its_data_and_validation(world, tmp_path, scripted):
-    train.train_translator(scripted, [], tmp_path / "model", {}, {"iterations": 30, "crop": 16, "log_every": 4,
-                                                                   "batch_size": 2}, **_online_job(world, tmp_path))
+    train.train_translator(
+        scripted,
+        [],
+        tmp_path / "model",
+        {},
+        {"iterations": 30, "crop": 16, "log_every": 4, "batch_size": 2},
+        **_online_job(world, tmp_path),
+    )
     rec = io.read_json(tmp_path / "model" / "train.json")
     assert rec["data"]["mode"] == "online" and rec["data"]["samples"] == rec["data"]["distinct_samples"]
     assert rec["data"]["training_views"] == 2 * 7 and rec["augment"]["zoom"] == [0.9, 1.1]
@@ -281,16 +301,39 @@ def test_a_killed_run_resumes_exactly(world, tmp_path, scripted):
     train_block = {"iterations": 20, "crop": 16, "log_every": 4, "batch_size": 2, "decay_from": 0.5}
     full_dir, part_dir = tmp_path / "full", tmp_path / "part"
     full_dir.mkdir(), part_dir.mkdir()
-    full = train.train_translator("restormer", [], full_dir / "model", TINY_RESTORMER, train_block,
-                                  **_online_job(world, full_dir) | {"validation": {"every": 4, "patience": 0}})
-    job = train.setup_training("restormer", [], TINY_RESTORMER, train_block, seed=1,
-                               checkpoint=part_dir / "ckpt.pt", data=_online_job(world, part_dir)["data"],
-                               validation={"every": 4, "patience": 0})
+    full = train.train_translator(
+        "restormer",
+        [],
+        full_dir / "model",
+        TINY_RESTORMER,
+        train_block,
+        **_online_job(world, full_dir) | {"validation": {"every": 4, "patience": 0}},
+    )
+    job = train.setup_training(
+        "restormer",
+        [],
+        TINY_RESTORMER,
+        train_block,
+        seed=1,
+        checkpoint=part_dir / "ckpt.pt",
+        data=_online_job(world, part_dir)["data"],
+        validation={"every": 4, "patience": 0},
+    )
     with pytest.raises(Interrupted):
-        run(InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings, job.validator), 13), 20,
-            job.checkpoint, CheckpointPolicy(fraction=0.25, minutes=0))
-    resumed = train.train_translator("restormer", [], part_dir / "model", TINY_RESTORMER, train_block,
-                                     **_online_job(world, part_dir) | {"validation": {"every": 4, "patience": 0}})
+        run(
+            InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings, job.validator), 13),
+            20,
+            job.checkpoint,
+            CheckpointPolicy(fraction=0.25, minutes=0),
+        )
+    resumed = train.train_translator(
+        "restormer",
+        [],
+        part_dir / "model",
+        TINY_RESTORMER,
+        train_block,
+        **_online_job(world, part_dir) | {"validation": {"every": 4, "patience": 0}},
+    )
     assert resumed["checkpoint"]["resumed_from"] == 10 and resumed["checkpoint"]["discarded"] is None
     for key in ("validation", "final_losses", "data", "model_step", "stopped"):
         assert resumed[key] == full[key], key
@@ -303,21 +346,30 @@ TINY_RESTORMER = {"dim": 8, "heads": [1, 1, 1, 1]}
 
 
 def test_fixed_mode_counts_its_distinct_pairs(world, tmp_path):
-    augment.augment_scene(world / "scenes" / "gallery", world / "spc" / "gallery", tmp_path / "aug", 5,
-                          AugmentSettings(), seed=0)
-    job = train.setup_training("restormer", [tmp_path / "aug"], TINY_RESTORMER, {"iterations": 3, "crop": 16,
-                                                                                 "batch_size": 2})
+    augment.augment_scene(
+        world / "scenes" / "gallery", world / "spc" / "gallery", tmp_path / "aug", 5, AugmentSettings(), seed=0
+    )
+    job = train.setup_training(
+        "restormer", [tmp_path / "aug"], TINY_RESTORMER, {"iterations": 3, "crop": 16, "batch_size": 2}
+    )
     job.sampler(), job.sampler()
-    assert job.sampler.describe() == {"mode": "fixed", "pairs": 5, "samples": 4,
-                                      "distinct_samples": int(job.sampler.seen.sum())}
+    assert job.sampler.describe() == {
+        "mode": "fixed",
+        "pairs": 5,
+        "samples": 4,
+        "distinct_samples": int(job.sampler.seen.sum()),
+    }
     assert 1 <= job.sampler.describe()["distinct_samples"] <= 4 and job.validator is None
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"mode": "onlin"}, r"stage1\.data = 'onlin': use one of \['fixed', 'online'\]"),
-    ({"mode": "online"}, r"stage1\.data = 'online' needs the training scenes' folders"),
-    ({"mode": "fixed"}, r"stage1\.data = 'fixed' needs the augmented pairs"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"mode": "onlin"}, r"stage1\.data = 'onlin': use one of \['fixed', 'online'\]"),
+        ({"mode": "online"}, r"stage1\.data = 'online' needs the training scenes' folders"),
+        ({"mode": "fixed"}, r"stage1\.data = 'fixed' needs the augmented pairs"),
+    ],
+)
 def test_training_data_errors_name_the_setting(kwargs, match):
     with pytest.raises(ValueError, match=match):
         train.training_data(**kwargs)
@@ -340,9 +392,14 @@ def test_published_weights_without_training_are_validated_once(world, tmp_path):
     tiny = {**TINY_RESTORMER, "prior_sigma": 0.0}  # the published design, as published weights need
     published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
-    rec = train.train_translator("restormer", [], tmp_path / "model",
-                                 {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
-                                 {"iterations": 0, "crop": 16}, **_online_job(world, tmp_path))
+    rec = train.train_translator(
+        "restormer",
+        [],
+        tmp_path / "model",
+        {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
+        {"iterations": 0, "crop": 16},
+        **_online_job(world, tmp_path),
+    )
     assert [h["iteration"] for h in rec["validation"]["curve"]] == [0] and rec["model_step"] == 0
     assert rec["stopped"] == {"step": 0, "reason": "budget"} and rec["data"]["samples"] == 0
     _, loaded = model_io.load_translator(tmp_path / "model")

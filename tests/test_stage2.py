@@ -1,4 +1,5 @@
 """Stage 2 plumbing: image sources, reconstruct -> renders, evaluation records, paper tables."""
+
 import numpy as np
 import pytest
 import torch
@@ -14,8 +15,14 @@ from spc3d.simulate import simulate_scene
 from spc3d.sources import load_source
 from spc3d.stage2 import reconstruct
 
-TINY_3DGS = {"iterations": 12, "densify_from": 4, "densify_until": 10, "densify_every": 4, "init_points": 300,
-             "backend": "native"}
+TINY_3DGS = {
+    "iterations": 12,
+    "densify_from": 4,
+    "densify_until": 10,
+    "densify_every": 4,
+    "init_points": 300,
+    "backend": "native",
+}
 
 
 @pytest.fixture(scope="module")
@@ -37,17 +44,24 @@ def test_sources_hold_only_training_views(scene):
     assert "image000" not in gt.views.names and "image008" not in gt.views.names
     none = load_source("none", scene / "scenes" / "gallery", scene / "spc" / "gallery")
     assert set(torch.unique(none.views.targets).tolist()) <= {0.0, 1.0}
-    mle = load_source("mle-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4,
-                      display_dir=scene / "mle" / "k4")
-    assert (float((mle.views.targets - gt.views.targets).abs().mean())
-            < float((none.views.targets - gt.views.targets).abs().mean()))
+    mle = load_source(
+        "mle-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4, display_dir=scene / "mle" / "k4"
+    )
+    assert float((mle.views.targets - gt.views.targets).abs().mean()) < float(
+        (none.views.targets - gt.views.targets).abs().mean()
+    )
     with pytest.raises(ValueError, match="needs the metered display folder"):
         load_source("mle", scene / "scenes" / "gallery", scene / "spc" / "gallery")
 
 
 def test_bernoulli_source_uses_the_camera_physics_and_the_metered_gain(scene):
-    src = load_source("bernoulli-k4", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=4,
-                      display_dir=scene / "mle" / "k4")
+    src = load_source(
+        "bernoulli-k4",
+        scene / "scenes" / "gallery",
+        scene / "spc" / "gallery",
+        frames=4,
+        display_dir=scene / "mle" / "k4",
+    )
     rec = io.read_json(scene / "spc" / "gallery" / "spc.json")
     gain = io.read_json(scene / "mle" / "k4" / "display.json")["gain_likelihood"]
     assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == gain != rec["flux_scale"]
@@ -55,8 +69,13 @@ def test_bernoulli_source_uses_the_camera_physics_and_the_metered_gain(scene):
     assert 0.5 < gain / rec["flux_scale"] < 2.0  # metered from the frames, near the simulator's exposure
     assert set(torch.unique(src.views.targets * 4).round().tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     with pytest.raises(ValueError, match="stage2.frames=5 but .* K=4"):
-        load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery", frames=5,
-                    display_dir=scene / "mle" / "k4")
+        load_source(
+            "bernoulli",
+            scene / "scenes" / "gallery",
+            scene / "spc" / "gallery",
+            frames=5,
+            display_dir=scene / "mle" / "k4",
+        )
     with pytest.raises(ValueError, match="needs the metered display folder"):
         load_source("bernoulli", scene / "scenes" / "gallery", scene / "spc" / "gallery")
 
@@ -77,19 +96,35 @@ def test_reconstruct_writes_renders_and_resumes(scene, tmp_path):
     assert train["test_views"] == ["image000", "image008"] and train["seed"] == 1
     assert train["capacity"]["gaussians"] > 0 and train["settings"]["iterations"] == 12 and rec["train_s"] > 0
     assert io.read_rgb(out / "renders" / "image008.png").shape == (36, 48, 3)
-    again = reconstruct(scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs", TINY_3DGS, seed=1,
-                        checkpoint=ckpt)
+    again = reconstruct(
+        scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs", TINY_3DGS, seed=1, checkpoint=ckpt
+    )
     assert again["resumed_from"] == 12 and again["checkpoint"]["discarded"] is None  # same job: resumed
-    longer = reconstruct(scene / "scenes" / "gallery", tmp_path / "recon3", "gt", "3dgs",
-                         {**TINY_3DGS, "iterations": 16}, seed=1, checkpoint=ckpt)
+    longer = reconstruct(
+        scene / "scenes" / "gallery",
+        tmp_path / "recon3",
+        "gt",
+        "3dgs",
+        {**TINY_3DGS, "iterations": 16},
+        seed=1,
+        checkpoint=ckpt,
+    )
     assert longer["resumed_from"] == 0 and "settings.iterations: 12 -> 16" in longer["checkpoint"]["discarded"]
     assert io.read_json(tmp_path / "recon3" / "train.json")["checkpoint"]["resumed_from"] == 0
 
 
 def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):
     settings = {"n_iters": 6, "batch_rays": 256, "n_samples": 16, "res_schedule": [[0, 12]], "chunk": 1024}
-    rec = reconstruct(scene / "scenes" / "gallery", tmp_path / "r", "bernoulli-k4", "nerf-grid", settings,
-                      spc_dir=scene / "spc" / "gallery", frames=4, display_dir=scene / "mle" / "k4")
+    rec = reconstruct(
+        scene / "scenes" / "gallery",
+        tmp_path / "r",
+        "bernoulli-k4",
+        "nerf-grid",
+        settings,
+        spc_dir=scene / "spc" / "gallery",
+        frames=4,
+        display_dir=scene / "mle" / "k4",
+    )
     train = io.read_json(tmp_path / "r" / "train.json")
     assert train["objective"] == "bernoulli" and train["frames"] == 4 and rec["capacity"]["resolution"] == 12
     assert train["display"]["K"] == 4 and train["display"]["gain"] > 0 and train["poses"].startswith("ground truth")
@@ -98,33 +133,46 @@ def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):
 def test_evaluate_perfect_renders(scene, tmp_path, lpips_cache):
     recon = tmp_path / "recon"
     for name in ("image000", "image008"):
-        io.write_image(recon / "renders" / f"{name}.png",
-                       io.read_rgb(scene / "scenes" / "gallery" / "images" / f"{name}.png"))
-    io.write_json(recon / "train.json",
-                  {"source": "gt", "model": "3dgs", "seed": 0, "test_views": ["image000", "image008"]})
+        io.write_image(
+            recon / "renders" / f"{name}.png", io.read_rgb(scene / "scenes" / "gallery" / "images" / f"{name}.png")
+        )
+    io.write_json(
+        recon / "train.json", {"source": "gt", "model": "3dgs", "seed": 0, "test_views": ["image000", "image008"]}
+    )
     rec = evaluate(recon, scene / "scenes" / "gallery", tmp_path / "metrics.json", lpips_dir=lpips_cache)
     assert rec["mean"]["psnr"] == float("inf") and rec["mean"]["ssim"] == pytest.approx(1.0)
     assert rec["mean"]["lpips_alex"] == pytest.approx(0.0, abs=1e-6) and rec["combination"] == "gt+3dgs"
     assert io.read_json(tmp_path / "metrics.json")["mean"]["psnr"] == float("inf")
     with pytest.raises(ValueError, match="at least 32x32"):
         from spc3d.metrics import lpips
+
         lpips(np.zeros((20, 40, 3)), np.zeros((20, 40, 3)), cache_dir=lpips_cache)
 
 
 def fake_metrics(path, scene, combo, seed, psnr, ssim, lpips, K=1):
-    io.write_json(path, {"scene": scene, "combination": combo, "seed": seed, "frames": K,
-                         "init": {"setting": "random", "used": "random"},
-                         "per_view": [{"view": "v0", "psnr": psnr}],
-                         "mean": {"psnr": psnr, "ssim": ssim, "lpips_alex": lpips, "lpips_vgg": lpips}})
+    io.write_json(
+        path,
+        {
+            "scene": scene,
+            "combination": combo,
+            "seed": seed,
+            "frames": K,
+            "init": {"setting": "random", "used": "random"},
+            "per_view": [{"view": "v0", "psnr": psnr}],
+            "mean": {"psnr": psnr, "ssim": ssim, "lpips_alex": lpips, "lpips_vgg": lpips},
+        },
+    )
     return path
 
 
 def test_single_stage_table_ranks_within_equal_budgets(tmp_path):
-    files = [fake_metrics(tmp_path / "a.json", "s", "none+3dgs", 0, 18.0, 0.5, 0.5),
-             fake_metrics(tmp_path / "b.json", "s", "none+3dgs", 1, 20.0, 0.6, 0.4),
-             fake_metrics(tmp_path / "c.json", "s", "bernoulli+3dgs", 0, 21.0, 0.55, 0.45),
-             fake_metrics(tmp_path / "e.json", "s", "mle-k16+3dgs", 0, 25.0, 0.8, 0.2, K=16),
-             fake_metrics(tmp_path / "d.json", "s", "gt+3dgs", 0, 30.0, 0.9, 0.1, K=None)]
+    files = [
+        fake_metrics(tmp_path / "a.json", "s", "none+3dgs", 0, 18.0, 0.5, 0.5),
+        fake_metrics(tmp_path / "b.json", "s", "none+3dgs", 1, 20.0, 0.6, 0.4),
+        fake_metrics(tmp_path / "c.json", "s", "bernoulli+3dgs", 0, 21.0, 0.55, 0.45),
+        fake_metrics(tmp_path / "e.json", "s", "mle-k16+3dgs", 0, 25.0, 0.8, 0.2, K=16),
+        fake_metrics(tmp_path / "d.json", "s", "gt+3dgs", 0, 30.0, 0.9, 0.1, K=None),
+    ]
     df = tables.single_stage_table([str(f) for f in files], str(tmp_path / "single_stage"), "nerf-grid")
     row = df.set_index("combination").loc["none+3dgs"]
     assert row["psnr_mean"] == pytest.approx(19.0) and row["psnr_std"] == pytest.approx(1.0) and row["runs"] == 2
@@ -173,13 +221,21 @@ def test_colmap_points_land_on_the_scene(colmap_scene):
 
 def test_reconstruct_starts_from_colmap_points(colmap_scene, tmp_path):
     settings = {**TINY_3DGS, "iterations": 2}
-    reconstruct(colmap_scene / "scene", tmp_path / "r", "gt", "3dgs", settings, points_dir=colmap_scene / "colmap",
-                init_setting="colmap")
+    reconstruct(
+        colmap_scene / "scene",
+        tmp_path / "r",
+        "gt",
+        "3dgs",
+        settings,
+        points_dir=colmap_scene / "colmap",
+        init_setting="colmap",
+    )
     init = io.read_json(tmp_path / "r" / "train.json")["init"]
     assert init["setting"] == "colmap" and init["used"].startswith("colmap sparse points")
     failed = tmp_path / "failed"
     io.write_json(failed / "pose_error.json", {"status": "failed: no image registered", "pose": {"aligned": False}})
-    reconstruct(colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed,
-                init_setting="colmap")
+    reconstruct(
+        colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed, init_setting="colmap"
+    )
     init = io.read_json(tmp_path / "r2" / "train.json")["init"]
     assert init["setting"] == "colmap" and init["used"].startswith("random (")  # the fall-back is recorded

@@ -1,4 +1,5 @@
 """Budget sweeps: Pareto fronts, knobs and tables, a point's mini pipeline end to end, reports, the rules."""
+
 import re
 import subprocess
 import sys
@@ -13,23 +14,40 @@ from spc3d import io, workflow
 from spc3d.sweeps import knobs, plan
 from spc3d.sweeps.budget import WIDTH_KEYS, resolve_point
 from spc3d.sweeps.pareto import front_steps, pareto_mask
-from spc3d.sweeps.report import photon_report, tradeoff_report
+from spc3d.sweeps.report import photon_level_report, tradeoff_report
 from conftest import REPO
 
 TABLE = REPO / "workflow" / "tradeoff.tsv"
 SPEC = {"kind": "builtin", "height": 36, "width": 48, "views": 9, "supersample": 1, "seed": 0}
-SPC = {"mode": "bernoulli", "q": 0.45, "tau_d": 1.5e-7, "exposure_s": 1e-4, "dark_count_rate": 100.0, "frames": 4,
-       "flux_scale": None, "target_detection": 0.5}
+SPC = {
+    "mode": "bernoulli",
+    "q": 0.45,
+    "tau_d": 1.5e-7,
+    "exposure_s": 1e-4,
+    "dark_count_rate": 100.0,
+    "frames": 4,
+    "flux_scale": None,
+    "target_detection": 0.5,
+}
 TINY_3DGS = {"iterations": 12, "densify_from": 4, "densify_until": 10, "densify_every": 4, "init_points": 300}
-TINY_PIX2PIX = {"settings": {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2},
-                "train": {"iterations": 2, "batch_size": 2, "crop": 16, "log_every": 1}, "frames": 1}
+TINY_PIX2PIX = {
+    "settings": {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2},
+    "train": {"iterations": 2, "batch_size": 2, "crop": 16, "log_every": 1},
+    "frames": 1,
+}
 
 
 def base(translator=None, model_settings=TINY_3DGS):
-    return {"seed": 0, "scene_name": "courtyard", "scene": SPEC | {"layout": "courtyard"},
-            "train_scenes": {"tabletop": SPEC | {"layout": "tabletop"}}, "spc": SPC,
-            "augment": {"count": 4, "zoom": [0.8, 1.25], "rotation_deg": 15.0, "shear_deg": 10.0, "flip_prob": 0.5},
-            "translator": translator, "stage2": {"settings": model_settings, "frames": 1}}
+    return {
+        "seed": 0,
+        "scene_name": "courtyard",
+        "scene": SPEC | {"layout": "courtyard"},
+        "train_scenes": {"tabletop": SPEC | {"layout": "tabletop"}},
+        "spc": SPC,
+        "augment": {"count": 4, "zoom": [0.8, 1.25], "rotation_deg": 15.0, "shear_deg": 10.0, "flip_prob": 0.5},
+        "translator": translator,
+        "stage2": {"settings": model_settings, "frames": 1},
+    }
 
 
 # ---- Pareto front ----------------------------------------------------------------------------------
@@ -111,8 +129,9 @@ def test_bad_tables_settings_and_combinations_are_named(tmp_path):
 
 # ---- a point's settings ------------------------------------------------------------------------------
 def test_knobs_reach_every_stage():
-    p = resolve_point(base(TINY_PIX2PIX), {"iters": 6, "res": 64, "K": 2, "width": 12, "steps": 3, "cap": 100},
-                      "pix2pix+3dgs")
+    p = resolve_point(
+        base(TINY_PIX2PIX), {"iters": 6, "res": 64, "K": 2, "width": 12, "steps": 3, "cap": 100}, "pix2pix+3dgs"
+    )
     assert p["scene"]["width"] == 64 and p["scene"]["height"] == 48  # 4:3 kept
     assert p["train_scenes"]["tabletop"]["height"] == 48 and p["spc"]["physics"]["frames"] == 2 and p["frames"] == 2
     assert p["translator"]["settings"]["ngf"] == 12 and p["translator"]["train"]["iterations"] == 3
@@ -120,8 +139,11 @@ def test_knobs_reach_every_stage():
     s = p["stage2"]
     assert s["iterations"] == 6 and s["densify_until"] == 5 and s["densify_every"] == 2  # schedules scale 6/12
     assert s["max_gaussians"] == 100 and s["init_points"] == 100
-    grid = resolve_point(base(model_settings={"n_iters": 200, "res_schedule": [[0, 32], [70, 64], [140, 96]]}),
-                         {"iters": 100, "grid": 48, "detection": 0.1}, "mle+nerf-grid")
+    grid = resolve_point(
+        base(model_settings={"n_iters": 200, "res_schedule": [[0, 32], [70, 64], [140, 96]]}),
+        {"iters": 100, "grid": 48, "detection": 0.1},
+        "mle+nerf-grid",
+    )
     assert grid["stage2"]["res_schedule"] == [[0, 16], [35, 32], [70, 48]] and grid["stage2"]["n_iters"] == 100
     assert grid["spc"]["target_detection"] == 0.1 and grid["spc"]["flux_scale"] is None and grid["frames"] == 1
     assert list(grid["train_scenes"]) == ["tabletop"] and grid["augment"]["counts"] == {}  # display level only
@@ -137,9 +159,10 @@ def points(tmp_path_factory, lpips_cache, one_torch_thread):
     from spc3d.sweeps.point import run_point
 
     root = tmp_path_factory.mktemp("sweeps")
-    runs = {"gt+3dgs": (base(), {"iters": 10, "res": 48, "cap": 400}),
-            "pix2pix+3dgs": (base(TINY_PIX2PIX), {"iters": 10, "res": 48, "K": 1, "width": 8, "steps": 2,
-                                                  "cap": 400})}
+    runs = {
+        "gt+3dgs": (base(), {"iters": 10, "res": 48, "cap": 400}),
+        "pix2pix+3dgs": (base(TINY_PIX2PIX), {"iters": 10, "res": 48, "K": 1, "width": 8, "steps": 2, "cap": 400}),
+    }
     for combo, (b, setting) in runs.items():
         run_point(root / combo, combo, setting, b, lpips_dir=lpips_cache)
     return root
@@ -150,8 +173,15 @@ def test_point_writes_metrics_with_every_field(points):
         rec = io.read_json(points / combo / "metrics.json")
         assert rec["combination"] == combo and rec["seed"] == 0 and rec["scene"] == "courtyard"
         assert set(rec["mean"]) == {"psnr", "ssim", "lpips_alex", "lpips_vgg"} and len(rec["per_view"]) == 2
-        assert set(rec["times_s"]) == {"prepare", "simulate", "augment", "train", "translate", "reconstruct",
-                                       "evaluate"}
+        assert set(rec["times_s"]) == {
+            "prepare",
+            "simulate",
+            "augment",
+            "train",
+            "translate",
+            "reconstruct",
+            "evaluate",
+        }
         assert rec["wall_s"] + 0.01 >= sum(rec["times_s"].values()) > 0 and rec["cpu_s"] > 0 and rec["peak_rss_mb"] > 50
         assert rec["iterations"] == 10 and rec["capacity"]["gaussians"] > 0
         assert rec["resolved"]["scene"]["width"] == 48 and rec["resolved"]["stage2"]["iterations"] == 10
@@ -179,18 +209,25 @@ def test_reports_write_tables_and_figures(points, tmp_path):
     photon = []  # the same point at several exposures and K (the report only reads the records)
     rec = io.read_json(paths[0])
     for i, (d, k) in enumerate([(0.1, 1), (0.5, 1), (0.1, 4), (0.5, 4)]):
-        rec.update(combination="mle+3dgs", setting={"detection": d, "K": k}, used_knobs=["detection", "K"],
-                   stage1={"psnr": 10.0 + i}, mean=rec["mean"] | {"psnr": 12.0 + i})
+        rec.update(
+            combination="mle+3dgs",
+            setting={"detection": d, "K": k},
+            used_knobs=["detection", "K"],
+            stage1={"psnr": 10.0 + i},
+            mean=rec["mean"] | {"psnr": 12.0 + i},
+        )
         io.write_json(tmp_path / f"p{i}.json", rec)
         photon.append(tmp_path / f"p{i}.json")
-    out = photon_report(photon, ["mle+3dgs"], tmp_path / "p.csv", tmp_path / "p.png")
+    out = photon_level_report(photon, ["mle+3dgs"], tmp_path / "p.csv", tmp_path / "p.png")
     assert out[["K", "detection"]].values.tolist() == [[1, 0.1], [1, 0.5], [4, 0.1], [4, 0.5]]
     assert (tmp_path / "p.png").stat().st_size > 10_000
 
 
 def test_rule_side_modules_import_without_torch():
-    code = ("import sys; import spc3d.sweeps.knobs, spc3d.sweeps.plan, spc3d.sweeps.pareto, spc3d.sweeps.report; "
-            "assert 'torch' not in sys.modules, 'torch imported'")
+    code = (
+        "import sys; import spc3d.sweeps.knobs, spc3d.sweeps.plan, spc3d.sweeps.pareto, spc3d.sweeps.report; "
+        "assert 'torch' not in sys.modules, 'torch imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -203,10 +240,17 @@ def test_dry_run_of_both_sweeps(tmp_path):
     table = tmp_path / "t.tsv"  # rows 1 and 2 differ only in width: one point for gt, two for pix2pix
     table.write_text("iters\tres\twidth\n100\t64\t8\n100\t64\t16\n200\t64\t8\n")
     cfg = tmp_path / "c.yaml"
-    cfg.write_text(yaml.safe_dump({"tradeoff": {"combinations": ["gt+3dgs", "pix2pix+nerf"], "table": str(table)},
-                                   "photon_level": {"detection": [0.1, 0.9], "frames": [1, 4]}}))
-    proc = snakemake(tmp_path, "-n", "tradeoff", "photon_level", "--configfile", str(REPO / "config.yaml"), str(cfg),
-                     timeout=120)
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "tradeoff": {"combinations": ["gt+3dgs", "pix2pix+nerf"], "table": str(table)},
+                "photon_level": {"detection": [0.1, 0.9], "frames": [1, 4]},
+            }
+        )
+    )
+    proc = snakemake(
+        tmp_path, "-n", "tradeoff", "photon_level", "--configfile", str(REPO / "config.yaml"), str(cfg), timeout=120
+    )
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-3000:]
     assert "results/tradeoff/pix2pix+nerf-grid/iters~100/res~64/width~16/metrics.json" in out

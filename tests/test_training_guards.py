@@ -1,6 +1,7 @@
 """One trainer per checkpoint, and none without its Snakemake (spc3d.checkpoints.CheckpointLock,
 SnakemakeWatch): a second trainer of a checkpoint is refused with a message naming the holder, and a
 training whose Snakemake is killed stops by itself."""
+
 import os
 import signal
 import subprocess
@@ -10,8 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from spc3d.checkpoints import (Checkpoint, CheckpointInUse, CheckpointLock, SnakemakeWatch, _is_snakemake,
-                               fingerprint)
+from spc3d.checkpoints import Checkpoint, CheckpointInUse, CheckpointLock, SnakemakeWatch, _is_snakemake, fingerprint
 from spc3d.training import run
 from conftest import process_alive, wait_until
 
@@ -104,8 +104,22 @@ def test_a_lock_held_by_another_process_names_it(tmp_path):
 @pytest.mark.skipif(not LINUX, reason="needs /proc")
 def test_a_training_stops_when_its_snakemake_is_killed(tmp_path):
     path, err = tmp_path / "ckpt.pt", tmp_path / "training.err"
-    parent = subprocess.Popen(["bash", "-c", 'exec -a snakemake "$0" "$@"', sys.executable, "-c", FAKE_SNAKEMAKE,
-                               str(path), str(err), sys.executable, SLOW_TRAINING], stdout=subprocess.PIPE, text=True)
+    parent = subprocess.Popen(
+        [
+            "bash",
+            "-c",
+            'exec -a snakemake "$0" "$@"',
+            sys.executable,
+            "-c",
+            FAKE_SNAKEMAKE,
+            str(path),
+            str(err),
+            sys.executable,
+            SLOW_TRAINING,
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     child = int(parent.stdout.readline())
     try:
         assert wait_until(path.exists, 60), err.read_text()

@@ -31,6 +31,7 @@ def binary_batch(b: int, h: int, w: int, seed: int = 0) -> torch.Tensor:
 
 # ---------------------------------------------------------------------------------- Restormer
 
+
 @pytest.mark.parametrize("norm", ["BiasFree", "WithBias"])
 def test_restormer_odd_size_through_translate(norm):
     torch.manual_seed(0)
@@ -85,13 +86,23 @@ def test_official_names_and_checkpoint_round_trip(tmp_path):
     torch.manual_seed(0)
     tr = R.Translator(TINY_R, CPU)
     sd = tr.net.state_dict()
-    for name in ("patch_embed.proj.weight", "encoder_level1.0.norm1.body.weight",
-                 "encoder_level1.0.attn.temperature", "encoder_level1.0.attn.qkv.weight",
-                 "encoder_level1.0.attn.qkv_dwconv.weight", "encoder_level1.0.attn.project_out.weight",
-                 "encoder_level2.0.ffn.project_in.weight", "latent.0.ffn.dwconv.weight",
-                 "decoder_level1.0.ffn.project_out.weight", "down1_2.body.0.weight", "up2_1.body.0.weight",
-                 "reduce_chan_level2.weight", "reduce_chan_level3.weight", "refinement.0.norm2.body.weight",
-                 "output.weight"):
+    for name in (
+        "patch_embed.proj.weight",
+        "encoder_level1.0.norm1.body.weight",
+        "encoder_level1.0.attn.temperature",
+        "encoder_level1.0.attn.qkv.weight",
+        "encoder_level1.0.attn.qkv_dwconv.weight",
+        "encoder_level1.0.attn.project_out.weight",
+        "encoder_level2.0.ffn.project_in.weight",
+        "latent.0.ffn.dwconv.weight",
+        "decoder_level1.0.ffn.project_out.weight",
+        "down1_2.body.0.weight",
+        "up2_1.body.0.weight",
+        "reduce_chan_level2.weight",
+        "reduce_chan_level3.weight",
+        "refinement.0.norm2.body.weight",
+        "output.weight",
+    ):
         assert name in sd, name
     assert not any(k.startswith("reduce_chan_level1") for k in sd)
     path = tmp_path / "restormer.pth"
@@ -148,6 +159,7 @@ def test_restormer_state_round_trip():
 
 
 # ---------------------------------------------------------------------------------- Diffusion
+
 
 @pytest.mark.parametrize("kind", ["linear", "cosine"])
 def test_noise_schedule(kind):

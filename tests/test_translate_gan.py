@@ -26,10 +26,22 @@ CPU = torch.device("cpu")
 # the physics prior (tested with it in test_translate_prior.py).
 TINY = {
     "pix2pix": (pix2pix, {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2, "prior_sigma": 0.0}),
-    "pix2pixhd": (pix2pixhd, {"ngf": 8, "ndf": 8, "n_downsample_global": 2, "n_blocks_global": 1, "n_layers_D": 2,
-                            "vgg_loss": False, "prior_sigma": 0.0}),
-    "cyclegan": (cyclegan, {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2,
-                            "prior_sigma": 0.0}),
+    "pix2pixhd": (
+        pix2pixhd,
+        {
+            "ngf": 8,
+            "ndf": 8,
+            "n_downsample_global": 2,
+            "n_blocks_global": 1,
+            "n_layers_D": 2,
+            "vgg_loss": False,
+            "prior_sigma": 0.0,
+        },
+    ),
+    "cyclegan": (
+        cyclegan,
+        {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2, "prior_sigma": 0.0},
+    ),
 }
 METHODS = sorted(TINY)
 COLOUR = torch.tensor([0.85, 0.25, 0.55]).view(1, 3, 1, 1)
@@ -224,8 +236,13 @@ def test_vgg_features_taps_and_loss():
     weights = random_vgg_weights()
     vgg = VGGFeatures(weights)
     taps = vgg(torch.rand(2, 3, 32, 48) * 2 - 1)
-    assert [t.shape for t in taps] == [(2, 64, 32, 48), (2, 128, 16, 24), (2, 256, 8, 12), (2, 512, 4, 6),
-                                       (2, 512, 2, 3)]
+    assert [t.shape for t in taps] == [
+        (2, 64, 32, 48),
+        (2, 128, 16, 24),
+        (2, 256, 8, 12),
+        (2, 512, 4, 6),
+        (2, 512, 2, 3),
+    ]
     assert not list(vgg.parameters()) and not vgg.state_dict()  # frozen, kept out of checkpoints
     loss = VGGLoss(weights)
     x = torch.rand(1, 3, 16, 16) * 2 - 1

@@ -3,6 +3,7 @@ translating a scene, stage-1 scores, the paper tables and the qualitative figure
 
 A tiny one-layer translator is registered for these tests so they check the plumbing alone (the
 real models are tested in test_translate_gan.py / test_translate_denoisers.py)."""
+
 import dataclasses
 import types
 
@@ -70,8 +71,14 @@ def world(tmp_path_factory):
     for name in ("orchard", "gallery"):
         write_builtin_scene(name, root / "scenes" / name, height=32, width=40, views=9, supersample=1)
         simulate_scene(root / "scenes" / name, root / "spc" / name, spc.SPCParams(frames=4), seed=0)
-    augment_scene(root / "scenes" / "orchard", root / "spc" / "orchard", root / "augment" / "orchard", count=6,
-                  settings=AugmentSettings(), seed=0)
+    augment_scene(
+        root / "scenes" / "orchard",
+        root / "spc" / "orchard",
+        root / "augment" / "orchard",
+        count=6,
+        settings=AugmentSettings(),
+        seed=0,
+    )
     return root
 
 
@@ -79,7 +86,8 @@ def test_registry_matches_the_workflow_names():
     assert tuple(translate.TRANSLATORS) == STAGE1_METHODS
     for name, module in translate.TRANSLATORS.items():
         assert dataclasses.is_dataclass(module.Config) and set(module.PAPER) <= {
-            f.name for f in dataclasses.fields(module.Config)}, name
+            f.name for f in dataclasses.fields(module.Config)
+        }, name
         assert name in LABELS
 
 
@@ -92,7 +100,7 @@ def test_pairs_are_aligned_and_averaged(world):
     assert set(torch.unique(b4 * 4).tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     with pytest.raises(ValueError, match="stage1.frames=5.*K=4"):
         data.load_pairs([world / "augment" / "orchard"], frames=5)
-    with pytest.raises(FileNotFoundError, match="run the augment rule"):
+    with pytest.raises(FileNotFoundError, match="run the augment_scene rule"):
         data.load_pairs([world / "spc" / "gallery" / "nothing"], frames=1)
 
 
@@ -164,8 +172,15 @@ TINY_TRAIN = {"crop": 16, "log_every": 5, "decay_from": 1.0}
 
 
 def _train(world, out, ckpt, iterations, tiny):
-    return train.train_translator(tiny, [world / "augment" / "orchard"], out, {},
-                                  {**TINY_TRAIN, "iterations": iterations}, seed=3, checkpoint=ckpt)
+    return train.train_translator(
+        tiny,
+        [world / "augment" / "orchard"],
+        out,
+        {},
+        {**TINY_TRAIN, "iterations": iterations},
+        seed=3,
+        checkpoint=ckpt,
+    )
 
 
 def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_registered):
@@ -178,11 +193,21 @@ def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_reg
     losses = np.loadtxt(tmp_path / "full" / "curve.csv", delimiter=",", skiprows=1)[:, 1]
     assert losses[-1] < losses[0]
     # killed at iteration 23 (checkpoints every 10), rerun: resumed from 20, the same losses and curve
-    job = train.setup_training(tiny_registered, [world / "augment" / "orchard"], {}, {**TINY_TRAIN, "iterations": 40},
-                               seed=3, checkpoint=tmp_path / "resume.pt")
+    job = train.setup_training(
+        tiny_registered,
+        [world / "augment" / "orchard"],
+        {},
+        {**TINY_TRAIN, "iterations": 40},
+        seed=3,
+        checkpoint=tmp_path / "resume.pt",
+    )
     with pytest.raises(Interrupted):
-        run(InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings), 23), 40, job.checkpoint,
-            CheckpointPolicy(fraction=0.25, minutes=0))
+        run(
+            InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings), 23),
+            40,
+            job.checkpoint,
+            CheckpointPolicy(fraction=0.25, minutes=0),
+        )
     resumed = _train(world, tmp_path / "resumed", tmp_path / "resume.pt", 40, tiny_registered)
     assert resumed["resumed_from"] == 20 and resumed["checkpoint"]["discarded"] is None
     assert resumed["final_losses"]["loss"] == pytest.approx(full["final_losses"]["loss"], rel=1e-6)
@@ -191,13 +216,19 @@ def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_reg
 
 def test_translate_scene_and_stage1_scores(world, tmp_path, tiny_registered, lpips_cache):
     _train(world, tmp_path / "model", None, 5, tiny_registered)
-    rec = translate_scene(tmp_path / "model", world / "spc" / "gallery", world / "scenes" / "gallery",
-                          tmp_path / "translated")
+    rec = translate_scene(
+        tmp_path / "model", world / "spc" / "gallery", world / "scenes" / "gallery", tmp_path / "translated"
+    )
     assert rec["views"] == 9 and rec["method"] == "tiny"
     img = io.read_rgb(tmp_path / "translated" / "images" / "image000.png")
     assert img.shape == (32, 40, 3)
-    scores = score_images(world / "scenes" / "gallery" / "images", world / "scenes" / "gallery",
-                          tmp_path / "gt.json", "gt", lpips_dir=lpips_cache)
+    scores = score_images(
+        world / "scenes" / "gallery" / "images",
+        world / "scenes" / "gallery",
+        tmp_path / "gt.json",
+        "gt",
+        lpips_dir=lpips_cache,
+    )
     assert scores["mean"]["psnr"] == float("inf") and scores["mean"]["lpips_alex"] == pytest.approx(0, abs=1e-6)
     assert sorted(scores["views"]) == ["image000", "image008"]
     with pytest.raises(FileNotFoundError, match="no image for view"):
@@ -210,25 +241,45 @@ def test_load_translator_names_a_missing_model(tmp_path):
 
 
 def _metrics(path, combo, psnr):
-    io.write_json(path, {"scene": "s", "combination": combo, "seed": 0, "frames": None if combo.startswith("gt") else 1,
-                         "per_view": [{"view": "v0", "psnr": psnr}],
-                         "mean": {"psnr": psnr, "ssim": psnr / 40, "lpips_alex": 1 / psnr, "lpips_vgg": 1 / psnr}})
+    io.write_json(
+        path,
+        {
+            "scene": "s",
+            "combination": combo,
+            "seed": 0,
+            "frames": None if combo.startswith("gt") else 1,
+            "per_view": [{"view": "v0", "psnr": psnr}],
+            "mean": {"psnr": psnr, "ssim": psnr / 40, "lpips_alex": 1 / psnr, "lpips_vgg": 1 / psnr},
+        },
+    )
     return str(path)
 
 
 def test_two_stage_and_stage1_tables(tmp_path):
-    files = [_metrics(tmp_path / f"{i}.json", c, p) for i, (c, p) in enumerate(
-        [("pix2pixhd+nerf-grid", 22.0), ("restormer+3dgs", 23.0), ("diffusion+3dgs", 20.0), ("gt+3dgs", 30.0)])]
+    files = [
+        _metrics(tmp_path / f"{i}.json", c, p)
+        for i, (c, p) in enumerate(
+            [("pix2pixhd+nerf-grid", 22.0), ("restormer+3dgs", 23.0), ("diffusion+3dgs", 20.0), ("gt+3dgs", 30.0)]
+        )
+    ]
     df = tables.two_stage_table(files, tmp_path / "two_stage", "nerf-grid")
     assert list(df["combination"][:2]) == ["pix2pixhd+nerf-grid", "pix2pixhd+3dgs"]
     md = (tmp_path / "two_stage.md").read_text()
     assert "**23.00**" in md and "*22.00*" in md and "DiffBIR stand-in" in md and "22.7" in md
     s1 = []
-    for i, (src, p, K) in enumerate([("pix2pixhd", 21.0, 1), ("mle", 19.0, 1), ("none", 9.0, 1),
-                                     ("mle-k16", 24.0, 16)]):
+    for i, (src, p, K) in enumerate(
+        [("pix2pixhd", 21.0, 1), ("mle", 19.0, 1), ("none", 9.0, 1), ("mle-k16", 24.0, 16)]
+    ):
         s1.append(str(tmp_path / f"s{i}.json"))
-        io.write_json(s1[-1], {"scene": "s", "source": src, "frames": K,
-                               "mean": {"psnr": p, "ssim": 0.5, "lpips_alex": 0.3, "lpips_vgg": 0.4}})
+        io.write_json(
+            s1[-1],
+            {
+                "scene": "s",
+                "source": src,
+                "frames": K,
+                "mean": {"psnr": p, "ssim": 0.5, "lpips_alex": 0.3, "lpips_vgg": 0.4},
+            },
+        )
     df = tables.stage1_table(s1, tmp_path / "stage1", LABELS)
     assert list(df["approach"]) == ["Pix2PixHD", "MLE", "binary frame (no stage 1)", "MLE"]
     assert list(df["combination"]) == ["pix2pixhd", "mle", "none", "mle-k16"] and list(df["K"]) == [1, 1, 1, 16]
@@ -243,11 +294,13 @@ def test_qualitative_figure(world, tmp_path):
         pick_view(world / "scenes" / "gallery", "image001")
     recon = tmp_path / "recon" / "gt+3dgs"
     (recon / "renders").mkdir(parents=True)
-    io.write_image(recon / "renders" / f"{view}.png",
-                   io.read_rgb(world / "scenes" / "gallery" / "images" / f"{view}.png"))
+    io.write_image(
+        recon / "renders" / f"{view}.png", io.read_rgb(world / "scenes" / "gallery" / "images" / f"{view}.png")
+    )
     out = tmp_path / "fig.png"
-    qualitative_figure(world / "scenes" / "gallery", world / "spc" / "gallery", {"gt+3dgs": str(recon)}, out,
-                       labels=LABELS)
+    qualitative_figure(
+        world / "scenes" / "gallery", world / "spc" / "gallery", {"gt+3dgs": str(recon)}, out, labels=LABELS
+    )
     assert io.read_image(out).shape[2] in (3, 4)
 
 
@@ -260,14 +313,23 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
     torch.manual_seed(5)
     published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
-    rec = train.train_translator("restormer", [world / "augment" / "orchard"], tmp_path / "model",
-                                 {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
-                                 {"iterations": 0, "crop": 16}, seed=0)
+    rec = train.train_translator(
+        "restormer",
+        [world / "augment" / "orchard"],
+        tmp_path / "model",
+        {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
+        {"iterations": 0, "crop": 16},
+        seed=0,
+    )
     assert rec["pretrained"].endswith("real_denoising.pth") and rec["iterations"] == 0
     _, loaded = model_io.load_translator(tmp_path / "model")
     x = torch.rand(1, 3, 16, 24).round()
     assert torch.equal(loaded.translate(x), published.translate(x))
     with pytest.raises(ValueError, match="real_denoising.pth: checkpoint does not match"):
-        train.train_translator("restormer", [world / "augment" / "orchard"], tmp_path / "model2",
-                               {"dim": 16, "prior_sigma": 0.0, "checkpoint": str(tmp_path / "real_denoising.pth")},
-                               {"iterations": 0})
+        train.train_translator(
+            "restormer",
+            [world / "augment" / "orchard"],
+            tmp_path / "model2",
+            {"dim": 16, "prior_sigma": 0.0, "checkpoint": str(tmp_path / "real_denoising.pth")},
+            {"iterations": 0},
+        )

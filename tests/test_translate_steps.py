@@ -61,8 +61,9 @@ def pix2pixhd_reference_step(t, binary, rgb) -> dict[str, float]:
     with torch.no_grad():
         pred_real = t.D(torch.cat([x, y], 1), features=True)
     weight = t.cfg.lambda_feat * 4.0 / (t.cfg.n_layers_D + 1) / t.cfg.num_D
-    terms["G_feat"] = weight * sum(F.l1_loss(f, r) for pf, pr in zip(pred_fake, pred_real)
-                                   for f, r in zip(pf[:-1], pr[:-1]))
+    terms["G_feat"] = weight * sum(
+        F.l1_loss(f, r) for pf, pr in zip(pred_fake, pred_real) for f, r in zip(pf[:-1], pr[:-1])
+    )
     terms["G_VGG"] = t.cfg.lambda_feat * t.vgg(fake, y)
     set_requires_grad([t.D], True)
     loss_g = sum(terms.values())
@@ -79,10 +80,14 @@ def cyclegan_reference_step(t, binary, rgb) -> dict[str, float]:
     cfg, a, b = t.cfg, to_signed(binary), to_signed(rgb)
     fake_b, fake_a = t.g(a), t.F(b)  # t.g: G as a residual over the physics prior
     set_requires_grad([t.D_A, t.D_B], False)
-    terms = {"G_GAN": t.gan(t.D_B(fake_b), True), "F_GAN": t.gan(t.D_A(fake_a), True),
-             "cycle_A": cfg.lambda_A * F.l1_loss(t.F(fake_b), a), "cycle_B": cfg.lambda_B * F.l1_loss(t.g(fake_a), b),
-             "idt_G": cfg.lambda_identity * cfg.lambda_B * F.l1_loss(t.g(b), b),
-             "idt_F": cfg.lambda_identity * cfg.lambda_A * F.l1_loss(t.F(a), a)}
+    terms = {
+        "G_GAN": t.gan(t.D_B(fake_b), True),
+        "F_GAN": t.gan(t.D_A(fake_a), True),
+        "cycle_A": cfg.lambda_A * F.l1_loss(t.F(fake_b), a),
+        "cycle_B": cfg.lambda_B * F.l1_loss(t.g(fake_a), b),
+        "idt_G": cfg.lambda_identity * cfg.lambda_B * F.l1_loss(t.g(b), b),
+        "idt_F": cfg.lambda_identity * cfg.lambda_A * F.l1_loss(t.F(a), a),
+    }
     set_requires_grad([t.D_A, t.D_B], True)
     loss_g = sum(terms.values())
     t.opt_G.zero_grad(set_to_none=True)
@@ -94,8 +99,12 @@ def cyclegan_reference_step(t, binary, rgb) -> dict[str, float]:
     t.opt_D.zero_grad(set_to_none=True)
     (loss_a + loss_b).backward()
     t.opt_D.step()
-    return {"loss": float(loss_g.detach()), **{k: float(v.detach()) for k, v in terms.items()},
-            "D_A": float(loss_a.detach()), "D_B": float(loss_b.detach())}
+    return {
+        "loss": float(loss_g.detach()),
+        **{k: float(v.detach()) for k, v in terms.items()},
+        "D_A": float(loss_a.detach()),
+        "D_B": float(loss_b.detach()),
+    }
 
 
 REFERENCE_STEPS = {"pix2pixhd": pix2pixhd_reference_step, "cyclegan": cyclegan_reference_step}
@@ -121,7 +130,7 @@ def outputs(model, x: torch.Tensor) -> dict[str, torch.Tensor]:
                 y = model.forward_image(x)
             elif hasattr(model, "ema"):  # the diffusion UNet and its EMA copy: (x_t, binary, cleaned) at two t
                 net = net.model if name == "ema" else net
-                y = net(torch.cat([x, x, x], 1), torch.tensor([10, 500][:len(x)]))
+                y = net(torch.cat([x, x, x], 1), torch.tensor([10, 500][: len(x)]))
             elif name.startswith("D"):
                 y = net(torch.cat([x, x], 1) if model.paired else x)
                 y = torch.cat([t.flatten() for t in y]) if isinstance(y, list) else y

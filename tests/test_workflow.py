@@ -1,4 +1,5 @@
 """The Snakemake workflow: config checks with clear errors, dry runs, and a tiny end-to-end run."""
+
 import re
 
 import numpy as np
@@ -29,12 +30,17 @@ def test_default_config_names_only_known_scenes():
     assert len(LAYOUTS) >= 4
 
 
-@pytest.mark.parametrize("change,match", [
-    ({"scenes": {"train": ["tabletop"], "eval": ["mars"]}}, r"scenes.eval: unknown scene 'mars'.*courtyard"),
-    ({"scenes": {"train": ["tabletop"], "eval": ["tabletop"]}}, r"share \['tabletop'\]"),
-    ({"scenes": {"train": [], "eval": ["fern"]}, "llff_scenes": {"fern": "/nonexistent/fern"}},
-     r"llff_scenes.fern: /nonexistent/fern is not an LLFF folder"),
-])
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        ({"scenes": {"train": ["tabletop"], "eval": ["mars"]}}, r"scenes.eval: unknown scene 'mars'.*courtyard"),
+        ({"scenes": {"train": ["tabletop"], "eval": ["tabletop"]}}, r"share \['tabletop'\]"),
+        (
+            {"scenes": {"train": [], "eval": ["fern"]}, "llff_scenes": {"fern": "/nonexistent/fern"}},
+            r"llff_scenes.fern: /nonexistent/fern is not an LLFF folder",
+        ),
+    ],
+)
 def test_bad_scene_config_is_named(change, match):
     cfg = base_config() | change
     with pytest.raises(ConfigError, match=match):
@@ -44,13 +50,16 @@ def test_bad_scene_config_is_named(change, match):
 def test_dry_run_lists_the_dag(tmp_path):
     proc = snakemake(tmp_path, "-n", "--quiet", "rules", timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    counts = {line.split()[0]: int(line.split()[1]) for line in (proc.stdout + proc.stderr).splitlines()
-              if len(line.split()) == 2 and line.split()[1].isdigit()}
-    assert counts["scene_prepare"] == 4 and counts["spc_simulate"] == 4 and counts["augment"] == 3
-    assert counts["colmap_poses"] == 12 and counts["data_summary"] == 1
-    assert counts["reconstruct"] == 15 and counts["evaluate"] == 15 and counts["paper_tables"] == 1
-    assert counts["train_translator"] == 5 and counts["translate"] == 5 and counts["stage1_evaluate"] == 8
-    assert counts["display_calibration"] == 2 and counts["mle_display"] == 2  # K = 1 and K = 16
+    counts = {
+        line.split()[0]: int(line.split()[1])
+        for line in (proc.stdout + proc.stderr).splitlines()
+        if len(line.split()) == 2 and line.split()[1].isdigit()
+    }
+    assert counts["prepare_scene"] == 4 and counts["simulate_scene"] == 4 and counts["augment_scene"] == 3
+    assert counts["colmap_poses"] == 12 and counts["write_summary"] == 1
+    assert counts["reconstruct"] == 15 and counts["evaluate"] == 15 and counts["write_all_tables"] == 1
+    assert counts["train_translator"] == 5 and counts["translate_scene"] == 5 and counts["score_images"] == 8
+    assert counts["calibrate_display"] == 2 and counts["write_display"] == 2  # K = 1 and K = 16
     assert counts["qualitative_figure"] == 1 and "tables" not in counts  # `tables` is an explicit target only
 
 
@@ -80,8 +89,8 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     assert pose["total"] == 9 and "status" in pose
     assert len(list((res / "augment" / "tabletop" / "rgb").glob("*.png"))) == 4
     assert np.load(res / "scenes" / "tabletop" / "poses_bounds.npy").shape == (9, 17)
-    assert (tmp_path / "logs" / "spc_simulate" / "courtyard.log").read_text().strip()
-    assert (tmp_path / "benchmarks" / "spc_simulate" / "courtyard.tsv").exists()
+    assert (tmp_path / "logs" / "simulate_scene" / "courtyard.log").read_text().strip()
+    assert (tmp_path / "benchmarks" / "simulate_scene" / "courtyard.tsv").exists()
     # Stage 2: every combination evaluated, the table in the paper's layout.
     metrics = io.read_json(res / "eval" / "courtyard" / "bernoulli+3dgs" / "metrics.json")
     assert set(metrics["mean"]) == {"psnr", "ssim", "lpips_alex", "lpips_vgg"} and metrics["seed"] == 0
@@ -118,13 +127,20 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     if not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
         pytest.skip("real LLFF scenes not available")
     cfg = tmp_path / "fern.yaml"
-    cfg.write_text(yaml.safe_dump({"scenes": {"train": [], "eval": ["fern"]},
-                                   "llff_scenes": {"fern": str(LLFF_ROOT / "fern")},
-                                   "resolution": {"width": 128}, "spc": {"frames": 4},
-                                   "colmap": {"inputs": ["rgb"]},
-                                   # no training scene: only rows that need none
-                                   # (no translator, no fitted display level)
-                                   "stage2": {"combinations": ["gt+3dgs", "none+3dgs"]}}))
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "scenes": {"train": [], "eval": ["fern"]},
+                "llff_scenes": {"fern": str(LLFF_ROOT / "fern")},
+                "resolution": {"width": 128},
+                "spc": {"frames": 4},
+                "colmap": {"inputs": ["rgb"]},
+                # no training scene: only rows that need none
+                # (no translator, no fitted display level)
+                "stage2": {"combinations": ["gt+3dgs", "none+3dgs"]},
+            }
+        )
+    )
     proc = snakemake(tmp_path, "results/summary/data_summary.md", "--cores", "2", "--configfile", str(SMOKE), str(cfg))
     assert proc.returncode == 0, proc.stderr[-4000:]
     meta = io.read_json(tmp_path / "results" / "scenes" / "fern" / "scene.json")

@@ -1,4 +1,4 @@
-rule augment:
+rule augment_scene:
     """Zoom / rotation / shear / flip training pairs (RGB + SPC frames) of one training scene."""
     input:
         scene="results/scenes/{scene}",
@@ -10,11 +10,11 @@ rule augment:
         settings=config["augment"],
         seed=get_seed,
     log:
-        "logs/augment/{scene}{rep}.log",
+        "logs/augment_scene/{scene}{rep}.log",
     benchmark:
-        "benchmarks/augment/{scene}{rep}.tsv"
+        "benchmarks/augment_scene/{scene}{rep}.tsv"
     threads: 1
     conda:
         ENV
     script:
-        "../scripts/augment.py"
+        "../scripts/augment_scene.py"

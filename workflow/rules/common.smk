@@ -34,7 +34,7 @@ SEEDS = [config["seed"] + k for k in range(config["seeds"])]
 REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
 # Frame budgets K of the metered display gain (mle / bernoulli rows), fitted on the training scenes.
 DISPLAY_KS = display_budgets(COMBINATIONS, config["stage2"]["frames"])
-# Sources scored before 3D (stage1_evaluate): the translators in use and the training-free images.
+# Sources scored before 3D (score_images): the translators in use and the training-free images.
 STAGE1_SCORED = STAGE1_USED + sorted({c.partition("+")[0] for c in COMBINATIONS
                                       if split_source(c.partition("+")[0])[0] == "mle"}) + ["none"]
 

@@ -1,4 +1,4 @@
-rule scene_prepare:
+rule prepare_scene:
     """Render a built-in scene or import a real LLFF folder into the canonical LLFF layout."""
     input:
         get_scene_source,
@@ -7,11 +7,11 @@ rule scene_prepare:
     params:
         spec=get_scene_spec,
     log:
-        "logs/scene_prepare/{scene}.log",
+        "logs/prepare_scene/{scene}.log",
     benchmark:
-        "benchmarks/scene_prepare/{scene}.tsv"
+        "benchmarks/prepare_scene/{scene}.tsv"
     threads: 1
     conda:
         ENV
     script:
-        "../scripts/scene_prepare.py"
+        "../scripts/prepare_scene.py"

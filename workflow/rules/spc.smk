@@ -1,4 +1,4 @@
-rule spc_simulate:
+rule simulate_scene:
     """K binary SPC frames per view (one draw per seed), with the binary, average and MLE flux derived."""
     input:
         "results/scenes/{scene}",
@@ -7,32 +7,32 @@ rule spc_simulate:
     params:
         settings=get_spc_settings,
     log:
-        "logs/spc_simulate/{scene}{rep}.log",
+        "logs/simulate_scene/{scene}{rep}.log",
     benchmark:
-        "benchmarks/spc_simulate/{scene}{rep}.tsv"
+        "benchmarks/simulate_scene/{scene}{rep}.tsv"
     threads: 1
     conda:
         ENV
     script:
-        "../scripts/spc_simulate.py"
+        "../scripts/simulate_scene.py"
 
 
-rule display_calibration:
+rule calibrate_display:
     """The display level k of the metered MLE (g = mean flux / k), fitted on the training scenes at K frames."""
     input:
         unpack(get_display_training),
     output:
         "results/calibration/display-k{K}{rep}.json",
     log:
-        "logs/display_calibration/k{K}{rep}.log",
+        "logs/calibrate_display/k{K}{rep}.log",
     threads: 1
     conda:
         ENV
     script:
-        "../scripts/display_calibration.py"
+        "../scripts/calibrate_display.py"
 
 
-rule mle_display:
+rule write_display:
     """A scene's MLE images of its first K frames at the metered gain (no ground truth: spc3d.exposure)."""
     input:
         spc="results/spc/{scene}{rep}",
@@ -40,9 +40,9 @@ rule mle_display:
     output:
         directory("results/mle/{scene}/k{K}{rep}"),
     log:
-        "logs/mle_display/{scene}/k{K}{rep}.log",
+        "logs/write_display/{scene}/k{K}{rep}.log",
     threads: 1
     conda:
         ENV
     script:
-        "../scripts/mle_display.py"
+        "../scripts/write_display.py"

@@ -41,7 +41,7 @@ rule train_translator:
         "../scripts/train_translator.py"
 
 
-rule translate:
+rule translate_scene:
     """Every view of a scene through a trained stage-1 method (stage 2 reads these as a source)."""
     input:
         model="results/models/{method}{rep}",
@@ -52,18 +52,18 @@ rule translate:
     params:
         frames=config["stage1"]["frames"],
     log:
-        "logs/translate/{scene}/{method}{rep}.log",
+        "logs/translate_scene/{scene}/{method}{rep}.log",
     benchmark:
-        "benchmarks/translate/{scene}/{method}{rep}.tsv"
+        "benchmarks/translate_scene/{scene}/{method}{rep}.tsv"
     threads: 1
     priority: 10
     conda:
         ENV
     script:
-        "../scripts/translate.py"
+        "../scripts/translate_scene.py"
 
 
-rule stage1_evaluate:
+rule score_images:
     """PSNR / SSIM / LPIPS of a source's held-out views before 3D (stage-1 error alone)."""
     input:
         images=get_stage1_images,
@@ -76,11 +76,11 @@ rule stage1_evaluate:
         frames=get_source_frames,
         seed=get_seed,
     log:
-        "logs/stage1_evaluate/{scene}/{source}{rep}.log",
+        "logs/score_images/{scene}/{source}{rep}.log",
     benchmark:
-        "benchmarks/stage1_evaluate/{scene}/{source}{rep}.tsv"
+        "benchmarks/score_images/{scene}/{source}{rep}.tsv"
     threads: 1
     conda:
         ENV
     script:
-        "../scripts/stage1_evaluate.py"
+        "../scripts/score_images.py"

@@ -58,7 +58,7 @@ rule evaluate:
         "../scripts/evaluate.py"
 
 
-rule paper_tables:
+rule write_all_tables:
     """The paper-layout tables (Table 1: two_stage, Table 2: single_stage) and the stage-1 table."""
     input:
         metrics=get_eval_outputs(),
@@ -93,11 +93,11 @@ rule paper_tables:
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
     log:
-        "logs/tables/paper_tables.log",
+        "logs/tables/write_all_tables.log",
     conda:
         ENV
     script:
-        "../scripts/paper_tables.py"
+        "../scripts/write_all_tables.py"
 
 
 rule tables:
@@ -113,7 +113,7 @@ rule tables:
     conda:
         ENV
     script:
-        "../scripts/paper_tables.py"
+        "../scripts/write_all_tables.py"
 
 
 rule qualitative_figure:

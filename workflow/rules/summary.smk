@@ -1,4 +1,4 @@
-rule data_summary:
+rule write_summary:
     """Table and figure: per scene RGB | binary frame | K-frame average | MLE, exposure, COLMAP."""
     input:
         scenes=expand("results/scenes/{scene}", scene=ALL_SCENES),
@@ -16,8 +16,8 @@ rule data_summary:
     params:
         roles=get_summary_roles(),
     log:
-        "logs/data_summary/data_summary.log",
+        "logs/write_summary/data_summary.log",
     conda:
         ENV
     script:
-        "../scripts/data_summary.py"
+        "../scripts/write_summary.py"

@@ -1,9 +1,14 @@
 """Adapter: rule evaluate -> spc3d.evaluate.evaluate."""
+
 from pathlib import Path
 
 from spc3d.evaluate import evaluate
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
-    evaluate(snakemake.input.recon, snakemake.input.scene, snakemake.output[0],
-             lpips_dir=Path(snakemake.input.lpips[0]).parent)
+    evaluate(
+        snakemake.input.recon,
+        snakemake.input.scene,
+        snakemake.output[0],
+        lpips_dir=Path(snakemake.input.lpips[0]).parent,
+    )

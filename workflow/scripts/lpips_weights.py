@@ -1,4 +1,5 @@
 """Adapter: rule lpips_weights -> spc3d.lpips_weights (fetch/convert into the workflow's cache)."""
+
 from pathlib import Path
 
 from spc3d.lpips_weights import cache_file, fetch_to_cache, lpips_weights, save_npz

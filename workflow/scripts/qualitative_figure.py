@@ -1,4 +1,5 @@
 """Adapter: rule qualitative_figure -> spc3d.figures.qualitative_figure."""
+
 from pathlib import Path
 
 from spc3d.figures import qualitative_figure

@@ -1,4 +1,5 @@
 """Adapter: rule reconstruct -> spc3d.stage2.reconstruct."""
+
 from pathlib import Path
 
 from spc3d.stage2 import reconstruct
@@ -8,7 +9,20 @@ from spc3d.workflow import logged
 with logged(snakemake.log[0]):
     w, p, inp = snakemake.wildcards, snakemake.params, snakemake.input
     translated = inp.get("translated")
-    reconstruct(inp.scene, snakemake.output[0], w.source, w.model, p.settings, p.seed,
-                spc_dir=inp.get("spc"), image_dir=str(Path(translated) / "images") if translated else None,
-                display_dir=inp.get("display"), checkpoint=p.checkpoint, frames=p.frames, threads=snakemake.threads,
-                points_dir=inp.get("colmap"), policy=CheckpointPolicy(**p.policy), init_setting=p.init)
+    reconstruct(
+        inp.scene,
+        snakemake.output[0],
+        w.source,
+        w.model,
+        p.settings,
+        p.seed,
+        spc_dir=inp.get("spc"),
+        image_dir=str(Path(translated) / "images") if translated else None,
+        display_dir=inp.get("display"),
+        checkpoint=p.checkpoint,
+        frames=p.frames,
+        threads=snakemake.threads,
+        points_dir=inp.get("colmap"),
+        policy=CheckpointPolicy(**p.policy),
+        init_setting=p.init,
+    )

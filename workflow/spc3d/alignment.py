@@ -89,9 +89,20 @@ def pose_error(ref: Cameras, est: Cameras, est_idx, align: str = "rotations") ->
     """
     est_idx = np.asarray(est_idx, dtype=int)
     spread = camera_spread(ref) if len(ref) else 0.0
-    record = {"registered": int(len(est_idx)), "total": int(len(ref)), "aligned": False, "reason": None,
-              "alignment": align, "spread": spread, "spread_definition": SPREAD_DEFINITION, "rotation_deg": None,
-              "center_rel": None, "scale": None, "similarity": None, "per_view": None}
+    record = {
+        "registered": int(len(est_idx)),
+        "total": int(len(ref)),
+        "aligned": False,
+        "reason": None,
+        "alignment": align,
+        "spread": spread,
+        "spread_definition": SPREAD_DEFINITION,
+        "rotation_deg": None,
+        "center_rel": None,
+        "scale": None,
+        "similarity": None,
+        "per_view": None,
+    }
     if len(est_idx) < 3:
         return {**record, "reason": f"{len(est_idx)} of {len(ref)} views registered; a similarity needs at least 3"}
     if spread <= 0.0:
@@ -104,8 +115,15 @@ def pose_error(ref: Cameras, est: Cameras, est_idx, align: str = "rotations") ->
     rot = rotation_angle_deg(aligned.w2c[:, :, :3], ref.w2c[est_idx, :, :3])
     cen = np.linalg.norm(aligned.centers - ref.centers[est_idx], axis=1) / spread
     per_view = {"index": est_idx.tolist(), "rotation_deg": rot.tolist(), "center_rel": cen.tolist()}
-    return {**record, "aligned": True, "rotation_deg": summary(rot), "center_rel": summary(cen), "scale": s,
-            "similarity": {"scale": s, "rotation": R.tolist(), "translation": t.tolist()}, "per_view": per_view}
+    return {
+        **record,
+        "aligned": True,
+        "rotation_deg": summary(rot),
+        "center_rel": summary(cen),
+        "scale": s,
+        "similarity": {"scale": s, "rotation": R.tolist(), "translation": t.tolist()},
+        "per_view": per_view,
+    }
 
 
 def similarity_of(record: dict) -> Similarity:
@@ -135,5 +153,10 @@ def reprojection_stats(view: np.ndarray, uv_obs: np.ndarray, xyz: np.ndarray, re
     record = {"observations": int(front.sum()), "behind_camera": int((~front).sum())}
     if not front.any():
         return {**record, "median_px": None, "mean_px": None, "p90_px": None, "mean_residual_px": None}
-    return {**record, "median_px": float(np.median(err)), "mean_px": float(err.mean()),
-            "p90_px": float(np.percentile(err, 90)), "mean_residual_px": (uv - uv_obs)[front].mean(0).tolist()}
+    return {
+        **record,
+        "median_px": float(np.median(err)),
+        "mean_px": float(err.mean()),
+        "p90_px": float(np.percentile(err, 90)),
+        "mean_residual_px": (uv - uv_obs)[front].mean(0).tolist(),
+    }

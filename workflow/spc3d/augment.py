@@ -55,10 +55,12 @@ class AugmentSettings:
 
 def sample_params(rng: np.random.Generator, s: AugmentSettings) -> dict:
     """One random draw of the affine parameters."""
-    return {"zoom": float(np.exp(rng.uniform(np.log(s.zoom[0]), np.log(s.zoom[1])))),
-            "rotation_deg": float(rng.uniform(-s.rotation_deg, s.rotation_deg)),
-            "shear_deg": float(rng.uniform(-s.shear_deg, s.shear_deg)),
-            "flip": bool(rng.random() < s.flip_prob)}
+    return {
+        "zoom": float(np.exp(rng.uniform(np.log(s.zoom[0]), np.log(s.zoom[1])))),
+        "rotation_deg": float(rng.uniform(-s.rotation_deg, s.rotation_deg)),
+        "shear_deg": float(rng.uniform(-s.shear_deg, s.shear_deg)),
+        "flip": bool(rng.random() < s.flip_prob),
+    }
 
 
 def affine_matrix(p: dict, height: int, width: int) -> np.ndarray:
@@ -70,8 +72,9 @@ def affine_matrix(p: dict, height: int, width: int) -> np.ndarray:
     cx, cy = (width - 1) / 2, (height - 1) / 2
     c = np.array([[1, 0, cx], [0, 1, cy], [0, 0, 1.0]])
     c_inv = np.array([[1, 0, -cx], [0, 1, -cy], [0, 0, 1.0]])
-    core = AffineTransform(scale=p["zoom"], rotation=np.radians(p["rotation_deg"]),
-                           shear=np.radians(p["shear_deg"])).params
+    core = AffineTransform(
+        scale=p["zoom"], rotation=np.radians(p["rotation_deg"]), shear=np.radians(p["shear_deg"])
+    ).params
     flip = np.diag([-1.0 if p["flip"] else 1.0, 1.0, 1.0])
     return c @ flip @ core @ c_inv
 
@@ -103,8 +106,14 @@ def split_count(total: int, n_scenes: int, index: int) -> int:
     return total // n_scenes + (1 if index < total % n_scenes else 0)
 
 
-def augment_scene(scene_dir: str | os.PathLike, spc_dir: str | os.PathLike, out_dir: str | os.PathLike,
-                  count: int, settings: AugmentSettings, seed: int = 0) -> dict:
+def augment_scene(
+    scene_dir: str | os.PathLike,
+    spc_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    count: int,
+    settings: AugmentSettings,
+    seed: int = 0,
+) -> dict:
     """Write ``count`` augmented (RGB, binary frames) pairs of one training scene (atomically)."""
     t0 = time.perf_counter()
     scene, name = llff.read_scene(scene_dir), Path(scene_dir).name
@@ -117,18 +126,30 @@ def augment_scene(scene_dir: str | os.PathLike, spc_dir: str | os.PathLike, out_
             rng = spc.view_rng(seed, f"{name}/augment", i)
             view = int(views[rng.integers(len(views))])
             p = sample_params(rng, settings)
-            samples.append(write_pair(tmp, i, scene.images[view], p, flux_scale, params,
-                                      spc.view_rng(seed, f"{name}/augment-spc", i)) | {"view": scene.names[view]})
-        record = {"scene": name, "count": count, "settings": asdict(settings), "seed": seed,
-                  "flux_scale": flux_scale, "spc_params": spc_record["params"], "samples": samples,
-                  "wall_s": round(time.perf_counter() - t0, 3)}
+            samples.append(
+                write_pair(
+                    tmp, i, scene.images[view], p, flux_scale, params, spc.view_rng(seed, f"{name}/augment-spc", i)
+                )
+                | {"view": scene.names[view]}
+            )
+        record = {
+            "scene": name,
+            "count": count,
+            "settings": asdict(settings),
+            "seed": seed,
+            "flux_scale": flux_scale,
+            "spc_params": spc_record["params"],
+            "samples": samples,
+            "wall_s": round(time.perf_counter() - t0, 3),
+        }
         io.write_json(tmp / "augment.json", record)
     log.info("%s: %d pairs in %.1f s", name, count, record["wall_s"])
     return record
 
 
-def write_pair(out: Path, i: int, srgb: np.ndarray, p: dict, flux_scale: float,
-               params: spc.SPCParams, rng: np.random.Generator) -> dict:
+def write_pair(
+    out: Path, i: int, srgb: np.ndarray, p: dict, flux_scale: float, params: spc.SPCParams, rng: np.random.Generator
+) -> dict:
     """Augment one view, save it, simulate its frames from the saved 8-bit image; return ``p``."""
     path = out / "rgb" / f"{i:05d}.png"
     io.write_image(path, augment_image(srgb, p))

@@ -74,12 +74,30 @@ class CaptureSensor:
 # sensor.json
 
 
-def sensor_record(params: spc.SPCParams, cfa: sensors.CFAPattern, width: int, height: int, fmt: str,
-                  bitorder: str = "big", hot_pixels: str | None = None, source: dict | None = None) -> dict:
+def sensor_record(
+    params: spc.SPCParams,
+    cfa: sensors.CFAPattern,
+    width: int,
+    height: int,
+    fmt: str,
+    bitorder: str = "big",
+    hot_pixels: str | None = None,
+    source: dict | None = None,
+) -> dict:
     """The ``sensor.json`` contents for these settings."""
-    rec = {"format": fmt, "width": int(width), "height": int(height), "frames": params.frames,
-           "bitorder": bitorder, "cfa": cfa.to_json(), "white": cfa.white, "q": params.q,
-           "exposure_s": params.exposure_s, "dark_count_rate": params.dark_count_rate, "tau_d": params.tau_d}
+    rec = {
+        "format": fmt,
+        "width": int(width),
+        "height": int(height),
+        "frames": params.frames,
+        "bitorder": bitorder,
+        "cfa": cfa.to_json(),
+        "white": cfa.white,
+        "q": params.q,
+        "exposure_s": params.exposure_s,
+        "dark_count_rate": params.dark_count_rate,
+        "tau_d": params.tau_d,
+    }
     if hot_pixels is not None:
         rec["hot_pixels"] = hot_pixels
     if source is not None:
@@ -99,8 +117,13 @@ def read_sensor(folder: str | os.PathLike) -> CaptureSensor:
     bitorder = photon_cubes.check_choice(f"{path}: bitorder", rec.get("bitorder", "big"), photon_cubes.BITORDERS)
     width, height, frames = (_positive_int(path, k, rec[k]) for k in ("width", "height", "frames"))
     try:
-        params = spc.SPCParams(q=rec["q"], exposure_s=rec["exposure_s"], dark_count_rate=rec["dark_count_rate"],
-                               tau_d=rec.get("tau_d", 0.0), frames=frames)
+        params = spc.SPCParams(
+            q=rec["q"],
+            exposure_s=rec["exposure_s"],
+            dark_count_rate=rec["dark_count_rate"],
+            tau_d=rec.get("tau_d", 0.0),
+            frames=frames,
+        )
         cfa = sensors.cfa_pattern(_cfa_spec(folder, rec["cfa"]), rec.get("white", "sum"))
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
@@ -138,16 +161,20 @@ def capture_views(folder: str | os.PathLike, fmt: str) -> list[str]:
     if ending is None:
         views = [p.name for p in frames_dir.iterdir() if p.is_dir() and not p.name.startswith(".")]
     else:
-        views = [p.name[: -len(ending)] for p in frames_dir.iterdir()
-                 if p.name.lower().endswith(ending) and not p.name.startswith(".")]
+        views = [
+            p.name[: -len(ending)]
+            for p in frames_dir.iterdir()
+            if p.name.lower().endswith(ending) and not p.name.startswith(".")
+        ]
     if not views:
         others = sorted(p.name for p in frames_dir.iterdir())[:5]
         raise FileNotFoundError(f"{frames_dir}: no views in format {fmt!r} (sensor.json); found {others}")
     return sorted(views)
 
 
-def read_capture(folder: str | os.PathLike,
-                 max_frames: int | None = None) -> tuple[list[str], list[np.ndarray], CaptureSensor]:
+def read_capture(
+    folder: str | os.PathLike, max_frames: int | None = None
+) -> tuple[list[str], list[np.ndarray], CaptureSensor]:
     """(view names, photon cubes bool (K, H, W) per view, sensor) of a capture folder.
 
     Every cube must be ``height`` x ``width`` and hold at least ``frames`` (sensor.json) frames;
@@ -162,8 +189,10 @@ def read_capture(folder: str | os.PathLike,
         path = photon_cubes.cube_path(folder / "frames", view, sensor.format)
         cube = photon_cubes.read_cube(path, sensor.width, sensor.bitorder, k)
         if cube.shape[1:] != (sensor.height, sensor.width) or cube.shape[0] < k:
-            raise ValueError(f"{path}: {cube.shape[0]} frames of {cube.shape[2]}x{cube.shape[1]} (WxH); "
-                             f"sensor.json says {k} frames of {sensor.width}x{sensor.height}")
+            raise ValueError(
+                f"{path}: {cube.shape[0]} frames of {cube.shape[2]}x{cube.shape[1]} (WxH); "
+                f"sensor.json says {k} frames of {sensor.width}x{sensor.height}"
+            )
         cubes.append(cube)
     if k != sensor.params.frames:
         sensor = dataclasses.replace(sensor, params=dataclasses.replace(sensor.params, frames=k))
@@ -188,8 +217,13 @@ def reference_images(folder: str | os.PathLike, names: list[str]) -> np.ndarray 
 PREVIEW_LEVEL = 0.18  # average metering: the mean flux is shown at 18 % linear grey (a camera's default)
 
 
-def inspect_capture(folder: str | os.PathLike, out_dir: str | os.PathLike, max_frames: int | None = None,
-                    level: float = PREVIEW_LEVEL, threshold: float = 6.0) -> dict:
+def inspect_capture(
+    folder: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    max_frames: int | None = None,
+    level: float = PREVIEW_LEVEL,
+    threshold: float = 6.0,
+) -> dict:
     """Check a capture folder and write what a SPAD user looks at first into ``out_dir``.
 
     ``hot_pixels.png``  hot pixels detected from the counts of every view (robust z-score above
@@ -216,11 +250,18 @@ def inspect_capture(folder: str | os.PathLike, out_dir: str | os.PathLike, max_f
     gain = metered_gain(np.stack(flux), level)
     labels, classes = sensors.class_map(pattern, sensor.height, sensor.width)
     rate = total / total_frames
-    record = {"folder": str(folder), "views": names, "frames": k, "width": sensor.width, "height": sensor.height,
-              "cfa": pattern.name, "format": sensor.format,
-              "detection_rate": {c: float(rate[(labels == i) & ~hot].mean()) for i, c in enumerate(classes)},
-              "hot_pixels": {**hot_record, "count": int(hot.sum()), "from_sensor_json": sensor.hot_pixels is not None},
-              "display": {"rule": "average metering over all views", "level": level, "gain": gain}}
+    record = {
+        "folder": str(folder),
+        "views": names,
+        "frames": k,
+        "width": sensor.width,
+        "height": sensor.height,
+        "cfa": pattern.name,
+        "format": sensor.format,
+        "detection_rate": {c: float(rate[(labels == i) & ~hot].mean()) for i, c in enumerate(classes)},
+        "hot_pixels": {**hot_record, "count": int(hot.sum()), "from_sensor_json": sensor.hot_pixels is not None},
+        "display": {"rule": "average metering over all views", "level": level, "gain": gain},
+    }
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         write_hot_pixel_map(tmp / "hot_pixels.png", hot)
         for name, phi in zip(names, flux):
@@ -233,9 +274,16 @@ def inspect_capture(folder: str | os.PathLike, out_dir: str | os.PathLike, max_f
 # export of a simulated scene
 
 
-def export_simulated(spc_dir: str | os.PathLike, out_dir: str | os.PathLike,
-                     cfa: str | sensors.CFAPattern = "RGGB", fmt: str = "npy.gz", bitorder: str = "big",
-                     scene_dir: str | os.PathLike | None = None, white: str = "sum", seed: int = 0) -> dict:
+def export_simulated(
+    spc_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    cfa: str | sensors.CFAPattern = "RGGB",
+    fmt: str = "npy.gz",
+    bitorder: str = "big",
+    scene_dir: str | os.PathLike | None = None,
+    white: str = "sum",
+    seed: int = 0,
+) -> dict:
     """Write a simulated scene's SPC folder (``results/spc/{scene}``) as a captured scene.
 
     Pixels that see one channel keep that channel's simulated bits (the simulated route's exact
@@ -250,16 +298,21 @@ def export_simulated(spc_dir: str | os.PathLike, out_dir: str | os.PathLike,
     pattern = sensors.cfa_pattern(cfa, white)
     names = sorted(p.name[:-4] for p in (spc_dir / "frames").glob("*.npz"))
     if not names:
-        raise FileNotFoundError(f"{spc_dir}/frames: no simulated frames (*.npz); run the spc_simulate rule first")
+        raise FileNotFoundError(f"{spc_dir}/frames: no simulated frames (*.npz); run the simulate_scene rule first")
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for i, view in enumerate(names):
             cube = _export_view(spc_dir, view, i, pattern, params, rec, scene_dir, seed)
             photon_cubes.write_cube(photon_cubes.cube_path(tmp / "frames", view, fmt), cube, fmt, bitorder)
         h, w = cube.shape[1:]
-        source = {"simulated": rec.get("scene", spc_dir.name), "spc_dir": str(spc_dir), "seed": rec.get("seed"),
-                  "export_seed": seed, "mode": params.mode,
-                  "flux_scale": rec["flux_scale"], "note": "flux_scale is the simulation's truth: a real "
-                  "capture has none, and no non-oracle row may read it"}
+        source = {
+            "simulated": rec.get("scene", spc_dir.name),
+            "spc_dir": str(spc_dir),
+            "seed": rec.get("seed"),
+            "export_seed": seed,
+            "mode": params.mode,
+            "flux_scale": rec["flux_scale"],
+            "note": "flux_scale is the simulation's truth: a real capture has none, and no non-oracle row may read it",
+        }
         record = sensor_record(params, pattern, w, h, fmt, bitorder, source=source)
         io.write_json(tmp / SENSOR_FILE, record)
         if scene_dir is not None:
@@ -267,16 +320,26 @@ def export_simulated(spc_dir: str | os.PathLike, out_dir: str | os.PathLike,
     return record
 
 
-def _export_view(spc_dir: Path, view: str, index: int, pattern: sensors.CFAPattern, params: spc.SPCParams,
-                 rec: dict, scene_dir, seed: int) -> np.ndarray:
+def _export_view(
+    spc_dir: Path,
+    view: str,
+    index: int,
+    pattern: sensors.CFAPattern,
+    params: spc.SPCParams,
+    rec: dict,
+    scene_dir,
+    seed: int,
+) -> np.ndarray:
     """bool (K, H, W) of one view: channel bits where a pixel sees one channel, fresh draws elsewhere."""
     frames = spc.unpack_frames(*io.load_frames(spc_dir / "frames" / f"{view}.npz"))  # (K, H, W, 3)
     cube, single = sensors.channel_bits(frames, pattern)
     if single.all():
         return cube
     if scene_dir is None:
-        raise ValueError(f"export of {spc_dir} with cfa {pattern.name}: its pixels that see several channels "
-                         f"(W, mono) are drawn from the scene's flux; give scene_dir (the scene's images)")
+        raise ValueError(
+            f"export of {spc_dir} with cfa {pattern.name}: its pixels that see several channels "
+            f"(W, mono) are drawn from the scene's flux; give scene_dir (the scene's images)"
+        )
     srgb = io.read_rgb(Path(scene_dir) / "images" / f"{view}.png")
     phi = spc.flux_from_srgb(srgb, rec["flux_scale"])  # (H, W, 3) photons/s
     rng = spc.view_rng(seed, f"{rec.get('scene', spc_dir.name)}/export", index)

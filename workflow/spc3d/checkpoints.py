@@ -54,6 +54,7 @@ FORMAT = 2  # bump when what a checkpoint holds changes meaning (2: fingerprinte
 
 # --- fingerprints -------------------------------------------------------------------------------
 
+
 def _hash_file(h, path: Path) -> None:
     with open(path, "rb") as f:
         for block in iter(functools.partial(f.read, 1 << 20), b""):
@@ -156,6 +157,7 @@ def _short(value) -> str:
 
 # --- checkpoints --------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class CheckpointPolicy:
     """When a training writes its checkpoint (always at the end too)."""
@@ -216,12 +218,21 @@ class Checkpoint:
     def save(self, it: int, trainer, elapsed: float) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with io.atomic_path(self.path) as tmp:
-            torch.save({"fingerprint": self.fingerprint, "iteration": it, "state": trainer.state(),
-                        "elapsed_s": elapsed, "torch_rng": torch.get_rng_state()}, tmp)
+            torch.save(
+                {
+                    "fingerprint": self.fingerprint,
+                    "iteration": it,
+                    "state": trainer.state(),
+                    "elapsed_s": elapsed,
+                    "torch_rng": torch.get_rng_state(),
+                },
+                tmp,
+            )
         self.record["saves"] += 1
 
 
 # --- guards: one trainer per checkpoint, none without its Snakemake -------------------------------
+
 
 class CheckpointInUse(RuntimeError):
     """Another live training holds the checkpoint (see :class:`CheckpointLock`)."""
@@ -273,10 +284,12 @@ class CheckpointLock:
     def busy(self, holder: list[str]) -> str:
         """The refusal: which checkpoint, held by whom (``holder``: pid, host, start), what to do."""
         pid, host, since = (holder + ["?", "?", "?"])[:3]
-        return (f"checkpoint {self.checkpoint} is in use by another training (pid {pid} on {host}, started "
-                f"{since}): two trainers would overwrite each other's checkpoint. Wait until it ends, or stop "
-                f"it (`kill {pid}` on {host}) and rerun; a training whose Snakemake was killed stops by itself "
-                f"within a few seconds.")
+        return (
+            f"checkpoint {self.checkpoint} is in use by another training (pid {pid} on {host}, started "
+            f"{since}): two trainers would overwrite each other's checkpoint. Wait until it ends, or stop "
+            f"it (`kill {pid}` on {host}) and rerun; a training whose Snakemake was killed stops by itself "
+            f"within a few seconds."
+        )
 
     def __exit__(self, *exc) -> None:
         if self.fd is not None:
@@ -315,7 +328,7 @@ class SnakemakeWatch:
     def start(cls) -> SnakemakeWatch | None:
         chain = _ancestors()
         found = [i for i, pid in enumerate(chain) if _is_snakemake(_cmdline(pid))]
-        return cls(chain[:found[-1] + 1]) if found else None
+        return cls(chain[: found[-1] + 1]) if found else None
 
     def check(self, now: bool = False) -> None:
         """Raise :class:`Orphaned` when the chain changed (read every WATCH_EVERY_S, or ``now``)."""
@@ -323,9 +336,11 @@ class SnakemakeWatch:
             return
         self.next_check = time.monotonic() + WATCH_EVERY_S
         if _ancestors(len(self.chain)) != self.chain:
-            raise Orphaned(f"the Snakemake process that started this training (pid {self.chain[-1]}) is gone: "
-                           "stopping, so that no orphaned training runs on and writes; rerun the workflow "
-                           "(after `snakemake --unlock`) to resume from the last checkpoint")
+            raise Orphaned(
+                f"the Snakemake process that started this training (pid {self.chain[-1]}) is gone: "
+                "stopping, so that no orphaned training runs on and writes; rerun the workflow "
+                "(after `snakemake --unlock`) to resume from the last checkpoint"
+            )
 
 
 def _ancestors(limit: int = 64) -> list[int]:
@@ -338,7 +353,7 @@ def _ancestors(limit: int = 64) -> list[int]:
         except OSError:  # no /proc, or the process just ended
             break
         chain.append(pid)
-        pid = int(stat[stat.rindex(b")") + 2:].split()[1])  # the field after the state; comm may hold ")"
+        pid = int(stat[stat.rindex(b")") + 2 :].split()[1])  # the field after the state; comm may hold ")"
     return chain
 
 
@@ -354,4 +369,4 @@ def _is_snakemake(argv: list[str]) -> bool:
     """``snakemake ...``, ``python /venv/bin/snakemake ...`` or ``python -m snakemake ...``."""
     if any(os.path.basename(a) == "snakemake" for a in argv[:2]):
         return True
-    return "-m" in argv[1:] and argv[argv.index("-m") + 1:argv.index("-m") + 2] == ["snakemake"]
+    return "-m" in argv[1:] and argv[argv.index("-m") + 1 : argv.index("-m") + 2] == ["snakemake"]

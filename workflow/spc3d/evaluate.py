@@ -16,16 +16,21 @@ import numpy as np
 from . import io, llff, metrics
 
 METRICS = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
-CONVENTIONS = {"psnr": "data range 1, mean of per-view dB",
-               "ssim": "Wang et al.: Gaussian window 11, sigma 1.5, K1 0.01, K2 0.03, valid filtering",
-               "lpips": "v0.1 net-lin, AlexNet (lpips_alex) and VGG16 (lpips_vgg), inputs x*2-1"}
+CONVENTIONS = {
+    "psnr": "data range 1, mean of per-view dB",
+    "ssim": "Wang et al.: Gaussian window 11, sigma 1.5, K1 0.01, K2 0.03, valid filtering",
+    "lpips": "v0.1 net-lin, AlexNet (lpips_alex) and VGG16 (lpips_vgg), inputs x*2-1",
+}
 
 
 def score_view(pred: np.ndarray, gt: np.ndarray, lpips_dir: str | os.PathLike | None = None) -> dict[str, float]:
     """All metrics of one (H, W, 3) sRGB render against its ground truth."""
-    return {"psnr": metrics.psnr(pred, gt), "ssim": metrics.ssim(pred, gt),
-            "lpips_alex": metrics.lpips(pred, gt, net="alex", cache_dir=lpips_dir),
-            "lpips_vgg": metrics.lpips(pred, gt, net="vgg", cache_dir=lpips_dir)}
+    return {
+        "psnr": metrics.psnr(pred, gt),
+        "ssim": metrics.ssim(pred, gt),
+        "lpips_alex": metrics.lpips(pred, gt, net="alex", cache_dir=lpips_dir),
+        "lpips_vgg": metrics.lpips(pred, gt, net="vgg", cache_dir=lpips_dir),
+    }
 
 
 def mean_scores(per_view: list[dict]) -> dict[str, float]:
@@ -33,8 +38,12 @@ def mean_scores(per_view: list[dict]) -> dict[str, float]:
     return {k: float(np.mean([v[k] for v in per_view])) for k in METRICS}
 
 
-def evaluate(recon_dir: str | os.PathLike, scene_dir: str | os.PathLike, out_json: str | os.PathLike,
-             lpips_dir: str | os.PathLike | None = None) -> dict:
+def evaluate(
+    recon_dir: str | os.PathLike,
+    scene_dir: str | os.PathLike,
+    out_json: str | os.PathLike,
+    lpips_dir: str | os.PathLike | None = None,
+) -> dict:
     """Write ``out_json`` for the renders in ``recon_dir/renders`` of the scene in ``scene_dir``."""
     recon_dir = Path(recon_dir)
     train = io.read_json(recon_dir / "train.json")
@@ -44,11 +53,30 @@ def evaluate(recon_dir: str | os.PathLike, scene_dir: str | os.PathLike, out_jso
     for name in train["test_views"]:
         pred = io.read_rgb(recon_dir / "renders" / f"{name}.png")
         per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir)})
-    record = {"scene": Path(scene_dir).name, "combination": f"{train['source']}+{train['model']}",
-              **{k: train.get(k) for k in ("source", "model", "objective", "seed", "iterations", "train_s",
-                                         "render_s", "capacity", "settings", "frames", "poses", "init",
-                                         "display")},
-              "mean": mean_scores(per_view), "per_view": per_view, "conventions": CONVENTIONS}
+    record = {
+        "scene": Path(scene_dir).name,
+        "combination": f"{train['source']}+{train['model']}",
+        **{
+            k: train.get(k)
+            for k in (
+                "source",
+                "model",
+                "objective",
+                "seed",
+                "iterations",
+                "train_s",
+                "render_s",
+                "capacity",
+                "settings",
+                "frames",
+                "poses",
+                "init",
+                "display",
+            )
+        },
+        "mean": mean_scores(per_view),
+        "per_view": per_view,
+        "conventions": CONVENTIONS,
+    }
     io.write_json(out_json, record)
     return record
-

@@ -38,8 +38,10 @@ import numpy as np
 from . import io, llff, spc
 from .simulate import params_from_record, read_spc_record
 
-RULE = ("display gain g = mean MLE flux of the scene's first K frames (all views) / k; k fitted on the "
-        "training scenes (same K) to minimise their sRGB MSE")
+RULE = (
+    "display gain g = mean MLE flux of the scene's first K frames (all views) / k; k fitted on the "
+    "training scenes (same K) to minimise their sRGB MSE"
+)
 LEVEL_RANGE = (1e-3, 1.0)  # linear display levels searched for k (1e-3: almost black; 1: full white)
 
 
@@ -55,7 +57,7 @@ def mle_views(spc_dir: str | os.PathLike, K: int) -> tuple[list[str], np.ndarray
         out.append(spc.mle_flux(bits.sum(0, dtype=np.int64), K, params).astype(np.float32))
         names.append(path.stem)
     if not names:
-        raise FileNotFoundError(f"{spc_dir / 'frames'} holds no .npz frames (run spc_simulate first)")
+        raise FileNotFoundError(f"{spc_dir / 'frames'} holds no .npz frames (run simulate_scene first)")
     return names, np.stack(out)
 
 
@@ -77,16 +79,18 @@ def _scene_error(phi: np.ndarray, gt: np.ndarray, level: float, shown: np.ndarra
     return float(np.mean((display_srgb(shown, metered_gain(phi, level)) - gt) ** 2, dtype=np.float64))
 
 
-def fit_level(phis: list[np.ndarray], gts: list[np.ndarray],
-              shown: list[np.ndarray] | None = None) -> tuple[float, list[float]]:
+def fit_level(
+    phis: list[np.ndarray], gts: list[np.ndarray], shown: list[np.ndarray] | None = None
+) -> tuple[float, list[float]]:
     """The level k minimising the summed sRGB MSE against ``gts`` of ``shown`` (default: ``phis``)
     displayed at the gain metered from ``phis`` at k, and each scene's own best level (a
     diagnostic: how much the scenes disagree). Golden-section search on log k over
     :data:`LEVEL_RANGE` (the error is unimodal in k: too dark, right, too bright)."""
     shown = shown if shown is not None else [None] * len(phis)
     if not phis or len(phis) != len(gts) or len(shown) != len(phis):
-        raise ValueError(f"fit_level: need matching non-empty lists of flux stacks and ground truths, got "
-                         f"{len(phis)} and {len(gts)}")
+        raise ValueError(
+            f"fit_level: need matching non-empty lists of flux stacks and ground truths, got {len(phis)} and {len(gts)}"
+        )
 
     def best(error) -> float:
         lo, hi = math.log(LEVEL_RANGE[0]), math.log(LEVEL_RANGE[1])
@@ -112,8 +116,10 @@ def calibrate_display(scene_dirs: list[str], spc_dirs: list[str], K: int, out_js
     """Fit the display level on training scenes (ground truth + their frames); write ``out_json``."""
     t0 = time.perf_counter()
     if not scene_dirs:
-        raise ValueError("the display level of the mle / bernoulli rows is fitted on the training scenes, but none "
-                         "was given (scenes.train is empty)")
+        raise ValueError(
+            "the display level of the mle / bernoulli rows is fitted on the training scenes, but none "
+            "was given (scenes.train is empty)"
+        )
     phis, gts, fluxes = [], [], []
     for scene_dir, spc_dir in zip(scene_dirs, spc_dirs):
         names, phi = mle_views(spc_dir, K)
@@ -125,16 +131,23 @@ def calibrate_display(scene_dirs: list[str], spc_dirs: list[str], K: int, out_js
     level, per_scene = fit_level(phis, gts)
     level_likelihood, per_scene_likelihood = fit_level(phis, gts, fluxes)
     names = [Path(d).name for d in scene_dirs]
-    record = {"K": K, "level": level, "level_likelihood": level_likelihood, "rule": RULE, "training_scenes": names,
-              "per_scene_level": dict(zip(names, per_scene)),
-              "per_scene_level_likelihood": dict(zip(names, per_scene_likelihood)),
-              "wall_s": round(time.perf_counter() - t0, 3)}
+    record = {
+        "K": K,
+        "level": level,
+        "level_likelihood": level_likelihood,
+        "rule": RULE,
+        "training_scenes": names,
+        "per_scene_level": dict(zip(names, per_scene)),
+        "per_scene_level_likelihood": dict(zip(names, per_scene_likelihood)),
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
     io.write_json(out_json, record)
     return record
 
 
-def write_display(spc_dir: str | os.PathLike, calibration: str | os.PathLike, K: int,
-                  out_dir: str | os.PathLike) -> dict:
+def write_display(
+    spc_dir: str | os.PathLike, calibration: str | os.PathLike, K: int, out_dir: str | os.PathLike
+) -> dict:
     """A scene's MLE images of its first ``K`` frames at the metered gain (no ground truth read)."""
     t0 = time.perf_counter()
     cal = io.read_json(calibration)
@@ -145,11 +158,19 @@ def write_display(spc_dir: str | os.PathLike, calibration: str | os.PathLike, K:
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for name, view in zip(names, phi):
             io.write_image(tmp / "images" / f"{name}.png", display_srgb(view, gain))
-        record = {"scene": Path(spc_dir).name, "K": K, "gain": gain, "level": cal["level"],
-                  "gain_likelihood": metered_gain(phi, cal["level_likelihood"]),
-                  "level_likelihood": cal["level_likelihood"], "mean_flux": float(np.mean(phi, dtype=np.float64)),
-                  "rule": RULE, "calibration": str(calibration), "views": len(names),
-                  "wall_s": round(time.perf_counter() - t0, 3)}
+        record = {
+            "scene": Path(spc_dir).name,
+            "K": K,
+            "gain": gain,
+            "level": cal["level"],
+            "gain_likelihood": metered_gain(phi, cal["level_likelihood"]),
+            "level_likelihood": cal["level_likelihood"],
+            "mean_flux": float(np.mean(phi, dtype=np.float64)),
+            "rule": RULE,
+            "calibration": str(calibration),
+            "views": len(names),
+            "wall_s": round(time.perf_counter() - t0, 3),
+        }
         io.write_json(tmp / "display.json", record)
     return record
 

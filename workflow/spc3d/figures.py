@@ -30,9 +30,15 @@ def pick_view(scene_dir: str | os.PathLike, view: str | None = None) -> str:
     return view
 
 
-def qualitative_figure(scene_dir: str | os.PathLike, spc_dir: str | os.PathLike, recon_dirs: dict[str, str],
-                       out_png: str | os.PathLike, labels: dict[str, str] | None = None,
-                       view: str | None = None, per_row: int = 6) -> str:
+def qualitative_figure(
+    scene_dir: str | os.PathLike,
+    spc_dir: str | os.PathLike,
+    recon_dirs: dict[str, str],
+    out_png: str | os.PathLike,
+    labels: dict[str, str] | None = None,
+    view: str | None = None,
+    per_row: int = 6,
+) -> str:
     """Binary input | renders of ``recon_dirs`` (combination -> recon folder) | ground truth."""
     view = pick_view(scene_dir, view)
     gt = io.read_rgb(Path(scene_dir) / "images" / f"{view}.png")

@@ -40,8 +40,16 @@ def per_view(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
     for path in metrics_files:
         rec = io.read_json(path)
         for v in rec["per_view"]:
-            rows.append({"combination": rec["combination"], "scene": rec["scene"], "seed": rec.get("seed"),
-                         "view": v["view"], "K": rec.get("frames"), METRIC: v[METRIC]})
+            rows.append(
+                {
+                    "combination": rec["combination"],
+                    "scene": rec["scene"],
+                    "seed": rec.get("seed"),
+                    "view": v["view"],
+                    "K": rec.get("frames"),
+                    METRIC: v[METRIC],
+                }
+            )
     return pd.DataFrame(rows, columns=["combination", "scene", "seed", "view", "K", METRIC])
 
 
@@ -67,13 +75,16 @@ def expanded_level(n: int, level: float = LEVEL) -> float:
     return float(2 * stats.norm.cdf(z) - 1)
 
 
-def bootstrap(diffs: np.ndarray, n_boot: int = N_BOOT, level: float = LEVEL,
-              seed: int = 0) -> tuple[float, float, float]:
+def bootstrap(
+    diffs: np.ndarray, n_boot: int = N_BOOT, level: float = LEVEL, seed: int = 0
+) -> tuple[float, float, float]:
     """(mean, low, high): the mean of ``diffs`` and its expanded percentile bootstrap interval."""
     diffs = np.asarray(diffs, dtype=np.float64)
     if diffs.size == 0 or not np.isfinite(diffs).all():
-        raise ValueError(f"bootstrap: need finite paired differences, got {diffs.size} values "
-                         f"({int((~np.isfinite(diffs)).sum())} not finite)")
+        raise ValueError(
+            f"bootstrap: need finite paired differences, got {diffs.size} values "
+            f"({int((~np.isfinite(diffs)).sum())} not finite)"
+        )
     rng = np.random.default_rng(seed)
     means = diffs[rng.integers(0, diffs.size, size=(n_boot, diffs.size))].mean(axis=1)
     wide = expanded_level(diffs.size, level)
@@ -118,18 +129,36 @@ def claims(rows: set[str], nerf: str) -> list[tuple[str, str, list[tuple[str, st
     """(who claims it, statement, [(better row, worse row), ...]) for the rows that ran (K = 1 rows)."""
     two_stage = [f"{m}+{f}" for m in STAGE1_METHODS for f in (nerf, "3dgs") if f"{m}+{f}" in rows]
     out = [
-        ("paper", f"Pix2PixHD + NeRF [{nerf}] is the best two-stage combination",
-         [(f"pix2pixhd+{nerf}", r) for r in two_stage if r != f"pix2pixhd+{nerf}"]),
-        ("paper", "Pix2PixHD + 3DGS beats every two-stage combination with another translator",
-         [("pix2pixhd+3dgs", r) for r in two_stage if not r.startswith("pix2pixhd+")]),
-        ("paper", f"Two-stage beats single-stage with NeRF [{nerf}] (Pix2PixHD + NeRF vs NeRF on binary)",
-         [(f"pix2pixhd+{nerf}", f"none+{nerf}")]),
-        ("paper", "Two-stage beats single-stage with 3DGS (Pix2PixHD + 3DGS vs 3DGS on binary)",
-         [("pix2pixhd+3dgs", "none+3dgs")]),
-        ("paper", "Denoise-then-reconstruct (Restormer, diffusion as DiffBIR stand-in) is worse than Pix2PixHD",
-         [(f"pix2pixhd+{f}", f"{d}+{f}") for d in ("restormer", "diffusion") for f in (nerf, "3dgs")]),
-        ("ours", "The SPAD likelihood on binary frames (3DGS) beats the best two-stage row at equal K",
-         [("bernoulli+3dgs", r) for r in two_stage]),
+        (
+            "paper",
+            f"Pix2PixHD + NeRF [{nerf}] is the best two-stage combination",
+            [(f"pix2pixhd+{nerf}", r) for r in two_stage if r != f"pix2pixhd+{nerf}"],
+        ),
+        (
+            "paper",
+            "Pix2PixHD + 3DGS beats every two-stage combination with another translator",
+            [("pix2pixhd+3dgs", r) for r in two_stage if not r.startswith("pix2pixhd+")],
+        ),
+        (
+            "paper",
+            f"Two-stage beats single-stage with NeRF [{nerf}] (Pix2PixHD + NeRF vs NeRF on binary)",
+            [(f"pix2pixhd+{nerf}", f"none+{nerf}")],
+        ),
+        (
+            "paper",
+            "Two-stage beats single-stage with 3DGS (Pix2PixHD + 3DGS vs 3DGS on binary)",
+            [("pix2pixhd+3dgs", "none+3dgs")],
+        ),
+        (
+            "paper",
+            "Denoise-then-reconstruct (Restormer, diffusion as DiffBIR stand-in) is worse than Pix2PixHD",
+            [(f"pix2pixhd+{f}", f"{d}+{f}") for d in ("restormer", "diffusion") for f in (nerf, "3dgs")],
+        ),
+        (
+            "ours",
+            "The SPAD likelihood on binary frames (3DGS) beats the best two-stage row at equal K",
+            [("bernoulli+3dgs", r) for r in two_stage],
+        ),
         ("ours", "The SPAD likelihood beats the MLE image at equal K (both + 3DGS)", [("bernoulli+3dgs", "mle+3dgs")]),
     ]
     return [(who, text, [(a, b) for a, b in pairs if a in rows and b in rows]) for who, text, pairs in out]
@@ -143,20 +172,30 @@ def evaluate_claims(df: pd.DataFrame, nerf: str) -> list[dict]:
         comps = [compare(k1, a, b) for a, b in pairs]
         scored = [c for c in comps if c.mean is not None]
         closest = min(scored, key=lambda c: c.low) if scored else max(comps, key=lambda c: c.n, default=None)
-        results.append({"claim": text, "by": who, "verdict": verdict(comps),
-                        "closest": closest.__dict__ if closest else None,
-                        "comparisons": [c.__dict__ | {"verdict": c.verdict} for c in comps],
-                        "n": min((c.n for c in comps), default=0)})
+        results.append(
+            {
+                "claim": text,
+                "by": who,
+                "verdict": verdict(comps),
+                "closest": closest.__dict__ if closest else None,
+                "comparisons": [c.__dict__ | {"verdict": c.verdict} for c in comps],
+                "n": min((c.n for c in comps), default=0),
+            }
+        )
     return results
 
 
 def markdown(results: list[dict]) -> str:
-    lines = ["# Findings", "",
-             f"Each claim: mean paired PSNR difference (dB) over scenes × seeds × held-out views, with its "
-             f"{LEVEL:.0%} bootstrap interval ({N_BOOT:,} resamples); HOLDS / DOES NOT HOLD when the interval "
-             f"excludes 0, else INCONCLUSIVE. A 'best' claim shows its closest competitor. Rows of equal K only.", "",
-             "| claim | by | verdict | closest comparison | Δ PSNR (dB) | 95 % interval | n |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Findings",
+        "",
+        f"Each claim: mean paired PSNR difference (dB) over scenes × seeds × held-out views, with its "
+        f"{LEVEL:.0%} bootstrap interval ({N_BOOT:,} resamples); HOLDS / DOES NOT HOLD when the interval "
+        f"excludes 0, else INCONCLUSIVE. A 'best' claim shows its closest competitor. Rows of equal K only.",
+        "",
+        "| claim | by | verdict | closest comparison | Δ PSNR (dB) | 95 % interval | n |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         lines.append(f"| {r['claim']} | {r['by']} | **{r['verdict']}** | " + " | ".join(_cells(r["closest"])) + " |")
     return "\n".join(lines) + "\n"
@@ -183,11 +222,17 @@ def write_findings(metrics_files: list[str], stem: str | os.PathLike, nerf_varia
 
 
 def _html(results: list[dict]) -> str:
-    rows = "".join(f"<tr><td>{r['claim']}</td><td>{r['by']}</td><td><b>{r['verdict']}</b></td>"
-                   + "".join(f"<td>{cell}</td>" for cell in _cells(r["closest"])) + "</tr>" for r in results)
-    return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>Findings</title><style>body{font-family:"
-            "sans-serif;font-size:13px;margin:12px}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
-            "padding:3px 6px}</style></head><body><h3>Findings: the claims, decided from the numbers</h3><table>"
-            "<tr><th>claim</th><th>by</th><th>verdict</th><th>closest comparison</th><th>Δ PSNR (dB)</th>"
-            f"<th>95 % interval</th><th>n</th></tr>{rows}</table><p>Paired over scenes × seeds × held-out views; "
-            f"{N_BOOT:,} bootstrap resamples; rows of equal K only.</p></body></html>\n")
+    rows = "".join(
+        f"<tr><td>{r['claim']}</td><td>{r['by']}</td><td><b>{r['verdict']}</b></td>"
+        + "".join(f"<td>{cell}</td>" for cell in _cells(r["closest"]))
+        + "</tr>"
+        for r in results
+    )
+    return (
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>Findings</title><style>body{font-family:"
+        "sans-serif;font-size:13px;margin:12px}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
+        "padding:3px 6px}</style></head><body><h3>Findings: the claims, decided from the numbers</h3><table>"
+        "<tr><th>claim</th><th>by</th><th>verdict</th><th>closest comparison</th><th>Δ PSNR (dB)</th>"
+        f"<th>95 % interval</th><th>n</th></tr>{rows}</table><p>Paired over scenes × seeds × held-out views; "
+        f"{N_BOOT:,} bootstrap resamples; rows of equal K only.</p></body></html>\n"
+    )

@@ -82,8 +82,8 @@ def neighbour_median(values: np.ndarray, labels: np.ndarray, window: int) -> np.
     centre = r * window + r
     for y0 in range(0, h, _ROWS_PER_CHUNK):
         y1 = min(h, y0 + _ROWS_PER_CHUNK)
-        win = np.lib.stride_tricks.sliding_window_view(padded[y0:y1 + 2 * r], (window, window))
-        wl = np.lib.stride_tricks.sliding_window_view(lab[y0:y1 + 2 * r], (window, window))
+        win = np.lib.stride_tricks.sliding_window_view(padded[y0 : y1 + 2 * r], (window, window))
+        wl = np.lib.stride_tricks.sliding_window_view(lab[y0 : y1 + 2 * r], (window, window))
         win = win.reshape(y1 - y0, w, -1).copy()
         same = wl.reshape(y1 - y0, w, -1) == labels[y0:y1, :, None]
         same[:, :, centre] = False
@@ -94,8 +94,13 @@ def neighbour_median(values: np.ndarray, labels: np.ndarray, window: int) -> np.
     return out
 
 
-def detect_hot_pixels(counts: np.ndarray, frames: int, pattern: CFAPattern | None = None,
-                      threshold: float = 6.0, window: int | None = None) -> tuple[np.ndarray, dict]:
+def detect_hot_pixels(
+    counts: np.ndarray,
+    frames: int,
+    pattern: CFAPattern | None = None,
+    threshold: float = 6.0,
+    window: int | None = None,
+) -> tuple[np.ndarray, dict]:
     """Hot pixels of a sensor from its counts of ones.
 
     counts: (H, W) ones per pixel over ``frames`` frames (:func:`count_ones`). pattern: the CFA (None:
@@ -122,17 +127,27 @@ def _check_inputs(counts: np.ndarray, frames: int, threshold: float) -> None:
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
         raise ValueError(f"frames={frames!r}: the number of frames counted must be a positive integer")
     if counts.ndim != 2 or not np.issubdtype(counts.dtype, np.integer):
-        raise ValueError(f"counts: {counts.dtype} array of shape {counts.shape}; expected integer (H, W) "
-                         f"ones per pixel (count_ones)")
+        raise ValueError(
+            f"counts: {counts.dtype} array of shape {counts.shape}; expected integer (H, W) ones per pixel (count_ones)"
+        )
     if counts.size and (counts.min() < 0 or counts.max() > frames):
-        raise ValueError(f"counts span [{counts.min()}, {counts.max()}]; ones among {frames} frames lie "
-                         f"in [0, {frames}]")
+        raise ValueError(
+            f"counts span [{counts.min()}, {counts.max()}]; ones among {frames} frames lie in [0, {frames}]"
+        )
     if not (isinstance(threshold, (int, float)) and np.isfinite(threshold) and threshold > 0):
         raise ValueError(f"threshold={threshold!r}: must be a positive number (robust z-score)")
 
 
-def hot_pixel_record(hot: np.ndarray, counts: np.ndarray, frames: int, neighbour_rate: np.ndarray,
-                     z: np.ndarray, threshold: float, window: int, max_listed: int = 10000) -> dict:
+def hot_pixel_record(
+    hot: np.ndarray,
+    counts: np.ndarray,
+    frames: int,
+    neighbour_rate: np.ndarray,
+    z: np.ndarray,
+    threshold: float,
+    window: int,
+    max_listed: int = 10000,
+) -> dict:
     """Report of a detection: count, share, and per hot pixel (row, column), rate S/K, neighbours'
     median rate and z-score (the first ``max_listed``, strongest first)."""
     pos = np.argwhere(hot)
@@ -140,9 +155,14 @@ def hot_pixel_record(hot: np.ndarray, counts: np.ndarray, frames: int, neighbour
     pos = pos[order]
     rate = counts / frames
     return {
-        "count": int(hot.sum()), "pixels": int(hot.size), "fraction": float(hot.mean()),
-        "threshold": float(threshold), "window": int(window), "frames": int(frames),
-        "median_rate": float(np.median(rate)), "listed": int(len(pos)),
+        "count": int(hot.sum()),
+        "pixels": int(hot.size),
+        "fraction": float(hot.mean()),
+        "threshold": float(threshold),
+        "window": int(window),
+        "frames": int(frames),
+        "median_rate": float(np.median(rate)),
+        "listed": int(len(pos)),
         "positions": pos.tolist(),
         "rates": [float(rate[y, x]) for y, x in pos],
         "neighbour_rates": [float(neighbour_rate[y, x]) for y, x in pos],
@@ -170,8 +190,9 @@ def read_hot_pixel_map(path: str | os.PathLike, shape: tuple[int, int] | None = 
     if data.ndim != 2 or not (data.dtype == np.bool_ or np.issubdtype(data.dtype, np.number)):
         raise ValueError(f"hot-pixel map {path}: {data.dtype} {data.shape}; expected (H, W), nonzero = hot")
     if shape is not None and data.shape != tuple(shape):
-        raise ValueError(f"hot-pixel map {path}: {data.shape[1]}x{data.shape[0]} (WxH) but the sensor is "
-                         f"{shape[1]}x{shape[0]}")
+        raise ValueError(
+            f"hot-pixel map {path}: {data.shape[1]}x{data.shape[0]} (WxH) but the sensor is {shape[1]}x{shape[0]}"
+        )
     return data != 0
 
 

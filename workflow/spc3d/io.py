@@ -38,8 +38,11 @@ def remove_stale_tmp(path: str | os.PathLike) -> list[Path]:
     as :func:`atomic_path` names them; ``.{name}.json.<8 random>.tmp`` belongs to another output)."""
     path = Path(path)
     own = re.compile(rf"\.{re.escape(path.name)}\.[a-z0-9_]{{8}}\.tmp")
-    stale = sorted(p for p in path.parent.glob(f".{path.name}.*.tmp") if own.fullmatch(p.name)) \
-        if path.parent.is_dir() else []
+    stale = (
+        sorted(p for p in path.parent.glob(f".{path.name}.*.tmp") if own.fullmatch(p.name))
+        if path.parent.is_dir()
+        else []
+    )
     for p in stale:
         shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
     return stale
@@ -231,5 +234,7 @@ def load_torch(path: str | os.PathLike, what: str = "checkpoint"):
         why = "it holds pickled Python objects, not only tensors; spc3d does not run code from weight files"
     except Exception as e:  # noqa: BLE001 - torch raises many types for a damaged file
         why = f"{type(e).__name__}: {str(e).splitlines()[0][:160]}"
-    raise ValueError(f"{path} is not a readable {what} ({why}); give a file written by torch.save of a "
-                     f"state_dict (a dict of tensors)")
+    raise ValueError(
+        f"{path} is not a readable {what} ({why}); give a file written by torch.save of a "
+        f"state_dict (a dict of tensors)"
+    )

@@ -105,8 +105,10 @@ def read_intrinsics(root: str | os.PathLike, poses_bounds: np.ndarray) -> np.nda
     except (OSError, ValueError) as e:
         raise ValueError(f"cannot read {path}: {e} (expected a .npy array, N x 4 fx, fy, cx, cy)") from None
     if intr.shape != (len(poses_bounds), 4) or not np.issubdtype(intr.dtype, np.number):
-        raise ValueError(f"{path}: array of shape {intr.shape} ({intr.dtype}); expected {len(poses_bounds)} x 4 "
-                         f"numbers (fx, fy, cx, cy per view of poses_bounds.npy)")
+        raise ValueError(
+            f"{path}: array of shape {intr.shape} ({intr.dtype}); expected {len(poses_bounds)} x 4 "
+            f"numbers (fx, fy, cx, cy per view of poses_bounds.npy)"
+        )
     bad = np.flatnonzero(~np.isfinite(intr).all(axis=1) | (intr[:, :2] <= 0).any(axis=1))
     if bad.size:
         raise ValueError(f"{path}: view(s) {_first(bad)} have non-finite intrinsics or a focal length <= 0")
@@ -131,19 +133,26 @@ def needs_intrinsics_file(cams: Cameras) -> bool:
     ``cams.intrinsics`` (beyond round-off: 1e-9 relative)."""
     fx, fy, cx, cy = cams.intrinsics.T
     tol = 1e-9 * max(cams.width, cams.height)
-    return bool((np.abs(fy - fx) > 1e-9 * np.abs(fx)).any() or (np.abs(cx - cams.width / 2) > tol).any()
-                or (np.abs(cy - cams.height / 2) > tol).any())
+    return bool(
+        (np.abs(fy - fx) > 1e-9 * np.abs(fx)).any()
+        or (np.abs(cx - cams.width / 2) > tol).any()
+        or (np.abs(cy - cams.height / 2) > tol).any()
+    )
 
 
 def check_poses_bounds(pb: np.ndarray, path) -> None:
     """LLFF poses_bounds (N, 17): finite numbers, proper rotations, positive hwf, 0 < near < far."""
     if pb.ndim != 2 or pb.shape[1] != 17 or pb.shape[0] == 0 or not np.issubdtype(pb.dtype, np.number):
-        raise ValueError(f"{path}: array of shape {pb.shape} ({pb.dtype}); LLFF poses_bounds.npy is N x 17 numbers "
-                         f"(a 3x5 pose [R | t | h w f] per view, then near and far)")
+        raise ValueError(
+            f"{path}: array of shape {pb.shape} ({pb.dtype}); LLFF poses_bounds.npy is N x 17 numbers "
+            f"(a 3x5 pose [R | t | h w f] per view, then near and far)"
+        )
     bad = np.flatnonzero(~np.isfinite(pb).all(axis=1))
     if bad.size:
-        raise ValueError(f"{path}: non-finite poses (NaN or inf) in view(s) {_first(bad)}; every pose, hwf and "
-                         f"bound must be a finite number")
+        raise ValueError(
+            f"{path}: non-finite poses (NaN or inf) in view(s) {_first(bad)}; every pose, hwf and "
+            f"bound must be a finite number"
+        )
     poses = pb[:, :15].reshape(-1, 3, 5)
     rot = poses[:, :, :3]
     err = np.abs(rot @ rot.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
@@ -152,14 +161,18 @@ def check_poses_bounds(pb: np.ndarray, path) -> None:
         raise ValueError(f"{path}: the 3x3 part of view(s) {_first(bad)} is not a rotation (orthonormal, det +1)")
     bad = np.flatnonzero((poses[:, :, 4] <= 0).any(axis=1))
     if bad.size:
-        raise ValueError(f"{path}: view(s) {_first(bad)} have height, width or focal length <= 0 (column 5 of "
-                         f"the pose is h, w, f in pixels)")
+        raise ValueError(
+            f"{path}: view(s) {_first(bad)} have height, width or focal length <= 0 (column 5 of "
+            f"the pose is h, w, f in pixels)"
+        )
     near, far = pb[:, 15], pb[:, 16]
     bad = np.flatnonzero((near <= 0) | (far <= near))
     if bad.size:
         i = bad[0]
-        raise ValueError(f"{path}: view(s) {_first(bad)} have bounds near={near[i]:g}, far={far[i]:g}; need "
-                         f"0 < near < far (scene depths in front of the camera)")
+        raise ValueError(
+            f"{path}: view(s) {_first(bad)} have bounds near={near[i]:g}, far={far[i]:g}; need "
+            f"0 < near < far (scene depths in front of the camera)"
+        )
 
 
 def _first(indices: np.ndarray, n: int = 5) -> str:
@@ -173,12 +186,16 @@ def check_image_headers(files: list[Path]) -> None:
     for f in files:
         h, w, c = io.image_shape(f)
         if c not in (3, 4):
-            raise ValueError(f"{f}: {c} channel(s); the views of a scene must be RGB (3 channels, or 4 with "
-                             f"alpha): convert it, or remove it together with its row of poses_bounds.npy")
+            raise ValueError(
+                f"{f}: {c} channel(s); the views of a scene must be RGB (3 channels, or 4 with "
+                f"alpha): convert it, or remove it together with its row of poses_bounds.npy"
+            )
         first = first or (f, h, w)
         if (h, w) != first[1:]:
-            raise ValueError(f"{f} is {w}x{h} pixels but {first[0].name} is {first[2]}x{first[1]}: every image of "
-                             f"{f.parent} must have the same size")
+            raise ValueError(
+                f"{f} is {w}x{h} pixels but {first[0].name} is {first[2]}x{first[1]}: every image of "
+                f"{f.parent} must have the same size"
+            )
 
 
 def read_views(files: list[Path]) -> np.ndarray:
@@ -232,8 +249,16 @@ def write_scene(out_dir: str | os.PathLike, scene: SceneData, record: dict) -> N
         io.save_npy(tmp / "poses_bounds.npy", cameras_to_llff(scene.cameras))
         if needs_intrinsics_file(scene.cameras):
             io.save_npy(tmp / INTRINSICS_FILE, scene.cameras.intrinsics)
-        io.write_json(tmp / "scene.json", {**scene.meta, **record, "views": len(scene.names),
-                                            "height": scene.cameras.height, "width": scene.cameras.width})
+        io.write_json(
+            tmp / "scene.json",
+            {
+                **scene.meta,
+                **record,
+                "views": len(scene.names),
+                "height": scene.cameras.height,
+                "width": scene.cameras.width,
+            },
+        )
 
 
 def read_scene(scene_dir: str | os.PathLike, with_depth: bool = False, with_images: bool = True) -> SceneData:

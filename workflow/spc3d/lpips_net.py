@@ -71,8 +71,9 @@ class LPIPSNet(torch.nn.Module):
     def forward(self, x0: torch.Tensor, x1: torch.Tensor) -> torch.Tensor:
         """Distances (B,) between (B, 3, H, W) images in [-1, 1]."""
         if x0.shape != x1.shape or x0.ndim != 4 or x0.shape[1] != 3:
-            raise ValueError(f"LPIPS expects two (B, 3, H, W) tensors of one shape, got "
-                             f"{tuple(x0.shape)} and {tuple(x1.shape)}")
+            raise ValueError(
+                f"LPIPS expects two (B, 3, H, W) tensors of one shape, got {tuple(x0.shape)} and {tuple(x1.shape)}"
+            )
         dtype = self.shift.dtype
         total = 0.0
         f0s, f1s = self.features(x0.to(dtype)), self.features(x1.to(dtype))
@@ -86,8 +87,9 @@ _NETS: dict[tuple, LPIPSNet] = {}
 _NETS_LOCK = threading.Lock()
 
 
-def get_lpips_net(net: str = "alex", weights_path: str | os.PathLike | None = None,
-                  cache_dir: str | os.PathLike | None = None) -> LPIPSNet:
+def get_lpips_net(
+    net: str = "alex", weights_path: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None
+) -> LPIPSNet:
     """Process-wide cached ``LPIPSNet`` (one per backbone and explicit weights file)."""
     net = canonical_net(net)
     key = (net, None if weights_path is None else str(Path(weights_path).resolve()))

@@ -19,11 +19,18 @@ SCALE = (0.458, 0.448, 0.450)
 # Backbone layer specs. ("conv", out_ch, kernel, stride, padding) is conv + ReLU;
 # ("pool", kernel, stride) a max-pool; ("tap",) marks the output after the preceding ReLU.
 _ALEX_SPEC = (
-    ("conv", 64, 11, 4, 2), ("tap",), ("pool", 3, 2),
-    ("conv", 192, 5, 1, 2), ("tap",), ("pool", 3, 2),
-    ("conv", 384, 3, 1, 1), ("tap",),
-    ("conv", 256, 3, 1, 1), ("tap",),
-    ("conv", 256, 3, 1, 1), ("tap",),
+    ("conv", 64, 11, 4, 2),
+    ("tap",),
+    ("pool", 3, 2),
+    ("conv", 192, 5, 1, 2),
+    ("tap",),
+    ("pool", 3, 2),
+    ("conv", 384, 3, 1, 1),
+    ("tap",),
+    ("conv", 256, 3, 1, 1),
+    ("tap",),
+    ("conv", 256, 3, 1, 1),
+    ("tap",),
 )
 
 

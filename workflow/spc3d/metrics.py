@@ -78,8 +78,9 @@ def psnr(pred, target) -> float:
 # ---------------------------------------------------------------------------------------------
 # SSIM
 # ---------------------------------------------------------------------------------------------
-def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA,
-                    dtype: torch.dtype = torch.float64) -> torch.Tensor:
+def gaussian_window(
+    size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype: torch.dtype = torch.float64
+) -> torch.Tensor:
     """Normalised 1-D Gaussian taps (size,), centred on the middle tap."""
     x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
     g = torch.exp(-(x**2) / (2 * sigma**2))
@@ -93,8 +94,13 @@ def _blur(x: torch.Tensor, window: torch.Tensor, pad: int) -> torch.Tensor:
     return F.conv2d(x, window.view(1, 1, k, 1).expand(c, 1, k, 1), padding=(pad, 0), groups=c)
 
 
-def ssim_map(pred: torch.Tensor, target: torch.Tensor, padding: str = "valid",
-             window_size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:
+def ssim_map(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    padding: str = "valid",
+    window_size: int = SSIM_WINDOW,
+    sigma: float = SSIM_SIGMA,
+) -> torch.Tensor:
     """Per-pixel SSIM of (B, C, H, W) tensors in [0, 1], differentiable.
 
     ``padding="valid"``: (B, C, H - w + 1, W - w + 1), the Wang et al. / skimage metric map;
@@ -102,13 +108,15 @@ def ssim_map(pred: torch.Tensor, target: torch.Tensor, padding: str = "valid",
     Population covariance, K1 = 0.01, K2 = 0.03, data range 1.
     """
     if pred.shape != target.shape or pred.ndim != 4:
-        raise ValueError(f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} "
-                         f"and {tuple(target.shape)}")
+        raise ValueError(
+            f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
     if padding not in ("valid", "same"):
         raise ValueError(f"padding must be 'valid' or 'same', got {padding!r}")
     if padding == "valid" and min(pred.shape[-2:]) < window_size:
-        raise ValueError(f"'valid' SSIM needs images of at least {window_size}x{window_size}, "
-                         f"got {tuple(pred.shape[-2:])}")
+        raise ValueError(
+            f"'valid' SSIM needs images of at least {window_size}x{window_size}, got {tuple(pred.shape[-2:])}"
+        )
     window = gaussian_window(window_size, sigma, pred.dtype).to(pred.device)
     pad = window_size // 2 if padding == "same" else 0
     mu_x, mu_y = _blur(pred, window, pad), _blur(target, window, pad)
@@ -149,24 +157,35 @@ def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: 
 LPIPS_MIN_SIZE = 32  # AlexNet: stride-4 conv + two 3x3/2 pools before conv3 need >= 32 px per side
 
 
-def lpips_batch(pred: torch.Tensor, target: torch.Tensor, net: str = "alex",
-                weights_path: str | os.PathLike | None = None,
-                cache_dir: str | os.PathLike | None = None) -> torch.Tensor:
+def lpips_batch(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    net: str = "alex",
+    weights_path: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> torch.Tensor:
     """LPIPS v0.1 distances (B,) of (B, 3, H, W) tensors in [0, 1]; differentiable in the inputs.
 
     Weights resolve as in ``spc3d.lpips_weights.lpips_weights``; the network is cached per process.
     """
     if min(pred.shape[-2:]) < LPIPS_MIN_SIZE:
-        raise ValueError(f"LPIPS needs images of at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels (AlexNet's "
-                         f"strided layers and pools leave nothing of smaller ones), got {tuple(pred.shape[-2:])}")
+        raise ValueError(
+            f"LPIPS needs images of at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels (AlexNet's "
+            f"strided layers and pools leave nothing of smaller ones), got {tuple(pred.shape[-2:])}"
+        )
     model = get_lpips_net(net, weights_path, cache_dir)
     if model.shift.device != pred.device:
         model.to(pred.device)
     return model(pred * 2.0 - 1.0, target * 2.0 - 1.0)
 
 
-def lpips(pred, target, net: str = "alex", weights_path: str | os.PathLike | None = None,
-          cache_dir: str | os.PathLike | None = None) -> float:
+def lpips(
+    pred,
+    target,
+    net: str = "alex",
+    weights_path: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> float:
     """LPIPS v0.1 (``net`` = 'alex' | 'vgg') between two (H, W, 3) sRGB images in [0, 1]."""
     a, b = _pair_hwc(pred, target, torch.float32)
     if a.shape[1] != 3:

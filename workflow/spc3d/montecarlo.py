@@ -16,8 +16,7 @@ import numpy as np
 MAX_EXPECTED_COUNTS = 1e5  # rate*T above this would take too long and hold too much memory
 
 
-def simulate_counts(rate: float, T: float, tau_d: float, n_trials: int,
-                    rng: np.random.Generator) -> np.ndarray:
+def simulate_counts(rate: float, T: float, tau_d: float, n_trials: int, rng: np.random.Generator) -> np.ndarray:
     """Detection counts in [0, T] of ``n_trials`` independent exposures; int64 (n_trials,)."""
     if not (0.0 <= rate < math.inf):
         raise ValueError(f"rate={rate!r}: detection rate must be finite and >= 0 counts/s")
@@ -28,8 +27,10 @@ def simulate_counts(rate: float, T: float, tau_d: float, n_trials: int,
     if isinstance(n_trials, bool) or not isinstance(n_trials, int) or n_trials < 1:
         raise ValueError(f"n_trials={n_trials!r}: must be an integer >= 1")
     if rate * T > MAX_EXPECTED_COUNTS:
-        raise ValueError(f"rate*T={rate * T:.3g}: more than {MAX_EXPECTED_COUNTS:.0e} expected arrivals "
-                         f"per trial; lower the rate or the exposure")
+        raise ValueError(
+            f"rate*T={rate * T:.3g}: more than {MAX_EXPECTED_COUNTS:.0e} expected arrivals "
+            f"per trial; lower the rate or the exposure"
+        )
     counts = np.zeros(n_trials, dtype=np.int64)
     if rate == 0.0:
         return counts  # no arrivals at all

@@ -40,8 +40,10 @@ from . import io, spc
 
 FORMATS = ("npy", "npy.gz", "png", "npz")
 BITORDERS = ("big", "little")
-_EXPECTED = ("a photon cube: .npy or .npy.gz (uint8 (K, H, ceil(W/8)), bit-packed along the width), "
-             ".npz (spc3d.io.save_frames) or a folder of 0/255 PNG frames")
+_EXPECTED = (
+    "a photon cube: .npy or .npy.gz (uint8 (K, H, ceil(W/8)), bit-packed along the width), "
+    ".npz (spc3d.io.save_frames) or a folder of 0/255 PNG frames"
+)
 
 
 # --------------------------------------------------------------------------------------------
@@ -81,8 +83,10 @@ def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
 def _check_cube(cube: np.ndarray, path: Path) -> np.ndarray:
     cube = np.asarray(cube)
     if cube.dtype != np.bool_ or cube.ndim != 3 or 0 in cube.shape:
-        raise ValueError(f"writing {path}: got {cube.dtype} array of shape {cube.shape}; a photon cube "
-                         f"is a non-empty bool (K, H, W) array")
+        raise ValueError(
+            f"writing {path}: got {cube.dtype} array of shape {cube.shape}; a photon cube "
+            f"is a non-empty bool (K, H, W) array"
+        )
     return cube
 
 
@@ -90,10 +94,15 @@ def _check_width(width: int | None, packed_width: int, path: Path) -> int:
     """The true width: ``width`` if it fits ``packed_width`` bytes per row, else an error."""
     if width is None:
         return 8 * packed_width
-    if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or \
-            not 8 * (packed_width - 1) < width <= 8 * packed_width:
-        raise ValueError(f"{path}: width={width!r} does not fit rows of {packed_width} bytes; the true "
-                         f"width must be an integer in [{8 * packed_width - 7}, {8 * packed_width}]")
+    if (
+        isinstance(width, bool)
+        or not isinstance(width, (int, np.integer))
+        or not 8 * (packed_width - 1) < width <= 8 * packed_width
+    ):
+        raise ValueError(
+            f"{path}: width={width!r} does not fit rows of {packed_width} bytes; the true "
+            f"width must be an integer in [{8 * packed_width - 7}, {8 * packed_width}]"
+        )
     return int(width)
 
 
@@ -111,8 +120,9 @@ def pack_cube(cube: np.ndarray, bitorder: str = "big") -> np.ndarray:
     return np.packbits(cube, axis=-1, bitorder=bitorder)
 
 
-def unpack_cube(packed: np.ndarray, width: int | None = None, bitorder: str = "big",
-                path: str | os.PathLike = "<array>") -> np.ndarray:
+def unpack_cube(
+    packed: np.ndarray, width: int | None = None, bitorder: str = "big", path: str | os.PathLike = "<array>"
+) -> np.ndarray:
     """uint8 (K, H, ceil(W/8)) -> bool (K, H, W); the padding bits past ``width`` are dropped."""
     check_choice("bitorder", bitorder, BITORDERS)
     _check_packed(packed.shape, packed.dtype, Path(path))
@@ -122,14 +132,23 @@ def unpack_cube(packed: np.ndarray, width: int | None = None, bitorder: str = "b
 
 def _check_packed(shape: tuple[int, ...], dtype: np.dtype, path: Path) -> None:
     if np.dtype(dtype) != np.uint8 or len(shape) != 3 or 0 in shape:
-        hint = (" (a bool array is an unpacked cube: pack it with np.packbits along the last axis, "
-                "or write it with write_cube)") if np.dtype(dtype) == np.bool_ else ""
-        raise ValueError(f"{path}: holds a {np.dtype(dtype)} array of shape {tuple(shape)}; expected "
-                         f"uint8 (K, H, ceil(W/8)) bit-packed 1-bit frames{hint}")
+        hint = (
+            (
+                " (a bool array is an unpacked cube: pack it with np.packbits along the last axis, "
+                "or write it with write_cube)"
+            )
+            if np.dtype(dtype) == np.bool_
+            else ""
+        )
+        raise ValueError(
+            f"{path}: holds a {np.dtype(dtype)} array of shape {tuple(shape)}; expected "
+            f"uint8 (K, H, ceil(W/8)) bit-packed 1-bit frames{hint}"
+        )
 
 
-def read_npy(path: str | os.PathLike, width: int | None = None, bitorder: str = "big",
-             max_frames: int | None = None) -> np.ndarray:
+def read_npy(
+    path: str | os.PathLike, width: int | None = None, bitorder: str = "big", max_frames: int | None = None
+) -> np.ndarray:
     """A bit-packed ``.npy`` or ``.npy.gz`` cube -> bool (K, H, W) (the first ``max_frames`` only)."""
     path = Path(path)
     if _format_from_name(path) == "npy.gz":
@@ -160,13 +179,17 @@ def _read_npy_gz(path: Path, max_frames: int | None) -> np.ndarray:
             want = frames * shape[1] * shape[2]
             data = f.read(want)
     except (OSError, EOFError, zlib.error) as e:  # BadGzipFile is an OSError
-        raise ValueError(f"cannot read photon cube {path}: {type(e).__name__}: {e} (a truncated or "
-                         f"corrupt gzip file; expected a gzip-compressed .npy)") from e
+        raise ValueError(
+            f"cannot read photon cube {path}: {type(e).__name__}: {e} (a truncated or "
+            f"corrupt gzip file; expected a gzip-compressed .npy)"
+        ) from e
     if len(data) < want:
-        raise ValueError(f"{path}: truncated: the .npy header announces {shape} but the data ends "
-                         f"after {len(data)} of {want} bytes")
-    arr = np.frombuffer(data, np.uint8).reshape(((frames,) + shape[1:]) if not fortran else shape,
-                                                order="F" if fortran else "C")
+        raise ValueError(
+            f"{path}: truncated: the .npy header announces {shape} but the data ends after {len(data)} of {want} bytes"
+        )
+    arr = np.frombuffer(data, np.uint8).reshape(
+        ((frames,) + shape[1:]) if not fortran else shape, order="F" if fortran else "C"
+    )
     return np.ascontiguousarray(arr[:max_frames])
 
 
@@ -190,8 +213,10 @@ def write_npy(path: str | os.PathLike, cube: np.ndarray, bitorder: str = "big", 
     packed = pack_cube(_check_cube(cube, path), bitorder)
     with io.atomic_path(path) as tmp:
         if fmt == "npy.gz":
-            with open(tmp, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", filename="",
-                                                       compresslevel=compresslevel, mtime=0) as f:
+            with (
+                open(tmp, "wb") as raw,
+                gzip.GzipFile(fileobj=raw, mode="wb", filename="", compresslevel=compresslevel, mtime=0) as f,
+            ):
                 np.lib.format.write_array(f, packed, allow_pickle=False)  # mtime 0: same bytes each time
         else:
             with open(tmp, "wb") as f:
@@ -206,11 +231,13 @@ def write_npy(path: str | os.PathLike, cube: np.ndarray, bitorder: str = "big", 
 def png_frames(folder: str | os.PathLike) -> list[Path]:
     """The ``*.png`` frames of a folder in natural name order (hidden files skipped)."""
     folder = Path(folder)
-    files = sorted((p for p in folder.glob("*") if p.suffix.lower() == ".png" and not p.name.startswith(".")),
-                   key=_natural_key)
+    files = sorted(
+        (p for p in folder.glob("*") if p.suffix.lower() == ".png" and not p.name.startswith(".")), key=_natural_key
+    )
     if not files:
-        raise FileNotFoundError(f"{folder}: no PNG frames; expected a folder of 0/255 single-channel "
-                                f"PNG files, one per binary frame")
+        raise FileNotFoundError(
+            f"{folder}: no PNG frames; expected a folder of 0/255 single-channel PNG files, one per binary frame"
+        )
     return files
 
 
@@ -223,8 +250,10 @@ def read_png_frames(folder: str | os.PathLike, max_frames: int | None = None) ->
     for k, f in enumerate(files[1:], start=1):
         frame = _read_png_frame(f)
         if frame.shape != first.shape:
-            raise ValueError(f"{f}: frame is {frame.shape[1]}x{frame.shape[0]} (WxH) but {files[0].name} "
-                             f"is {first.shape[1]}x{first.shape[0]}; all frames of a view must have one size")
+            raise ValueError(
+                f"{f}: frame is {frame.shape[1]}x{frame.shape[0]} (WxH) but {files[0].name} "
+                f"is {first.shape[1]}x{first.shape[0]}; all frames of a view must have one size"
+            )
         cube[k] = frame
     return cube
 
@@ -232,14 +261,18 @@ def read_png_frames(folder: str | os.PathLike, max_frames: int | None = None) ->
 def _read_png_frame(path: Path) -> np.ndarray:
     img = io.read_image(path)  # (H, W, C) float32 in [0, 1]
     if img.shape[2] != 1:
-        raise ValueError(f"{path}: {img.shape[2]} channels; a binary frame is a single-channel image "
-                         f"(monochrome, or the raw mosaic of a colour-filter sensor)")
+        raise ValueError(
+            f"{path}: {img.shape[2]} channels; a binary frame is a single-channel image "
+            f"(monochrome, or the raw mosaic of a colour-filter sensor)"
+        )
     bad = (img != 0.0) & (img != 1.0)
     if bad.any():
         y, x = np.argwhere(bad[:, :, 0])[0]
-        raise ValueError(f"{path}: {int(bad.sum())} pixels are neither 0 nor full scale (e.g. "
-                         f"{float(img[y, x, 0]) * 255:.1f}/255 at row {y}, column {x}); binary frames "
-                         f"hold only 0 and 255")
+        raise ValueError(
+            f"{path}: {int(bad.sum())} pixels are neither 0 nor full scale (e.g. "
+            f"{float(img[y, x, 0]) * 255:.1f}/255 at row {y}, column {x}); binary frames "
+            f"hold only 0 and 255"
+        )
     return img[:, :, 0] == 1.0
 
 
@@ -269,10 +302,17 @@ def read_npz(path: str | os.PathLike, max_frames: int | None = None) -> np.ndarr
     if frames.ndim == 4 and frames.shape[3] == 1:
         frames = frames[..., 0]
     if frames.ndim != 3:
-        hint = (" — the simulator's RGB frames (K, H, W, 3): export them as a sensor plane with "
-                "spc3d.captures.export_simulated") if frames.ndim == 4 and frames.shape[3] == 3 else ""
-        raise ValueError(f"{path}: frames of shape {frames.shape}; a photon cube is (K, H, W), one raw "
-                         f"value per pixel{hint}")
+        hint = (
+            (
+                " — the simulator's RGB frames (K, H, W, 3): export them as a sensor plane with "
+                "spc3d.captures.export_simulated"
+            )
+            if frames.ndim == 4 and frames.shape[3] == 3
+            else ""
+        )
+        raise ValueError(
+            f"{path}: frames of shape {frames.shape}; a photon cube is (K, H, W), one raw value per pixel{hint}"
+        )
     return frames[:max_frames]
 
 
@@ -286,16 +326,16 @@ def write_npz(path: str | os.PathLike, cube: np.ndarray) -> Path:
 # entry points
 
 
-def read_cube(path: str | os.PathLike, width: int | None = None, bitorder: str = "big",
-              max_frames: int | None = None) -> np.ndarray:
+def read_cube(
+    path: str | os.PathLike, width: int | None = None, bitorder: str = "big", max_frames: int | None = None
+) -> np.ndarray:
     """Any photon cube -> bool (K, H, W), the raw sensor plane.
 
     path: a ``.npy`` / ``.npy.gz`` (``width`` and ``bitorder`` apply), a ``.npz``, or a folder of PNG
     frames. max_frames: read only the first frames (a plain ``.npy`` is memory-mapped, a ``.npy.gz``
     streamed, so a long capture costs only what is read).
     """
-    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int)
-                                   or max_frames < 1):
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
         raise ValueError(f"max_frames={max_frames!r}: must be a positive integer or None")
     fmt = cube_format(path)
     if fmt == "png":
@@ -305,8 +345,7 @@ def read_cube(path: str | os.PathLike, width: int | None = None, bitorder: str =
     return read_npy(path, width, bitorder, max_frames)
 
 
-def write_cube(path: str | os.PathLike, cube: np.ndarray, fmt: str | None = None,
-               bitorder: str = "big") -> Path:
+def write_cube(path: str | os.PathLike, cube: np.ndarray, fmt: str | None = None, bitorder: str = "big") -> Path:
     """Write bool (K, H, W) in ``fmt`` (default: from the name; a name without a known ending is a
     PNG folder). Returns the path written."""
     path = Path(path)

@@ -36,8 +36,9 @@ def prepare_scene(spec: dict, out_dir: str | os.PathLike) -> None:
     elif kind == "llff":
         import_llff(spec["path"], out_dir, spec["factor"], spec["width"])
     elif kind == "colmap":
-        import_colmap(spec["path"], out_dir, spec["width"], factor=spec.get("factor", 1),
-                      undistort=spec.get("undistort", False))
+        import_colmap(
+            spec["path"], out_dir, spec["width"], factor=spec.get("factor", 1), undistort=spec.get("undistort", False)
+        )
     else:
         raise ValueError(f"scene spec kind must be 'builtin', 'llff' or 'colmap', got {kind!r} in {spec}")
 
@@ -47,30 +48,49 @@ def import_llff(src: str | os.PathLike, out_dir: str | os.PathLike, factor: int,
     t0 = time.perf_counter()
     scene = llff.load_llff(src, factor=factor, width=width)
     log.info("loaded %d views of %s at %dx%d", len(scene.names), src, scene.cameras.width, scene.cameras.height)
-    record = {"source": "llff", "path": str(src), "factor": factor,
-              "settings": {"factor": factor, "width": width}, "seed": None,
-              "wall_s": round(time.perf_counter() - t0, 3)}
+    record = {
+        "source": "llff",
+        "path": str(src),
+        "factor": factor,
+        "settings": {"factor": factor, "width": width},
+        "seed": None,
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
     llff.write_scene(out_dir, scene, record)
 
 
-def import_colmap(src: str | os.PathLike, out_dir: str | os.PathLike, width: int, factor: int = 1,
-                  undistort: bool = False) -> None:
+def import_colmap(
+    src: str | os.PathLike, out_dir: str | os.PathLike, width: int, factor: int = 1, undistort: bool = False
+) -> None:
     """Read a COLMAP-format scene (images/ + sparse/0) at ``factor``, area-downscale to ``width``,
     write it canonically (with ``intrinsics.npy`` when LLFF's hwf cannot hold the intrinsics)."""
     from .colmap_scene import load_colmap
 
     t0 = time.perf_counter()
     scene = load_colmap(src, factor=factor, width=width, undistort=undistort)
-    log.info("loaded %d views of %s (COLMAP %s) at %dx%d", len(scene.names), src, scene.meta["colmap"]["format"],
-             scene.cameras.width, scene.cameras.height)
-    record = {"source": "colmap", "path": str(src), "factor": factor,
-              "settings": {"factor": factor, "width": width, "undistort": undistort}, "seed": None,
-              "wall_s": round(time.perf_counter() - t0, 3)}
+    log.info(
+        "loaded %d views of %s (COLMAP %s) at %dx%d",
+        len(scene.names),
+        src,
+        scene.meta["colmap"]["format"],
+        scene.cameras.width,
+        scene.cameras.height,
+    )
+    record = {
+        "source": "colmap",
+        "path": str(src),
+        "factor": factor,
+        "settings": {"factor": factor, "width": width, "undistort": undistort},
+        "seed": None,
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
     llff.write_scene(out_dir, scene, record)
 
 
-LAYOUTS = {"llff": "poses_bounds.npy + images/ (or images_N/)",
-           "colmap": "images/ + sparse/0/ (cameras, images, points3D as .bin or .txt)"}
+LAYOUTS = {
+    "llff": "poses_bounds.npy + images/ (or images_N/)",
+    "colmap": "images/ + sparse/0/ (cameras, images, points3D as .bin or .txt)",
+}
 
 
 def scene_layout(folder: str | os.PathLike) -> str:
@@ -88,11 +108,17 @@ def scene_layout(folder: str | os.PathLike) -> str:
     is_llff = (folder / "poses_bounds.npy").is_file() and any(p.is_dir() for p in folder.glob("images*"))
     is_colmap = (folder / "images").is_dir() and find_model(folder) is not None
     if is_llff and is_colmap:
-        log.info("%s holds an LLFF (poses_bounds.npy) and a COLMAP (%s) layout: read as LLFF; use kind 'colmap' "
-                 "to read the COLMAP model instead", folder, find_model(folder).relative_to(folder))
+        log.info(
+            "%s holds an LLFF (poses_bounds.npy) and a COLMAP (%s) layout: read as LLFF; use kind 'colmap' "
+            "to read the COLMAP model instead",
+            folder,
+            find_model(folder).relative_to(folder),
+        )
     if is_llff or is_colmap:
         return "llff" if is_llff else "colmap"
     sparse = folder / "sparse" / "0" if (folder / "sparse" / "0").is_dir() else folder / "sparse"
     found = listing(folder) + (f"; {sparse.relative_to(folder)}/ holds: {listing(sparse)}" if sparse.is_dir() else "")
-    raise FileNotFoundError(f"{folder} is neither an LLFF scene ({LAYOUTS['llff']}) nor a COLMAP-format scene "
-                            f"({LAYOUTS['colmap']}); it holds: {found}")
+    raise FileNotFoundError(
+        f"{folder} is neither an LLFF scene ({LAYOUTS['llff']}) nor a COLMAP-format scene "
+        f"({LAYOUTS['colmap']}); it holds: {found}"
+    )

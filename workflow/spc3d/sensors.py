@@ -49,8 +49,7 @@ LN2 = math.log(2.0)  # the branch point of log p, the same constant as reconstru
 
 LUMINANCE = (0.2126, 0.7152, 0.0722)  # Rec. 709 / sRGB primaries, linear light
 MONO_NAMES = ("mono", "monochrome", "gray", "grey")
-BAYER = {"RGGB": ("RG", "GB"), "BGGR": ("BG", "GR"), "GRBG": ("GR", "BG"), "GBRG": ("GB", "RG"),
-         "RGBW": ("RG", "WB")}
+BAYER = {"RGGB": ("RG", "GB"), "BGGR": ("BG", "GR"), "GRBG": ("GR", "BG"), "GBRG": ("GB", "RG"), "RGBW": ("RG", "WB")}
 _SEES = {"R": (1, 0, 0), "G": (0, 1, 0), "B": (0, 0, 1), "W": (1, 1, 1)}
 WHITE_RULES = ("sum", "mean")
 
@@ -71,8 +70,10 @@ class CFAPattern:
         """(labels (th, tw) int, class names): pixels with equal weights form one colour class
         (names from the channels seen: "R", "G", "B", "W" for all three, "RG"..., "P" for mono)."""
         colours, labels = np.unique(self.tile.reshape(-1, 3), axis=0, return_inverse=True)
-        names = ["P" if self.name == "mono" else
-                 ("W" if (c > 0).all() else "".join(ch for ch, v in zip("RGB", c) if v > 0)) for c in colours]
+        names = [
+            "P" if self.name == "mono" else ("W" if (c > 0).all() else "".join(ch for ch, v in zip("RGB", c) if v > 0))
+            for c in colours
+        ]
         order = sorted(range(len(names)), key=lambda i: ("RGBW".find(names[i][0]), names[i]))
         rank = np.argsort(order)
         return rank[labels.reshape(self.period)], [names[i] for i in order]
@@ -100,24 +101,30 @@ def cfa_pattern(spec: str | os.PathLike | np.ndarray | list | CFAPattern, white:
     if isinstance(spec, (str, os.PathLike)) and Path(spec).suffix:
         return _pattern_from_tile(io.read_image(spec), white, str(spec))
     if isinstance(spec, (np.ndarray, list, tuple)):
-        return _pattern_from_tile(np.asarray(spec, np.float64) / (255.0 if np.max(spec) > 1 else 1.0),
-                                  white, "tile array")
-    raise ValueError(f"CFA pattern {spec!r}: use a name ({', '.join(BAYER)}, mono), a tile image file "
-                     f"or a (th, tw, 3) array of 0/255 RGB pixels")
+        return _pattern_from_tile(
+            np.asarray(spec, np.float64) / (255.0 if np.max(spec) > 1 else 1.0), white, "tile array"
+        )
+    raise ValueError(
+        f"CFA pattern {spec!r}: use a name ({', '.join(BAYER)}, mono), a tile image file "
+        f"or a (th, tw, 3) array of 0/255 RGB pixels"
+    )
 
 
 def _pattern_from_tile(tile: np.ndarray, white: str, where: str) -> CFAPattern:
     if tile.ndim != 3 or tile.shape[2] not in (3, 4) or 0 in tile.shape:
-        raise ValueError(f"CFA tile ({where}): shape {tile.shape}; expected (th, tw, 3) RGB pixels "
-                         f"(alpha is ignored)")
+        raise ValueError(f"CFA tile ({where}): shape {tile.shape}; expected (th, tw, 3) RGB pixels (alpha is ignored)")
     tile = tile[:, :, :3]
     if not np.isin(tile, (0.0, 1.0)).all():
-        raise ValueError(f"CFA tile ({where}): values other than 0 and 255; each RGB component says "
-                         f"whether the pixel sees that channel (0 or 255)")
+        raise ValueError(
+            f"CFA tile ({where}): values other than 0 and 255; each RGB component says "
+            f"whether the pixel sees that channel (0 or 255)"
+        )
     blind = np.argwhere(tile.sum(-1) == 0)
     if len(blind):
-        raise ValueError(f"CFA tile ({where}): pixel (row {blind[0][0]}, column {blind[0][1]}) is black "
-                         f"and sees no channel; every pixel must see at least one of R, G, B")
+        raise ValueError(
+            f"CFA tile ({where}): pixel (row {blind[0][0]}, column {blind[0][1]}) is black "
+            f"and sees no channel; every pixel must see at least one of R, G, B"
+        )
     return CFAPattern("custom", _weigh(tile.astype(np.float64), white), white)
 
 
@@ -182,14 +189,17 @@ def mosaic_frames(frames: np.ndarray, pattern: CFAPattern) -> np.ndarray:
     bits, single = channel_bits(frames, pattern)
     if not single.all():
         y, x = np.argwhere(~single)[0]
-        raise ValueError(f"mosaic_frames: pattern {pattern.name} pixel (row {y}, column {x}) sees weights "
-                         f"{pattern.tile[y % pattern.period[0], x % pattern.period[1]].tolist()}, not one "
-                         f"channel; simulate such pixels from the flux with simulate_mosaic")
+        raise ValueError(
+            f"mosaic_frames: pattern {pattern.name} pixel (row {y}, column {x}) sees weights "
+            f"{pattern.tile[y % pattern.period[0], x % pattern.period[1]].tolist()}, not one "
+            f"channel; simulate such pixels from the flux with simulate_mosaic"
+        )
     return bits
 
 
-def simulate_mosaic(phi: np.ndarray, pattern: CFAPattern, params: spc.SPCParams,
-                    rng: np.random.Generator) -> np.ndarray:
+def simulate_mosaic(
+    phi: np.ndarray, pattern: CFAPattern, params: spc.SPCParams, rng: np.random.Generator
+) -> np.ndarray:
     """Flux (H, W, 3) photons/s -> bool (K, H, W) frames of the sensor, K = params.frames, drawn with
     the simulator's own sampler for ``params.mode``."""
     plane = mosaic(spc._check_flux(phi), pattern)
@@ -256,8 +266,9 @@ def demosaic_average(cube: np.ndarray, pattern: CFAPattern, valid: np.ndarray | 
     return demosaic_bilinear(np.asarray(cube).mean(0, dtype=np.float64), pattern, valid)
 
 
-def channel_stack(plane: np.ndarray, pattern: CFAPattern,
-                  valid: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+def channel_stack(
+    plane: np.ndarray, pattern: CFAPattern, valid: np.ndarray | None = None
+) -> tuple[np.ndarray, list[str]]:
     """(H, W) plane -> ((H, W, n + 1) float32, names): one channel per colour class of the pattern
     (RGGB: R, G, B; RGBW: R, G, B, W; mono: P), each holding the plane only where a valid pixel of
     that class sits and 0 elsewhere, then a mask channel "valid" (1 where the pixel carries a
@@ -281,8 +292,9 @@ def _check_valid(valid: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # maximum-likelihood flux of a mosaic
 
 
-def mosaic_mle(counts: np.ndarray, frames: int, params: spc.SPCParams, pattern: CFAPattern,
-               hot: np.ndarray | None = None) -> np.ndarray:
+def mosaic_mle(
+    counts: np.ndarray, frames: int, params: spc.SPCParams, pattern: CFAPattern, hot: np.ndarray | None = None
+) -> np.ndarray:
     """(H, W) ones among ``frames`` binary frames -> (H, W) float64 MLE flux of each pixel's own
     channel mix (spc.mle_flux); hot pixels are filled from same-colour neighbours."""
     flux = spc.mle_flux(counts, frames, params)
@@ -297,8 +309,9 @@ def mosaic_mle(counts: np.ndarray, frames: int, params: spc.SPCParams, pattern: 
     return flux
 
 
-def mle_rgb(counts: np.ndarray, frames: int, params: spc.SPCParams, pattern: CFAPattern,
-            hot: np.ndarray | None = None) -> np.ndarray:
+def mle_rgb(
+    counts: np.ndarray, frames: int, params: spc.SPCParams, pattern: CFAPattern, hot: np.ndarray | None = None
+) -> np.ndarray:
     """(H, W) ones -> (H, W, 3) linear RGB flux for display: the demosaiced MLE, hot pixels excluded."""
     flux = spc.mle_flux(counts, frames, params)
     return demosaic_bilinear(flux, pattern, None if hot is None else ~_check_valid(hot, flux.shape))
@@ -326,8 +339,9 @@ def _masked_mean(terms: Tensor, keep: Tensor) -> Tensor:
     return kept.mean() if kept.numel() else kept.sum()
 
 
-def channel_bernoulli_loss(objective: BernoulliObjective, pred: Tensor, target: Tensor,
-                           mask: Tensor | None = None) -> Tensor:
+def channel_bernoulli_loss(
+    objective: BernoulliObjective, pred: Tensor, target: Tensor, mask: Tensor | None = None
+) -> Tensor:
     """BernoulliObjective.loss over the (pixel, channel) measurements that ``mask`` keeps.
 
     pred: (..., 3) linear render; target: (..., 3) fraction of ones; mask: bool broadcastable to
@@ -338,8 +352,9 @@ def channel_bernoulli_loss(objective: BernoulliObjective, pred: Tensor, target: 
     return terms.mean() if mask is None else _masked_mean(terms, mask)
 
 
-def mosaic_bernoulli_loss(objective: BernoulliObjective, pred: Tensor, target: Tensor, weights: Tensor,
-                          valid: Tensor | None = None) -> Tensor:
+def mosaic_bernoulli_loss(
+    objective: BernoulliObjective, pred: Tensor, target: Tensor, weights: Tensor, valid: Tensor | None = None
+) -> Tensor:
     """SPAD likelihood of a mosaic: each pixel's rate comes from the channels it sees.
 
     pred: (..., 3) linear render (clamped >= 0 per channel before mixing); target: (...) fraction of

@@ -1,4 +1,4 @@
-"""Simulate the SPC frames of a scene folder (the ``spc_simulate`` rule), with their physics inversions.
+"""Simulate the SPC frames of a scene folder (the ``simulate_scene`` rule), with their physics inversions.
 
 Output folder (``results/spc/{scene}/``), one file per view and kind, stems as the scene's images:
 
@@ -26,23 +26,26 @@ import numpy as np
 from tqdm import tqdm
 
 from . import io, llff, spc
+from .flux_scale import calibrate_flux_scale
 from .metrics import psnr
 
 log = logging.getLogger(__name__)
 
 
-def resolve_flux_scale(images: np.ndarray, params: spc.SPCParams, flux_scale: float | None,
-                       target_detection: float) -> tuple[float, bool]:
+def resolve_flux_scale(
+    images: np.ndarray, params: spc.SPCParams, flux_scale: float | None, target_detection: float
+) -> tuple[float, bool]:
     """The given flux scale, or one calibrated on ``images`` to the mean detection target."""
     if flux_scale is not None:
         if not np.isfinite(flux_scale) or flux_scale <= 0:
             raise ValueError(f"spc.flux_scale={flux_scale}: must be a positive number (or null to calibrate)")
         return float(flux_scale), False
-    return spc.calibrate_flux_scale(images, params, target_detection), True
+    return calibrate_flux_scale(images, params, target_detection), True
 
 
-def simulate_view(srgb: np.ndarray, flux_scale: float, params: spc.SPCParams,
-                  rng: np.random.Generator) -> dict[str, np.ndarray]:
+def simulate_view(
+    srgb: np.ndarray, flux_scale: float, params: spc.SPCParams, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
     """All products of one view: frames (K,H,W,3) bool, binary, average, mle (linear flux)."""
     frames = spc.simulate_frames(srgb, flux_scale, params, rng)
     S = frames.sum(0, dtype=np.int64)
@@ -62,8 +65,14 @@ def write_view(out: Path, name: str, products: dict[str, np.ndarray]) -> None:
     io.write_image(out / "mle" / f"{name}.exr", products["mle"])
 
 
-def simulate_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, params: spc.SPCParams,
-                   flux_scale: float | None = None, target_detection: float = 0.5, seed: int = 0) -> dict:
+def simulate_scene(
+    scene_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    params: spc.SPCParams,
+    flux_scale: float | None = None,
+    target_detection: float = 0.5,
+    seed: int = 0,
+) -> dict:
     """Simulate every view of a canonical scene folder into ``out_dir`` (atomically); return the record."""
     t0 = time.perf_counter()
     scene = llff.read_scene(scene_dir)
@@ -76,19 +85,28 @@ def simulate_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, par
             products = simulate_view(scene.images[i], scale, params, spc.view_rng(seed, name, i))
             write_view(tmp, view, products)
             stats.append(view_stats(scene.images[i], products, scale))
-        record = {"scene": name, "params": dataclasses.asdict(params), "flux_scale": scale,
-                  "flux_scale_calibrated": calibrated, "target_detection": target_detection if calibrated else None,
-                  "seed": seed, "views": len(scene.names), **summarise(stats),
-                  "wall_s": round(time.perf_counter() - t0, 3)}
+        record = {
+            "scene": name,
+            "params": dataclasses.asdict(params),
+            "flux_scale": scale,
+            "flux_scale_calibrated": calibrated,
+            "target_detection": target_detection if calibrated else None,
+            "seed": seed,
+            "views": len(scene.names),
+            **summarise(stats),
+            "wall_s": round(time.perf_counter() - t0, 3),
+        }
         io.write_json(tmp / "spc.json", record)
     return record
 
 
 def view_stats(gt_srgb: np.ndarray, products: dict[str, np.ndarray], flux_scale: float) -> dict[str, float]:
     exact = spc.linear_to_srgb(np.clip(products["mle"] / flux_scale, 0.0, 1.0))  # diagnostic: the exact gain
-    return {"detection_rate": float(products["binary"].mean()),
-            "saturated_fraction": float((products["average"] >= 1.0).mean()),
-            "mle_psnr_exact_gain_db": psnr(exact, gt_srgb)}
+    return {
+        "detection_rate": float(products["binary"].mean()),
+        "saturated_fraction": float((products["average"] >= 1.0).mean()),
+        "mle_psnr_exact_gain_db": psnr(exact, gt_srgb),
+    }
 
 
 def summarise(stats: list[dict[str, float]]) -> dict[str, float]:

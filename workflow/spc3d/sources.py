@@ -42,9 +42,14 @@ class Source:
     name: str
 
 
-def load_source(name: str, scene_dir: str | os.PathLike, spc_dir: str | os.PathLike | None = None,
-                image_dir: str | os.PathLike | None = None, frames: int = 1,
-                display_dir: str | os.PathLike | None = None) -> Source:
+def load_source(
+    name: str,
+    scene_dir: str | os.PathLike,
+    spc_dir: str | os.PathLike | None = None,
+    image_dir: str | os.PathLike | None = None,
+    frames: int = 1,
+    display_dir: str | os.PathLike | None = None,
+) -> Source:
     """Training views of ``scene_dir`` from source ``name``.
 
     ``image_dir`` overrides where an image source is read (stage-1 outputs); ``frames`` is the
@@ -59,8 +64,10 @@ def load_source(name: str, scene_dir: str | os.PathLike, spc_dir: str | os.PathL
     cams = scene.cameras.subset(train)
     if base in FRAME_SOURCES:
         if display_dir is None:
-            raise ValueError(f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames}): "
-                             f"its gain turns rendered intensity into flux without the ground truth")
+            raise ValueError(
+                f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames}): "
+                f"its gain turns rendered intensity into flux without the ground truth"
+            )
         targets = bit_fractions(Path(spc_dir), names, frames)
         objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir, likelihood=True))
     else:
@@ -74,12 +81,16 @@ def _image_folder(name: str, scene_dir: Path, spc_dir, display_dir, frames: int)
     kind, sub = SOURCE_IMAGES.get(split_source(name)[0], (None, None))
     if kind not in ("scene", "spc", "display"):  # a stage-1 method's images come as image_dir
         known = sorted(k for k, (where, _) in SOURCE_IMAGES.items() if where != "translated")
-        raise ValueError(f"unknown image source {name!r}: use one of {known + list(FRAME_SOURCES)} "
-                         "or give the folder of a stage-1 method's images")
+        raise ValueError(
+            f"unknown image source {name!r}: use one of {known + list(FRAME_SOURCES)} "
+            "or give the folder of a stage-1 method's images"
+        )
     folders = {"scene": scene_dir, "spc": spc_dir, "display": display_dir}
     if folders[kind] is None:
-        what = {"spc": "the scene's SPC folder (results/spc/{scene})",
-                "display": f"the metered display folder (results/mle/{{scene}}/k{frames})"}[kind]
+        what = {
+            "spc": "the scene's SPC folder (results/spc/{scene})",
+            "display": f"the metered display folder (results/mle/{{scene}}/k{frames})",
+        }[kind]
         raise ValueError(f"source {name!r} needs {what}")
     return Path(folders[kind]) / sub
 
@@ -87,8 +98,10 @@ def _image_folder(name: str, scene_dir: Path, spc_dir, display_dir, frames: int)
 def _read_view(folder: Path, name: str, cams) -> np.ndarray:
     img = io.read_rgb(folder / f"{name}.png")
     if img.shape[:2] != (cams.height, cams.width):
-        raise ValueError(f"{folder / name}.png is {img.shape[1]}x{img.shape[0]}, "
-                         f"expected {cams.width}x{cams.height} like the scene's views")
+        raise ValueError(
+            f"{folder / name}.png is {img.shape[1]}x{img.shape[0]}, "
+            f"expected {cams.width}x{cams.height} like the scene's views"
+        )
     return img
 
 
@@ -107,5 +120,6 @@ def bernoulli_objective(spc_dir: Path, gain: float) -> BernoulliObjective:
     """The SPAD likelihood with the camera's q, T and dcr (spc.json) and the metered display gain:
     rendered linear intensity l means flux gain * l (the simulator's flux scale is not used)."""
     p = read_spc_record(spc_dir)["params"]
-    return BernoulliObjective(flux_scale=gain, q=p["q"], exposure_s=p["exposure_s"],
-                              dark_count_rate=p["dark_count_rate"])
+    return BernoulliObjective(
+        flux_scale=gain, q=p["q"], exposure_s=p["exposure_s"], dark_count_rate=p["dark_count_rate"]
+    )

@@ -1,4 +1,4 @@
-"""Single-photon camera (SPAD) physics: 1-bit frames, exposure calibration, flux estimates.
+"""Single-photon camera (SPAD) physics: 1-bit frames, flux estimates (the exposure calibration is :mod:`.flux_scale`).
 
 Physics
 -------
@@ -46,7 +46,6 @@ import numpy as np
 
 MODES = ("bernoulli", "paper")
 _TWO32 = 2.0**32
-_CALIBRATION_SAMPLES = 2**20
 
 
 def _bad(name: str, value: object, rule: str) -> ValueError:
@@ -82,8 +81,12 @@ class SPCParams:
             ("q", self.q, lambda v: 0.0 < v <= 1.0, "quantum efficiency must be in (0, 1]"),
             ("tau_d", self.tau_d, lambda v: 0.0 <= v < math.inf, "dead time must be finite and >= 0 s"),
             ("exposure_s", self.exposure_s, lambda v: 0.0 < v < math.inf, "exposure must be finite and > 0 s"),
-            ("dark_count_rate", self.dark_count_rate, lambda v: 0.0 <= v < math.inf,
-             "dark count rate must be finite and >= 0 counts/s"),
+            (
+                "dark_count_rate",
+                self.dark_count_rate,
+                lambda v: 0.0 <= v < math.inf,
+                "dark count rate must be finite and >= 0 counts/s",
+            ),
         )
         for name, value, ok, rule in checks:
             if not ok(_real(name, value, rule)):
@@ -273,8 +276,7 @@ def _paper_frames(phi: np.ndarray, params: SPCParams, rng: np.random.Generator) 
 _SAMPLERS = {"bernoulli": _bernoulli_frames, "paper": _paper_frames}
 
 
-def simulate_frames(srgb: np.ndarray, flux_scale: float, params: SPCParams,
-                    rng: np.random.Generator) -> np.ndarray:
+def simulate_frames(srgb: np.ndarray, flux_scale: float, params: SPCParams, rng: np.random.Generator) -> np.ndarray:
     """K independent 1-bit frames of one sRGB image.
 
     srgb: float (H, W, C) in [0, 1]. Returns bool (K, H, W, C), K = ``params.frames``.
@@ -312,94 +314,11 @@ def unpack_frames(packed: np.ndarray, shape: Sequence[int]) -> np.ndarray:
     count = math.prod(shape)
     packed = np.asarray(packed)
     if packed.dtype != np.uint8 or packed.ndim != 1 or packed.size != (count + 7) // 8:
-        raise ValueError(f"packed: {packed.dtype} array of shape {packed.shape} does not hold "
-                         f"shape {shape}; need uint8 1-D with {(count + 7) // 8} bytes")
+        raise ValueError(
+            f"packed: {packed.dtype} array of shape {packed.shape} does not hold "
+            f"shape {shape}; need uint8 1-D with {(count + 7) // 8} bytes"
+        )
     return np.unpackbits(packed, count=count, bitorder="little").view(bool).reshape(shape)
-
-
-# --------------------------------------------------------------------------------------------
-# exposure calibration
-
-
-def _linear_histogram(srgb_images: Sequence[np.ndarray] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct linear values of (a strided subsample of) all images and their weights (sum 1)."""
-    if isinstance(srgb_images, np.ndarray):  # (N, H, W, C) stack, or one (H, W, C) image
-        images = list(srgb_images) if srgb_images.ndim == 4 else [srgb_images]
-    else:
-        images = list(srgb_images)
-    if not images:
-        raise ValueError("srgb_images: no images given; need a list of (H, W, C) or an (N, H, W, C) array")
-    images = [_check_srgb(im, f"srgb_images[{i}]") for i, im in enumerate(images)]
-    stride = max(1, -(-sum(im.size for im in images) // _CALIBRATION_SAMPLES))
-    channels = images[0].shape[-1]
-    while math.gcd(stride, channels) != 1:  # a stride sharing a factor with C would skip channels
-        stride += 1
-    sample = np.concatenate([im.reshape(-1)[::stride] for im in images])
-    values, counts = np.unique(srgb_to_linear(sample).astype(np.float64), return_counts=True)
-    return values, counts / counts.sum()
-
-
-def frame_probability(phi: np.ndarray, params: SPCParams) -> np.ndarray:
-    """P(bit = 1) of one frame under the simulator's own model (``params.mode``).
-
-    ``bernoulli``: the exact 1 - exp(-lam*T). ``paper``: P(Normal(eq. 1, eq. 2) count rounds above
-    0) = P(z > (1/2 - mean)/sd) = ndtr((mean - 1/2)/sd), the probability of :func:`_paper_frames`.
-    """
-    if params.mode == "bernoulli":
-        return detection_probability(np.asarray(phi, dtype=np.float64), params)
-    from scipy.special import ndtr
-
-    mean = expected_counts(phi, params)
-    sd = np.sqrt(count_variance(phi, params))
-    with np.errstate(divide="ignore", invalid="ignore"):  # sd = 0 only at lam*T ~ 0: never fires
-        return np.where(sd > 0, ndtr((mean - 0.5) / np.where(sd > 0, sd, 1.0)), 0.0)
-
-
-def _mean_detection(values: np.ndarray, weights: np.ndarray, s: float, params: SPCParams) -> float:
-    with np.errstate(over="ignore"):  # huge trial scales: lam*T -> inf gives p = 1, as it should
-        # np.sum, not a BLAS dot: OpenBLAS threads idle-spin under load (15 ms for 18k values)
-        return float(np.sum(weights * frame_probability(s * values, params)))
-
-
-def calibrate_flux_scale(srgb_images: Sequence[np.ndarray] | np.ndarray, params: SPCParams,
-                         target_mean_detection: float = 0.5) -> float:
-    """Flux scale s whose mean detection probability over all images equals the target.
-
-    srgb_images: list of float (H, W, C) or one (N, H, W, C) array, sRGB in [0, 1]; at most 2**20
-    values are used (deterministic stride). The detection probability is the simulator's own
-    (:func:`frame_probability`, so ``paper`` mode reaches its target too). The mean is monotone in
-    s, from the dark-count floor at s = 0 up to 1 (less if some pixels are black), so a geometric
-    bisection finds s to a relative tolerance of 1e-6. A mean target keeps all regions visible
-    (paper section 3.1).
-    """
-    values, weights = _linear_histogram(srgb_images)
-    target = _real("target_mean_detection", target_mean_detection, "must be a probability")
-    p_dark = float(frame_probability(np.zeros(1), params)[0])  # the floor: dark counts only
-    black = float(weights[values == 0.0].sum())
-    p_max = 1.0 - black * (1.0 - p_dark)  # black pixels stay at p_dark for every s
-    if not (p_dark < target < p_max):
-        raise _bad("target_mean_detection", target_mean_detection,
-                   f"reachable mean detection probabilities are ({p_dark:.6g}, {p_max:.6g}): the floor "
-                   f"is the dark-count probability 1 - exp(-dcr*T) at flux_scale 0, the ceiling is 1 "
-                   f"minus the share of black pixels ({black:.3%}) that stay at the floor")
-
-    def mean_p(s: float) -> float:
-        return _mean_detection(values, weights, s, params)
-
-    lo = hi = 1.0 / (params.q * params.exposure_s * float(np.sum(weights * values)))  # mean lam*T ~ 1
-    while mean_p(lo) >= target:
-        lo /= 10.0  # terminates: mean_p -> p_dark < target as s -> 0
-    while mean_p(hi) <= target:
-        hi *= 10.0  # mean_p -> p_max > target as s -> inf, but stop before s overflows
-        if hi > 1e300:
-            raise _bad("target_mean_detection", target_mean_detection,
-                       f"too close to the reachable ceiling {p_max:.6g} to calibrate")
-    for _ in range(100):  # geometric bisection; ~25 steps from a factor-10 bracket to 1e-6
-        if hi <= lo * (1.0 + 1e-6):
-            break
-        mid = math.sqrt(lo * hi)
-        lo, hi = (mid, hi) if mean_p(mid) < target else (lo, mid)
-    return math.sqrt(lo * hi)
 
 
 # --------------------------------------------------------------------------------------------
@@ -418,8 +337,9 @@ def mle_flux(frames_sum: np.ndarray, K: int, params: SPCParams) -> np.ndarray:
     K = _integer("K", K, 1)
     S = np.asarray(frames_sum, dtype=np.float64)
     if S.size and not (S.min() >= 0.0 and S.max() <= K):
-        raise ValueError(f"frames_sum: values span {_span(S)}; the number of ones among K={K} "
-                         f"frames must lie in [0, {K}]")
+        raise ValueError(
+            f"frames_sum: values span {_span(S)}; the number of ones among K={K} frames must lie in [0, {K}]"
+        )
     cap = math.log(K) + math.log(2.0)
     saturated = S >= K
     y = -np.log1p(-np.where(saturated, 0.0, S / K))  # S == K masked: log1p(-1) would warn

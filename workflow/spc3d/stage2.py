@@ -35,12 +35,24 @@ from .training import peak_rss_mb, run, seed_everything
 log = logging.getLogger(__name__)
 
 
-def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source: str, model: str,
-                settings: dict, seed: int = 0, spc_dir: str | os.PathLike | None = None,
-                image_dir: str | os.PathLike | None = None, checkpoint: str | os.PathLike | None = None,
-                frames: int | None = 1, threads: int | None = None, points_dir: str | os.PathLike | None = None,
-                policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None,
-                display_dir: str | os.PathLike | None = None, init_setting: str | None = None) -> dict:
+def reconstruct(
+    scene_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    source: str,
+    model: str,
+    settings: dict,
+    seed: int = 0,
+    spc_dir: str | os.PathLike | None = None,
+    image_dir: str | os.PathLike | None = None,
+    checkpoint: str | os.PathLike | None = None,
+    frames: int | None = 1,
+    threads: int | None = None,
+    points_dir: str | os.PathLike | None = None,
+    policy: CheckpointPolicy = CheckpointPolicy(),
+    input_digests: dict | None = None,
+    display_dir: str | os.PathLike | None = None,
+    init_setting: str | None = None,
+) -> dict:
     """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
 
     ``frames``: binary frames per view the source consumes (its photon budget K, recorded; the
@@ -64,18 +76,50 @@ def reconstruct(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, source
     points, init = initial_points(points_dir)
     trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
     log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
-    meta = {"model": model, "source": source, "objective": getattr(src.objective, "name", "rgb"), "seed": seed,
-            "settings": dataclasses.asdict(cfg), "frames": frames, "poses": "ground truth (the scene's cameras)",
-            "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},
-            "display": display_record(display_dir)}
-    ckpt = Checkpoint(checkpoint, fingerprint("reconstruct", meta, input_digests or {
-        "scene": digest_path(scene_dir), "spc": digest_path(spc_dir), "images": digest_path(image_dir),
-        "points": digest_path(points_dir), "display": digest_path(display_dir)})) if checkpoint else None
-    result = run(trainer, iterations, ckpt, policy, desc=f"{source}+{model}",
-                 postfix=lambda stats: {k: v for k, v in trainer.capacity().items() if isinstance(v, int)})
-    record = {**{k: v for k, v in result.items() if k != "final"},
-              "final_loss": result["final"].get("loss"), "final_train_psnr": result["final"].get("psnr"),
-              "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()}}
+    meta = {
+        "model": model,
+        "source": source,
+        "objective": getattr(src.objective, "name", "rgb"),
+        "seed": seed,
+        "settings": dataclasses.asdict(cfg),
+        "frames": frames,
+        "poses": "ground truth (the scene's cameras)",
+        "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},
+        "display": display_record(display_dir),
+    }
+    ckpt = (
+        Checkpoint(
+            checkpoint,
+            fingerprint(
+                "reconstruct",
+                meta,
+                input_digests
+                or {
+                    "scene": digest_path(scene_dir),
+                    "spc": digest_path(spc_dir),
+                    "images": digest_path(image_dir),
+                    "points": digest_path(points_dir),
+                    "display": digest_path(display_dir),
+                },
+            ),
+        )
+        if checkpoint
+        else None
+    )
+    result = run(
+        trainer,
+        iterations,
+        ckpt,
+        policy,
+        desc=f"{source}+{model}",
+        postfix=lambda stats: {k: v for k, v in trainer.capacity().items() if isinstance(v, int)},
+    )
+    record = {
+        **{k: v for k, v in result.items() if k != "final"},
+        "final_loss": result["final"].get("loss"),
+        "final_train_psnr": result["final"].get("psnr"),
+        "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()},
+    }
     render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
     return record | {"render_s": render_s}
 

@@ -24,11 +24,19 @@ from .simulate import read_spc_record
 def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role: str) -> dict:
     """One table row from the records the scene, SPC and COLMAP steps wrote."""
     meta, rec = io.read_json(scene_dir / "scene.json"), read_spc_record(spc_dir)
-    row = {"scene": scene_dir.name, "role": role, "source": meta.get("source"),
-           "layout/path": meta.get("layout") or meta.get("path"), "views": meta["views"],
-           "size": f"{meta['width']}x{meta['height']}", "K": rec["params"]["frames"],
-           "flux_scale": rec["flux_scale"], "detection_rate": rec["mean_detection_rate"],
-           "saturated": rec["mean_saturated_fraction"], "mle_psnr_exact_gain_db": rec["mean_mle_psnr_exact_gain_db"]}
+    row = {
+        "scene": scene_dir.name,
+        "role": role,
+        "source": meta.get("source"),
+        "layout/path": meta.get("layout") or meta.get("path"),
+        "views": meta["views"],
+        "size": f"{meta['width']}x{meta['height']}",
+        "K": rec["params"]["frames"],
+        "flux_scale": rec["flux_scale"],
+        "detection_rate": rec["mean_detection_rate"],
+        "saturated": rec["mean_saturated_fraction"],
+        "mle_psnr_exact_gain_db": rec["mean_mle_psnr_exact_gain_db"],
+    }
     for name, d in colmap_dirs.items():
         row |= colmap_columns(name, io.read_json(d / "pose_error.json"))
     return row
@@ -37,10 +45,12 @@ def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role
 def colmap_columns(name: str, rec: dict) -> dict:
     """Registered views and median pose / reprojection errors of one COLMAP run (None if failed)."""
     pose, reproj = rec.get("pose") or {}, rec.get("reprojection") or {}
-    return {f"{name}_registered": f"{rec['registered']}/{rec['total']}",
-            f"{name}_rot_deg": (pose.get("rotation_deg") or {}).get("median"),
-            f"{name}_center_rel": (pose.get("center_rel") or {}).get("median"),
-            f"{name}_reproj_px": reproj.get("median_px")}
+    return {
+        f"{name}_registered": f"{rec['registered']}/{rec['total']}",
+        f"{name}_rot_deg": (pose.get("rotation_deg") or {}).get("median"),
+        f"{name}_center_rel": (pose.get("center_rel") or {}).get("median"),
+        f"{name}_reproj_px": reproj.get("median_px"),
+    }
 
 
 def summary_table(rows: list[dict]) -> pd.DataFrame:
@@ -80,8 +90,15 @@ def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: in
     save_png(fig, path, dpi=110)
 
 
-def write_summary(scene_dirs: list[str], spc_dirs: list[str], colmap_dirs: list[str], roles: list[str],
-                  out_csv: str, out_md: str, out_png: str) -> pd.DataFrame:
+def write_summary(
+    scene_dirs: list[str],
+    spc_dirs: list[str],
+    colmap_dirs: list[str],
+    roles: list[str],
+    out_csv: str,
+    out_md: str,
+    out_png: str,
+) -> pd.DataFrame:
     """Entry point of the ``data_summary`` rule. ``colmap_dirs`` are ``results/colmap/{scene}/{input}``."""
     by_scene: dict[str, dict[str, Path]] = {}
     for d in map(Path, colmap_dirs):

@@ -25,14 +25,20 @@ import pandas as pd
 from . import io
 from .workflow import LABELS, split_source
 
-METRICS = {"psnr": ("PSNR↑", True), "ssim": ("SSIM↑", True), "lpips_alex": ("LPIPS-alex↓", False),
-           "lpips_vgg": ("LPIPS-vgg↓", False)}
+METRICS = {
+    "psnr": ("PSNR↑", True),
+    "ssim": ("SSIM↑", True),
+    "lpips_alex": ("LPIPS-alex↓", False),
+    "lpips_vgg": ("LPIPS-vgg↓", False),
+}
 # What every caption says about the protocol (the rule for the physics rows' display gain included).
-PROTOCOL = ("K = binary frames per view a row consumed; ranks (bold best, italic second) only among rows of "
-            "equal K; oracle rows read the ground truth and are not ranked. No other row reads the evaluation "
-            "scene's ground truth: the MLE and SPAD-likelihood rows display their flux at a gain metered from "
-            "their own frames (mean flux / k, k fitted on the training scenes). Poses: ground truth for every "
-            "row. Mean ± std over n runs (scenes × seeds).")
+PROTOCOL = (
+    "K = binary frames per view a row consumed; ranks (bold best, italic second) only among rows of "
+    "equal K; oracle rows read the ground truth and are not ranked. No other row reads the evaluation "
+    "scene's ground truth: the MLE and SPAD-likelihood rows display their flux at a gain metered from "
+    "their own frames (mean flux / k, k fitted on the training scenes). Poses: ground truth for every "
+    "row. Mean ± std over n runs (scenes × seeds)."
+)
 
 # Paper Table 2 (single-stage), then the rows this project adds.
 SINGLE_STAGE = [
@@ -84,9 +90,16 @@ def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
     for path in metrics_files:
         rec = io.read_json(path)
         init = rec.get("init")
-        rows.append({"scene": rec["scene"], "combination": rec["combination"], "seed": rec.get("seed"),
-                     "K": rec.get("frames"), "init": init.get("used") if isinstance(init, dict) else init,
-                     **{k: rec["mean"][k] for k in METRICS}})
+        rows.append(
+            {
+                "scene": rec["scene"],
+                "combination": rec["combination"],
+                "seed": rec.get("seed"),
+                "K": rec.get("frames"),
+                "init": init.get("used") if isinstance(init, dict) else init,
+                **{k: rec["mean"][k] for k in METRICS},
+            }
+        )
     return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "init", *METRICS])
 
 
@@ -96,8 +109,9 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     out = g[list(METRICS)].mean().add_suffix("_mean").join(g[list(METRICS)].std(ddof=0).add_suffix("_std"))
     out = out.join(g.size().rename("runs"))
     out["K"] = g["K"].agg(lambda k: _one(k, "K"))
-    out["init"] = g["init"].agg(lambda v: "; ".join(sorted({str(x).split(" (")[0] for x in v if x is not None}))
-                                or None)
+    out["init"] = g["init"].agg(
+        lambda v: "; ".join(sorted({str(x).split(" (")[0] for x in v if x is not None})) or None
+    )
     return out
 
 
@@ -128,9 +142,15 @@ def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
         combo = f"{source}+{model}"
         have = combo in summary.index
         K = summary.loc[combo, "K"] if have else None
-        row = {"approach": label + (f" [{model}]" if family == "nerf" else ""), "combination": combo, "role": role,
-               "K": K, "poses": "ground truth", "init": summary.loc[combo, "init"] if have else None,
-               "runs": int(summary.loc[combo, "runs"]) if have else 0}
+        row = {
+            "approach": label + (f" [{model}]" if family == "nerf" else ""),
+            "combination": combo,
+            "role": role,
+            "K": K,
+            "poses": "ground truth",
+            "init": summary.loc[combo, "init"] if have else None,
+            "runs": int(summary.loc[combo, "runs"]) if have else 0,
+        }
         for k in METRICS:
             row[f"{k}_mean"] = summary.loc[combo, f"{k}_mean"] if have else np.nan
             row[f"{k}_std"] = summary.loc[combo, f"{k}_std"] if have else np.nan
@@ -163,13 +183,23 @@ def ranks(df: pd.DataFrame, key: str, higher_better: bool) -> pd.Series:
 
 def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
     """Display strings: mean ± std (best / second within equal K marked; no ± when n = 1), K, n."""
-    label = [a if n == 0 else f"{a} (oracle, no photons)" if role == "oracle" else f"{a} (K = {k_text(k)})"
-             for a, k, n, role in zip(df["approach"], df["K"], df["runs"], df["role"])]
-    out = pd.DataFrame({"Approach": label, "combination": df["combination"], "K": [k_text(k) for k in df["K"]],
-                        "poses": df["poses"], "n": df["runs"]})
+    label = [
+        a if n == 0 else f"{a} (oracle, no photons)" if role == "oracle" else f"{a} (K = {k_text(k)})"
+        for a, k, n, role in zip(df["approach"], df["K"], df["runs"], df["role"])
+    ]
+    out = pd.DataFrame(
+        {
+            "Approach": label,
+            "combination": df["combination"],
+            "K": [k_text(k) for k in df["K"]],
+            "poses": df["poses"],
+            "n": df["runs"],
+        }
+    )
     if df["combination"].str.endswith("+3dgs").any():  # where each 3DGS started (stage2.init, as done)
-        out["3DGS init"] = [i if c.endswith("+3dgs") and isinstance(i, str) else "–"
-                            for c, i in zip(df["combination"], df["init"])]
+        out["3DGS init"] = [
+            i if c.endswith("+3dgs") and isinstance(i, str) else "–" for c, i in zip(df["combination"], df["init"])
+        ]
     for k, (title, higher) in METRICS.items():
         r = ranks(df, f"{k}_mean", higher)
         digits = 2 if k == "psnr" else 4
@@ -196,8 +226,13 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None
     md = formatted(df, lambda s: f"**{s}**", lambda s: f"*{s}*")
     io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + f"\n\n{PROTOCOL}\n")
     tex = formatted(df, lambda s: f"\\textbf{{{s}}}", lambda s: f"\\textit{{{s}}}")
-    tex = tex.map(lambda s: s.replace("±", "$\\pm$").replace("↑", "$\\uparrow$").replace("↓", "$\\downarrow$")
-                  .replace("–", "--") if isinstance(s, str) else s)
+    tex = tex.map(
+        lambda s: (
+            s.replace("±", "$\\pm$").replace("↑", "$\\uparrow$").replace("↓", "$\\downarrow$").replace("–", "--")
+            if isinstance(s, str)
+            else s
+        )
+    )
     io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {PROTOCOL}", escape=False))
     html = formatted(df, lambda s: f"<b>{s}</b>", lambda s: f"<i>{s}</i>").to_html(index=False, escape=False)
     io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=PROTOCOL))
@@ -222,28 +257,53 @@ def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> 
     rows, priors = [], {}
     for path in stage1_files:
         rec = io.read_json(path)
-        rows.append({"scene": rec["scene"], "combination": rec["source"], "K": rec.get("frames"), "init": None,
-                     **{k: rec["mean"][k] for k in METRICS}})
+        rows.append(
+            {
+                "scene": rec["scene"],
+                "combination": rec["source"],
+                "K": rec.get("frames"),
+                "init": None,
+                **{k: rec["mean"][k] for k in METRICS},
+            }
+        )
         if rec.get("prior"):  # the translators' physics prior alone: one row per distinct prior (they share one)
             prior = rec["prior"]
-            name = priors.setdefault((prior.get("sigma"), tuple(prior.get("gain", ()))),
-                                     "prior" if not priors else f"prior-{rec['source']}")
-            if not any(r["combination"] == name and r["scene"] == rec["scene"] and r.get("seed") == rec.get("seed")
-                       for r in rows):
-                rows.append({"scene": rec["scene"], "combination": name, "K": rec.get("frames"), "init": None,
-                             "seed": rec.get("seed"), **{k: prior["mean"][k] for k in METRICS}})
+            name = priors.setdefault(
+                (prior.get("sigma"), tuple(prior.get("gain", ()))), "prior" if not priors else f"prior-{rec['source']}"
+            )
+            if not any(
+                r["combination"] == name and r["scene"] == rec["scene"] and r.get("seed") == rec.get("seed")
+                for r in rows
+            ):
+                rows.append(
+                    {
+                        "scene": rec["scene"],
+                        "combination": name,
+                        "K": rec.get("frames"),
+                        "init": None,
+                        "seed": rec.get("seed"),
+                        **{k: prior["mean"][k] for k in METRICS},
+                    }
+                )
     rows = [{k: v for k, v in r.items() if k != "seed"} for r in rows]
     summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", "K", "init", *METRICS]))
-    spec = [(labels.get(split_source(src)[0], src), src, "image", None, "oracle" if src == "gt" else "ours")
-            for src in summary.sort_values("psnr_mean", ascending=False).index]
+    spec = [
+        (labels.get(split_source(src)[0], src), src, "image", None, "oracle" if src == "gt" else "ours")
+        for src in summary.sort_values("psnr_mean", ascending=False).index
+    ]
     df = table(summary.rename(index=lambda c: f"{c}+image"), spec, "image")
     df["combination"] = [c.removesuffix("+image") for c in df["combination"]]
     write_table(df, stem, "Stage 1 alone: translated held-out views vs ground truth, before 3D")
     return df
 
 
-def write_all_tables(metrics_files: list[str], stage1_files: list[str], folder: str | os.PathLike,
-                     nerf_variant: str, labels: dict[str, str] = LABELS) -> None:
+def write_all_tables(
+    metrics_files: list[str],
+    stage1_files: list[str],
+    folder: str | os.PathLike,
+    nerf_variant: str,
+    labels: dict[str, str] = LABELS,
+) -> None:
     """single_stage.*, two_stage.*, stage1.* and the findings (findings.md / .json / .html) in ``folder``."""
     from .findings import write_findings
 

@@ -39,6 +39,7 @@ from .checkpoints import Checkpoint, CheckpointLock, CheckpointPolicy, Snakemake
 
 # --- small helpers ------------------------------------------------------------------------------
 
+
 def seed_everything(seed: int) -> None:
     """Python, numpy and torch's global generators (models draw from their own seeded streams too)."""
     random.seed(seed)
@@ -103,8 +104,7 @@ def _check_type(where: str, key: str, value, default) -> None:
     kinds = {bool: (bool,), int: (int,), float: (int, float), str: (str,), tuple: (tuple,)}
     want = kinds.get(type(default))
     if want and (not isinstance(value, want) or (isinstance(value, bool) and bool not in want)):
-        raise ValueError(f"{where}.{key} = {value!r}: expected {type(default).__name__} "
-                         f"(like the default {default!r})")
+        raise ValueError(f"{where}.{key} = {value!r}: expected {type(default).__name__} (like the default {default!r})")
 
 
 def _tuples(v):
@@ -114,9 +114,16 @@ def _tuples(v):
 
 # --- the loop -----------------------------------------------------------------------------------
 
-def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
-        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "train", log_every: int = 50,
-        postfix=None) -> dict:
+
+def run(
+    trainer,
+    iterations: int,
+    checkpoint: Checkpoint | None = None,
+    policy: CheckpointPolicy = CheckpointPolicy(),
+    desc: str = "train",
+    log_every: int = 50,
+    postfix=None,
+) -> dict:
     """Train to ``iterations`` (resuming from ``checkpoint`` when it belongs to this job), or until
     the trainer's optional ``should_stop()`` says so after a step (early stopping).
 
@@ -144,8 +151,12 @@ def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
             stopped = _wants_stop(trainer)
             if it % log_every == 0:
                 bar.set_postfix({k: f"{v:.4f}" for k, v in stats.items()} | (postfix(stats) if postfix else {}))
-            due = it == iterations or stopped or (every and it % every == 0) or \
-                (policy.minutes > 0 and time.perf_counter() - last_save >= 60.0 * policy.minutes)
+            due = (
+                it == iterations
+                or stopped
+                or (every and it % every == 0)
+                or (policy.minutes > 0 and time.perf_counter() - last_save >= 60.0 * policy.minutes)
+            )
             if checkpoint and due:
                 if watch:
                     watch.check(now=True)  # never write for a Snakemake that is gone
@@ -153,9 +164,15 @@ def run(trainer, iterations: int, checkpoint: Checkpoint | None = None,
                 last_save = time.perf_counter()
             if stopped:
                 break
-    return {"iterations": iterations, "steps": done, "stopped_early": stopped, "resumed_from": start,
-            "train_s": time.perf_counter() - t0, "final": stats,
-            "checkpoint": checkpoint.record if checkpoint else None}
+    return {
+        "iterations": iterations,
+        "steps": done,
+        "stopped_early": stopped,
+        "resumed_from": start,
+        "train_s": time.perf_counter() - t0,
+        "final": stats,
+        "checkpoint": checkpoint.record if checkpoint else None,
+    }
 
 
 def _wants_stop(trainer) -> bool:

@@ -33,8 +33,9 @@ def logged(log_path: str):
     keep_freed_memory()
     Path(log_path).parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w", buffering=1) as f, contextlib.redirect_stdout(f), contextlib.redirect_stderr(f):
-        logging.basicConfig(stream=f, level=logging.INFO, force=True,
-                            format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        logging.basicConfig(
+            stream=f, level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+        )
         t0 = time.perf_counter()
         try:
             yield
@@ -57,12 +58,20 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
                 specs[name] = {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
                 llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")  # checked now, not in a job
             elif name in builtin_layouts:
-                specs[name] = {"kind": "builtin", "layout": name, "height": res["height"], "width": res["width"],
-                               "views": config["builtin"]["views"], "supersample": config["builtin"]["supersample"],
-                               "seed": config["seed"]}
+                specs[name] = {
+                    "kind": "builtin",
+                    "layout": name,
+                    "height": res["height"],
+                    "width": res["width"],
+                    "views": config["builtin"]["views"],
+                    "supersample": config["builtin"]["supersample"],
+                    "seed": config["seed"],
+                }
             else:
-                raise ConfigError(f"scenes.{role}: unknown scene {name!r}; use a built-in layout "
-                                  f"({', '.join(builtin_layouts)}) or add it to llff_scenes as name: folder")
+                raise ConfigError(
+                    f"scenes.{role}: unknown scene {name!r}; use a built-in layout "
+                    f"({', '.join(builtin_layouts)}) or add it to llff_scenes as name: folder"
+                )
     overlap = set(config["scenes"]["train"]) & set(config["scenes"]["eval"])
     if overlap:
         raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
@@ -78,9 +87,11 @@ def check_disjoint_content(train: list[str], evaluate: list[str]) -> None:
     if shared:
         seen = "; ".join(f"{src!r} in {'/'.join(a)} and {'/'.join(b)}" for src, (a, b) in list(shared.items())[:4])
         pools = {role: [n for n, r in LAYOUT_ROLES.items() if r == role] for role in ("train", "eval")}
-        raise ConfigError(f"scenes.train and scenes.eval share content ({seen}{' ...' if len(shared) > 4 else ''}): "
-                          f"evaluation scenes must be unseen in training; train on {pools['train']} and evaluate "
-                          f"on {pools['eval']}")
+        raise ConfigError(
+            f"scenes.train and scenes.eval share content ({seen}{' ...' if len(shared) > 4 else ''}): "
+            f"evaluation scenes must be unseen in training; train on {pools['train']} and evaluate "
+            f"on {pools['eval']}"
+        )
 
 
 def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") -> list[str]:
@@ -110,13 +121,25 @@ BUDGET_SOURCES = ("mle", "bernoulli")
 # Where each image source's views are: (input folder kind, subfolder). "scene" is results/scenes/{scene},
 # "spc" results/spc/{scene}, "display" the metered MLE folder of the row's budget, "translated" a
 # stage-1 method's outputs. ``bernoulli`` trains on the frames themselves (no images).
-SOURCE_IMAGES = {"gt": ("scene", "images"), "none": ("spc", "binary"), "mle": ("display", "images"),
-                 **{m: ("translated", "images") for m in STAGE1_METHODS}}
+SOURCE_IMAGES = {
+    "gt": ("scene", "images"),
+    "none": ("spc", "binary"),
+    "mle": ("display", "images"),
+    **{m: ("translated", "images") for m in STAGE1_METHODS},
+}
 # How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
-LABELS = {"pix2pixhd": "Pix2PixHD", "pix2pix": "Pix2Pix", "cyclegan": "CycleGAN", "restormer": "Restormer",
-          "diffusion": "Diffusion (DiffBIR stand-in)", "mle": "MLE", "none": "binary frame (no stage 1)",
-          "gt": "ground truth", "bernoulli": "SPAD likelihood on binary",
-          "prior": "physics prior: blurred MLE, the translators' start (no training)"}
+LABELS = {
+    "pix2pixhd": "Pix2PixHD",
+    "pix2pix": "Pix2Pix",
+    "cyclegan": "CycleGAN",
+    "restormer": "Restormer",
+    "diffusion": "Diffusion (DiffBIR stand-in)",
+    "mle": "MLE",
+    "none": "binary frame (no stage 1)",
+    "gt": "ground truth",
+    "bernoulli": "SPAD likelihood on binary",
+    "prior": "physics prior: blurred MLE, the translators' start (no training)",
+}
 
 
 def split_source(source: str) -> tuple[str, int | None]:
@@ -148,11 +171,15 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
             raise ConfigError(f"{where}: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
         base, k = split_source(source)
         if base not in PLAIN_SOURCES + STAGE1_METHODS or (source != base and k is None):
-            raise ConfigError(f"{where}: {combo!r} has unknown source {source!r}; use one of "
-                              f"{list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}")
+            raise ConfigError(
+                f"{where}: {combo!r} has unknown source {source!r}; use one of "
+                f"{list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}"
+            )
         if k is not None and base not in BUDGET_SOURCES:
-            raise ConfigError(f"{where}: {combo!r}: only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' "
-                              f"(translators use stage1.frames, 'none' is one frame, 'gt' none)")
+            raise ConfigError(
+                f"{where}: {combo!r}: only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' "
+                f"(translators use stage1.frames, 'none' is one frame, 'gt' none)"
+            )
         out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
     return list(dict.fromkeys(out))
 
@@ -165,8 +192,11 @@ def stage1_sources(combinations: list[str]) -> list[str]:
 
 def display_budgets(combinations: list[str], stage2_frames: int) -> list[int]:
     """The frame budgets K whose metered display gain the combinations need (mle / bernoulli rows)."""
-    ks = {source_frames(c.partition("+")[0], 1, stage2_frames) for c in combinations
-          if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES}
+    ks = {
+        source_frames(c.partition("+")[0], 1, stage2_frames)
+        for c in combinations
+        if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES
+    }
     return sorted(ks)
 
 
@@ -184,8 +214,12 @@ def spc_settings(spc: dict, seed: int, frames: int | None = None, detection: flo
         physics["frames"] = frames
     if detection is not None:
         return {"physics": physics, "flux_scale": None, "target_detection": detection, "seed": seed}
-    return {"physics": physics, "flux_scale": spc["flux_scale"], "target_detection": spc["target_detection"],
-            "seed": seed}
+    return {
+        "physics": physics,
+        "flux_scale": spc["flux_scale"],
+        "target_detection": spc["target_detection"],
+        "seed": seed,
+    }
 
 
 def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:

@@ -36,8 +36,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ins.add_argument("folder", type=Path)
     ins.add_argument("out_dir", type=Path)
     ins.add_argument("--frames", type=int, help="use the first N frames of every view (default: sensor.json)")
-    ins.add_argument("--level", type=float, default=captures.PREVIEW_LEVEL,
-                     help="linear grey level the mean flux is shown at (average metering)")
+    ins.add_argument(
+        "--level",
+        type=float,
+        default=captures.PREVIEW_LEVEL,
+        help="linear grey level the mean flux is shown at (average metering)",
+    )
     ins.add_argument("--threshold", type=float, default=6.0, help="hot-pixel robust z-score threshold")
     return ap.parse_args(argv)
 
@@ -46,16 +50,21 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         if args.command == "export":
-            rec = captures.export_simulated(args.spc_dir, args.out_dir, args.cfa, args.format, args.bitorder,
-                                            args.scene, seed=args.seed)
-            print(f"{args.out_dir}: {rec['frames']} frames of {rec['width']}x{rec['height']}, "
-                  f"cfa {rec['cfa']}, format {rec['format']}")
+            rec = captures.export_simulated(
+                args.spc_dir, args.out_dir, args.cfa, args.format, args.bitorder, args.scene, seed=args.seed
+            )
+            print(
+                f"{args.out_dir}: {rec['frames']} frames of {rec['width']}x{rec['height']}, "
+                f"cfa {rec['cfa']}, format {rec['format']}"
+            )
         else:
             rec = captures.inspect_capture(args.folder, args.out_dir, args.frames, args.level, args.threshold)
             rates = ", ".join(f"{c} {r:.3f}" for c, r in rec["detection_rate"].items())
             hot = rec["hot_pixels"]
-            print(f"{args.folder}: {len(rec['views'])} views, {rec['frames']} frames of "
-                  f"{rec['width']}x{rec['height']}, cfa {rec['cfa']}")
+            print(
+                f"{args.folder}: {len(rec['views'])} views, {rec['frames']} frames of "
+                f"{rec['width']}x{rec['height']}, cfa {rec['cfa']}"
+            )
             print(f"  detection rate per colour: {rates}")
             print(f"  hot pixels: {hot['count']} ({100 * hot['count'] / hot['pixels']:.3f} %)")
             print(f"  previews, hot_pixels.png, capture.json in {args.out_dir}")

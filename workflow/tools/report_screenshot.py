@@ -49,8 +49,10 @@ def find_browser() -> str:
         path = shutil.which(name)
         if path:
             return path
-    raise BrowserMissing(f"no headless browser found (looked for {', '.join(BROWSERS)} on PATH and $CHROMIUM); "
-                         "install one with `apt-get install chromium` (Debian/Ubuntu) or point $CHROMIUM at Chrome")
+    raise BrowserMissing(
+        f"no headless browser found (looked for {', '.join(BROWSERS)} on PATH and $CHROMIUM); "
+        "install one with `apt-get install chromium` (Debian/Ubuntu) or point $CHROMIUM at Chrome"
+    )
 
 
 # Asked of the page until it is settled: {"wait": why not yet} or {"ready": a signature of what is drawn}.
@@ -92,8 +94,9 @@ class DevTools:
         # bash puts the two pipe ends on fds 3 and 4, then becomes the browser (exec). Not sh: dash
         # only redirects fds 0-9, and these two can be higher (under pytest they are).
         launch = ["bash", "-c", f'exec "$0" "$@" 3<&{to_browser} 4>&{from_browser}', browser, *args]
-        self.proc = subprocess.Popen(launch, pass_fds=(to_browser, from_browser), stdin=subprocess.DEVNULL,
-                                     stdout=log, stderr=log)
+        self.proc = subprocess.Popen(
+            launch, pass_fds=(to_browser, from_browser), stdin=subprocess.DEVNULL, stdout=log, stderr=log
+        )
         os.close(to_browser)
         os.close(from_browser)
         self._buffer = bytearray()
@@ -123,22 +126,25 @@ class DevTools:
             if select.select([self._replies], [], [], left)[0]:
                 chunk = os.read(self._replies, 1 << 20)
                 if not chunk:
-                    raise RuntimeError(f"the browser exited during DevTools {method} "
-                                       f"(exit {self.proc.poll()}); its log is in the error below")
+                    raise RuntimeError(
+                        f"the browser exited during DevTools {method} "
+                        f"(exit {self.proc.poll()}); its log is in the error below"
+                    )
                 self._buffer += chunk
         end = self._buffer.index(b"\0")
         message = json.loads(self._buffer[:end])
-        del self._buffer[:end + 1]
+        del self._buffer[: end + 1]
         return message
 
     def evaluate(self, expression: str):
         """The value of a JavaScript expression in the page (promises awaited)."""
-        result = self.send("Runtime.evaluate", {"expression": expression, "returnByValue": True,
-                                                "awaitPromise": True})
+        result = self.send("Runtime.evaluate", {"expression": expression, "returnByValue": True, "awaitPromise": True})
         if "exceptionDetails" in result:
             details = result["exceptionDetails"]
-            raise RuntimeError(f"a script in the page failed: {details.get('exception', {}).get('description')}"
-                               f" ({details.get('text')})")
+            raise RuntimeError(
+                f"a script in the page failed: {details.get('exception', {}).get('description')}"
+                f" ({details.get('text')})"
+            )
         return result["result"].get("value")
 
     def close(self) -> None:
@@ -158,13 +164,24 @@ class DevTools:
 
 def browser_args(size: tuple[int, int], profile: Path) -> list[str]:
     """Headless Chromium flags: DevTools over the pipe, a throwaway profile, the window ``size``."""
-    return ["--headless", "--remote-debugging-pipe", "--disable-gpu", "--no-sandbox", "--hide-scrollbars",
-            "--disable-dev-shm-usage", "--no-first-run", "--no-default-browser-check",
-            f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}", "about:blank"]
+    return [
+        "--headless",
+        "--remote-debugging-pipe",
+        "--disable-gpu",
+        "--no-sandbox",
+        "--hide-scrollbars",
+        "--disable-dev-shm-usage",
+        "--no-first-run",
+        "--no-default-browser-check",
+        f"--user-data-dir={profile}",
+        f"--window-size={size[0]},{size[1]}",
+        "about:blank",
+    ]
 
 
-def wait_until_settled(tools: DevTools, want: str | None, deadline: float, page: Path,
-                       polls: int = 4, interval_s: float = 0.15) -> None:
+def wait_until_settled(
+    tools: DevTools, want: str | None, deadline: float, page: Path, polls: int = 4, interval_s: float = 0.15
+) -> None:
     """Poll until the page is ready and its signature is the same ``polls`` times in a row."""
     last, same, reason = None, 0, "it never answered"
     while time.monotonic() < deadline:
@@ -181,8 +198,13 @@ def wait_until_settled(tools: DevTools, want: str | None, deadline: float, page:
     raise TimeoutError(f"{page}: the page did not settle in time ({reason})")
 
 
-def screenshot(html: str | os.PathLike, png: str | os.PathLike, size: tuple[int, int] = (1400, 1000),
-               show: str | None = None, timeout_s: float = 120.0) -> Path:
+def screenshot(
+    html: str | os.PathLike,
+    png: str | os.PathLike,
+    size: tuple[int, int] = (1400, 1000),
+    show: str | None = None,
+    timeout_s: float = 120.0,
+) -> Path:
     """Render ``html`` in headless Chromium and write a ``size`` PNG to ``png``; returns its path.
     ``show``: a result's path (e.g. ``results/figures/qualitative_courtyard.png``) to open first.
     The PNG is written under a temporary name and renamed, so a failed run leaves no partial file."""
@@ -212,16 +234,21 @@ def capture(tools: DevTools, html: Path, size: tuple[int, int], show: str | None
     """Open ``html`` in a new page, wait until it has settled (with ``show`` opened), take the PNG."""
     target = tools.send("Target.createTarget", {"url": "about:blank"})["targetId"]
     tools.session = tools.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
-    tools.send("Emulation.setDeviceMetricsOverride", {"width": size[0], "height": size[1],
-                                                      "deviceScaleFactor": 1, "mobile": False})
+    tools.send(
+        "Emulation.setDeviceMetricsOverride",
+        {"width": size[0], "height": size[1], "deviceScaleFactor": 1, "mobile": False},
+    )
     tools.send("Page.navigate", {"url": html.resolve().as_uri()})
     wait_until_settled(tools, None, deadline, html)
     if show:
         if not tools.evaluate(SHOW_JS % json.dumps(show)):
-            raise ValueError(f"{show!r} is not a result of {html} (give a path as the report lists it, "
-                             "e.g. results/figures/qualitative_courtyard.png)")
+            raise ValueError(
+                f"{show!r} is not a result of {html} (give a path as the report lists it, "
+                "e.g. results/figures/qualitative_courtyard.png)"
+            )
         wait_until_settled(tools, show, deadline, html)
     return base64.b64decode(tools.send("Page.captureScreenshot", {"format": "png"})["data"])
+
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -90,8 +90,9 @@ def clone_params(model: GaussianModel, mask: Tensor) -> dict[str, Tensor]:
     return {name: getattr(model, name).detach()[mask] for name in PARAM_NAMES}
 
 
-def split_params(model: GaussianModel, mask: Tensor, generator: torch.Generator | None = None,
-                 n: int = 2) -> dict[str, Tensor]:
+def split_params(
+    model: GaussianModel, mask: Tensor, generator: torch.Generator | None = None, n: int = 2
+) -> dict[str, Tensor]:
     """Two children per masked Gaussian, centred at samples of it, scales divided by 0.8 n."""
     p = clone_params(model, mask)
     scales = p["log_scales"].exp().repeat(n, 1)
@@ -143,7 +144,8 @@ def _replace_in_optimizer(opt: torch.optim.Optimizer, old: Tensor, new: Tensor, 
                 state = opt.state.pop(old, None)
                 group["params"][i] = new
                 if state:
-                    opt.state[new] = {k: (fix_state(v) if k in ("exp_avg", "exp_avg_sq") else v)
-                                      for k, v in state.items()}
+                    opt.state[new] = {
+                        k: (fix_state(v) if k in ("exp_avg", "exp_avg_sq") else v) for k, v in state.items()
+                    }
                 return
     raise KeyError("parameter not found in the optimizer")

@@ -74,9 +74,14 @@ class GaussianModel(nn.Module):
         quats = torch.zeros(n, 4)
         quats[:, 0] = 1.0
         rest = torch.zeros(n, (sh_degree + 1) ** 2 - 1, 3)
-        init = {"means": means.float(), "log_scales": dist.log()[:, None].repeat(1, 3), "quats": quats,
-                "opacity_logits": torch.full((n,), float(np.log(opacity / (1 - opacity)))),
-                "sh_dc": ((colors.float() - 0.5) / SH_C0)[:, None, :], "sh_rest": rest}
+        init = {
+            "means": means.float(),
+            "log_scales": dist.log()[:, None].repeat(1, 3),
+            "quats": quats,
+            "opacity_logits": torch.full((n,), float(np.log(opacity / (1 - opacity)))),
+            "sh_dc": ((colors.float() - 0.5) / SH_C0)[:, None, :],
+            "sh_rest": rest,
+        }
         for name in PARAM_NAMES:
             setattr(self, name, nn.Parameter(init[name].contiguous()))
         self.active_degree = 0
@@ -100,13 +105,26 @@ class GaussianModel(nn.Module):
         centre = torch.as_tensor(cams.centers[i], dtype=torch.float32)
         sh = torch.cat([self.sh_dc, self.sh_rest], 1)
         rgb = eval_sh(self.active_degree, sh, self.means - centre)
-        image, alpha = rasterize(proj.means2d, proj.conics, self.opacities, rgb, proj.depths, proj.radii,
-                                 cams.height, cams.width, background, backend)
+        image, alpha = rasterize(
+            proj.means2d,
+            proj.conics,
+            self.opacities,
+            rgb,
+            proj.depths,
+            proj.radii,
+            cams.height,
+            cams.width,
+            background,
+            backend,
+        )
         return {"image": image, "alpha": alpha, "proj": proj}
 
     def capacity(self) -> dict:
-        return {"gaussians": len(self), "sh_degree": self.active_degree,
-                "parameters": int(sum(p.numel() for p in self.parameters()))}
+        return {
+            "gaussians": len(self),
+            "sh_degree": self.active_degree,
+            "parameters": int(sum(p.numel() for p in self.parameters())),
+        }
 
 
 def knn_rms_distance(points: Tensor, k: int = 3, chunk: int = 2048) -> Tensor:
@@ -135,8 +153,9 @@ def random_points(cams: Cameras, n: int, seed: int) -> Tensor:
     return torch.as_tensor(np.einsum("nij,nj->ni", c2w[:, :, :3], p_cam) + c2w[:, :, 3], dtype=torch.float32)
 
 
-def initial_model(cams: Cameras, cfg: GaussianConfig, seed: int, points: np.ndarray | None = None,
-                  colors: np.ndarray | None = None) -> GaussianModel:
+def initial_model(
+    cams: Cameras, cfg: GaussianConfig, seed: int, points: np.ndarray | None = None, colors: np.ndarray | None = None
+) -> GaussianModel:
     """A model from sparse points (N, 3) with colours (N, 3) in [0, 1], or random when none."""
     torch.manual_seed(seed)
     if points is None or len(points) < 4:

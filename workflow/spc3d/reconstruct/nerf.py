@@ -46,8 +46,17 @@ def nerf_preset(name: str) -> NerfConfig:
     presets = {
         "paper": NerfConfig(),
         "llff": NerfConfig(n_fine=128),
-        "cpu": NerfConfig(depth=4, width=64, skips=(2,), freqs_xyz=8, freqs_dir=2, n_coarse=32, n_fine=32,
-                          n_iters=3000, batch_rays=1024),
+        "cpu": NerfConfig(
+            depth=4,
+            width=64,
+            skips=(2,),
+            freqs_xyz=8,
+            freqs_dir=2,
+            n_coarse=32,
+            n_fine=32,
+            n_iters=3000,
+            batch_rays=1024,
+        ),
     }
     if name not in presets:
         raise ValueError(f"unknown NeRF preset {name!r}; choose one of {sorted(presets)}")
@@ -111,8 +120,9 @@ class NeRF(nn.Module):
         bg = 1.0 if self.cfg.white_bkgd else 0.0
         return composite(F.relu(raw), rgb.view(n_rays, n_s, 3), edges, bg, dir_norm=d.norm(dim=-1))
 
-    def forward(self, rays_o: torch.Tensor, rays_d: torch.Tensor, train: bool,
-                viewdirs: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, rays_o: torch.Tensor, rays_d: torch.Tensor, train: bool, viewdirs: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """NDC rays_o, rays_d (R, 3); viewdirs (R, 3) unit world directions (default: normalised rays_d).
 
         Returns rgb_coarse (R, 3), rgb (R, 3), depth (R,) (NDC t), acc (R,) — of the fine pass when
@@ -123,8 +133,7 @@ class NeRF(nn.Module):
         out_c = self._render(self.coarse, rays_o, rays_d, vd, t, edges, train)
         if self.fine is None:
             return {"rgb_coarse": out_c["rgb"], "rgb": out_c["rgb"], "depth": out_c["depth"], "acc": out_c["acc"]}
-        t_f = sample_pdf(edges, out_c["weights"], self.cfg.n_fine,
-                         deterministic=not (train and self.cfg.perturb))
+        t_f = sample_pdf(edges, out_c["weights"], self.cfg.n_fine, deterministic=not (train and self.cfg.perturb))
         t_all = torch.sort(torch.cat([t, t_f], dim=-1), dim=-1).values
         out_f = self._render(self.fine, rays_o, rays_d, vd, t_all, edges_from_points(t_all), train)
         return {"rgb_coarse": out_c["rgb"], "rgb": out_f["rgb"], "depth": out_f["depth"], "acc": out_f["acc"]}
@@ -137,9 +146,7 @@ def lr_at(step: int, cfg: NerfConfig) -> dict[str, float]:
 
 def make_optimizer(model: NeRF, cfg: NerfConfig) -> torch.optim.Optimizer:
     """Adam (β = 0.9, 0.999, as the paper) over all weights, one group named 'mlp'."""
-    return torch.optim.Adam([{"params": list(model.parameters()), "name": "mlp", "lr": cfg.lr}],
-                            betas=(0.9, 0.999))
+    return torch.optim.Adam([{"params": list(model.parameters()), "name": "mlp", "lr": cfg.lr}], betas=(0.9, 0.999))
 
 
-__all__ = ["NerfConfig", "nerf_preset", "NeRF", "NerfMLP", "positional_encoding", "lr_at", "make_optimizer",
-           "set_lr"]
+__all__ = ["NerfConfig", "nerf_preset", "NeRF", "NerfMLP", "positional_encoding", "lr_at", "make_optimizer", "set_lr"]

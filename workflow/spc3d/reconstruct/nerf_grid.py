@@ -180,8 +180,9 @@ class GridNeRF(nn.Module):
         """Density activation: softplus(raw + shift)."""
         return F.softplus(raw + self.act_shift)
 
-    def forward(self, rays_o: torch.Tensor, rays_d: torch.Tensor, train: bool,
-                viewdirs: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, rays_o: torch.Tensor, rays_d: torch.Tensor, train: bool, viewdirs: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """NDC rays (R, 3) -> rgb (R, 3), depth (R,) (NDC t), acc (R,), rgb_coarse (= rgb)."""
         n_rays, n_s = rays_o.shape[0], self.cfg.n_samples
         vd = viewdirs if viewdirs is not None else rays_d / rays_d.norm(dim=-1, keepdim=True)
@@ -209,7 +210,8 @@ class GridNeRF(nn.Module):
         ids_c = ids[sel]
         feat = weighted_gather(self.features, idx[sel], w[sel]) * weights.view(-1)[ids_c, None]  # (K, C)
         ray_feat = torch.zeros(weights.shape[0], feat.shape[1], dtype=feat.dtype, device=feat.device).index_add(
-            0, ids_c // n_s, feat)
+            0, ids_c // n_s, feat
+        )
         acc = weights.sum(-1)
         colour = self.head(ray_feat / acc.detach().clamp(min=1e-6)[:, None], vd)  # clamp: empty rays have acc 0
         rgb = acc[:, None] * colour + (1.0 - acc)[:, None] * bg
@@ -251,13 +253,18 @@ class GridNeRF(nn.Module):
 
     def tv_loss(self) -> torch.Tensor:
         """Weighted total variation of the density and feature grids (0 for constant grids)."""
-        return (self.cfg.tv_density * total_variation(self.density, self.res)
-                + self.cfg.tv_features * total_variation(self.features, self.res))
+        return self.cfg.tv_density * total_variation(self.density, self.res) + self.cfg.tv_features * total_variation(
+            self.features, self.res
+        )
 
     def capacity(self) -> dict[str, int]:
         """Grid resolution, occupied / total cells, and parameter count."""
-        return {"resolution": self.res, "occupied_cells": int(self.occupancy.sum()),
-                "cells": (self.res - 1) ** 3, "parameters": sum(p.numel() for p in self.parameters())}
+        return {
+            "resolution": self.res,
+            "occupied_cells": int(self.occupancy.sum()),
+            "cells": (self.res - 1) ** 3,
+            "parameters": sum(p.numel() for p in self.parameters()),
+        }
 
 
 def lr_at(step: int, cfg: GridConfig) -> dict[str, float]:
@@ -269,8 +276,11 @@ def lr_at(step: int, cfg: GridConfig) -> dict[str, float]:
 def make_optimizer(model: GridNeRF, cfg: GridConfig, step: int = 0) -> torch.optim.Optimizer:
     """Adam (β = 0.9, 0.99, as DVGO) with groups 'density', 'features', 'mlp' at ``lr_at(step)``."""
     lrs = lr_at(step, cfg)
-    groups = [{"params": [model.density], "name": "density"}, {"params": [model.features], "name": "features"},
-              {"params": list(model.head.parameters()), "name": "mlp"}]
+    groups = [
+        {"params": [model.density], "name": "density"},
+        {"params": [model.features], "name": "features"},
+        {"params": list(model.head.parameters()), "name": "mlp"},
+    ]
     for g in groups:
         g["lr"] = lrs[g["name"]]
     return torch.optim.Adam(groups, betas=(0.9, 0.99))

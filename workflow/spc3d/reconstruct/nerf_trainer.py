@@ -42,8 +42,9 @@ class RayTrainer:
     """Fits a NeRF (``kind`` "nerf") or GridNeRF (``kind`` "nerf-grid") to ``views`` on ``device``
     (default: CUDA if available, else CPU)."""
 
-    def __init__(self, views: Views, objective, kind: str, cfg, seed: int = 0,
-                 device: str | torch.device | None = None):
+    def __init__(
+        self, views: Views, objective, kind: str, cfg, seed: int = 0, device: str | torch.device | None = None
+    ):
         torch.manual_seed(seed)
         self.kind, self.cfg, self.objective = kind, cfg, objective
         self.device = torch.device(device) if device is not None else default_device()
@@ -95,8 +96,12 @@ class RayTrainer:
         return {"parameters": int(sum(p.numel() for p in self.model.parameters()))}
 
     def state(self) -> dict:
-        return {"model": self.model.state_dict(), "opt": self.opt.state_dict(), "rng": self.rng.bit_generator.state,
-                "res": getattr(self.model, "res", None)}
+        return {
+            "model": self.model.state_dict(),
+            "opt": self.opt.state_dict(),
+            "rng": self.rng.bit_generator.state,
+            "res": getattr(self.model, "res", None),
+        }
 
     def load(self, state: dict) -> None:
         if self.kind == "nerf-grid" and state["res"] != self.model.res:

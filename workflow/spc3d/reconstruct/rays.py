@@ -89,8 +89,9 @@ def recenter(cams: Cameras, bd_factor: float = BD_FACTOR) -> tuple[Cameras, tupl
     return transform_cameras(cams, s, R, t), (s, R, t)
 
 
-def ndc_rays(origins: torch.Tensor, dirs: torch.Tensor, fx: float, fy: float, W: int, H: int,
-             near: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+def ndc_rays(
+    origins: torch.Tensor, dirs: torch.Tensor, fx: float, fy: float, W: int, H: int, near: float = 1.0
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Map rays (R, 3) of the recentred world (looking down +z) to NDC rays (R, 3), t ∈ [0, 1)."""
     dz = dirs[:, 2].clamp(min=_MIN_DZ)
     s = (near - origins[:, 2]) / dz
@@ -98,9 +99,9 @@ def ndc_rays(origins: torch.Tensor, dirs: torch.Tensor, fx: float, fy: float, W:
     ax, ay = 2.0 * fx / W, 2.0 * fy / H
     oz = o[:, 2]
     o_ndc = torch.stack([ax * o[:, 0] / oz, ay * o[:, 1] / oz, 1.0 - 2.0 * near / oz], dim=1)
-    d_ndc = torch.stack([ax * (dirs[:, 0] / dz - o[:, 0] / oz),
-                         ay * (dirs[:, 1] / dz - o[:, 1] / oz),
-                         2.0 * near / oz], dim=1)
+    d_ndc = torch.stack(
+        [ax * (dirs[:, 0] / dz - o[:, 0] / oz), ay * (dirs[:, 1] / dz - o[:, 1] / oz), 2.0 * near / oz], dim=1
+    )
     return o_ndc, d_ndc
 
 
@@ -112,8 +113,9 @@ def ndc_t_to_depth(t: torch.Tensor, near: float = 1.0, t_max: float = 1.0 - 1e-6
     return near / (1.0 - t.clamp(max=t_max))
 
 
-def ndc_points_to_world(p: torch.Tensor, fx: float, fy: float, W: int, H: int, near: float = 1.0,
-                        z_ndc_max: float = 1.0 - 1e-6) -> torch.Tensor:
+def ndc_points_to_world(
+    p: torch.Tensor, fx: float, fy: float, W: int, H: int, near: float = 1.0, z_ndc_max: float = 1.0 - 1e-6
+) -> torch.Tensor:
     """Inverse of the NDC map for points (..., 3) -> recentred-world points (..., 3).
 
     z_ndc is clamped below 1 (z_ndc = 1 is at infinity).

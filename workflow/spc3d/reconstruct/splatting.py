@@ -31,8 +31,14 @@ from .train import Views
 
 
 def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> torch.optim.Adam:
-    lrs = {"means": cfg.lr_means * extent, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
-           "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
+    lrs = {
+        "means": cfg.lr_means * extent,
+        "log_scales": cfg.lr_scales,
+        "quats": cfg.lr_quats,
+        "opacity_logits": cfg.lr_opacity,
+        "sh_dc": cfg.lr_sh_dc,
+        "sh_rest": cfg.lr_sh_rest,
+    }
     groups = [{"params": [getattr(model, n)], "lr": lrs[n], "name": n} for n in PARAM_NAMES]
     return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
 
@@ -46,8 +52,15 @@ def means_lr(it: int, cfg: GaussianConfig, extent: float) -> float:
 class SplatTrainer:
     """Fits a :class:`GaussianModel` to ``views`` under ``objective`` (see objectives.py)."""
 
-    def __init__(self, views: Views, objective, cfg: GaussianConfig, seed: int = 0,
-                 points: np.ndarray | None = None, colors: np.ndarray | None = None):
+    def __init__(
+        self,
+        views: Views,
+        objective,
+        cfg: GaussianConfig,
+        seed: int = 0,
+        points: np.ndarray | None = None,
+        colors: np.ndarray | None = None,
+    ):
         self.views, self.objective, self.cfg = views, objective, cfg
         self.extent = scene_extent(views.cameras)
         self.model = initial_model(views.cameras, cfg, seed, points, colors)
@@ -72,17 +85,21 @@ class SplatTrainer:
                 f"3DGS training stopped at iteration {it}: the loss on training view {i} is {value} "
                 f"({int(torch.isfinite(out['image']).all(-1).sum())} of {out['image'][..., 0].numel()} pixels "
                 f"rendered finite, target finite: {bool(torch.isfinite(self.views.targets[i]).all())}, "
-                f"{int(self.finite_gaussians().sum())} of {len(self.model)} Gaussians finite)")
+                f"{int(self.finite_gaussians().sum())} of {len(self.model)} Gaussians finite)"
+            )
         if it % self.cfg.densify_every == 0 and not self.finite_gaussians().any():
-            raise FloatingPointError(f"3DGS training stopped at iteration {it}: none of the {len(self.model)} "
-                                     "Gaussians has finite parameters any more")
+            raise FloatingPointError(
+                f"3DGS training stopped at iteration {it}: none of the {len(self.model)} "
+                "Gaussians has finite parameters any more"
+            )
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
-        self.control.observe(out["proj"].means2d, out["proj"].radii, self.views.cameras.height,
-                             self.views.cameras.width)
+        self.control.observe(
+            out["proj"].means2d, out["proj"].radii, self.views.cameras.height, self.views.cameras.width
+        )
         self.opt.step()
         self.control.step(it, self.model, self.opt)
-        self.losses = self.losses[-(self.cfg.sh_interval - 1):] + [value]  # one interval is all it needs
+        self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).
@@ -91,7 +108,7 @@ class SplatTrainer:
 
     def maybe_raise_degree(self) -> None:
         """Raise the SH degree while the loss still improves by >= 0.5 % per interval."""
-        recent = float(np.mean(self.losses[-self.cfg.sh_interval:]))
+        recent = float(np.mean(self.losses[-self.cfg.sh_interval :]))
         if self.model.active_degree < self.cfg.sh_degree and recent < 0.995 * self.degree_loss:
             self.model.active_degree += 1
         self.degree_loss = recent
@@ -121,11 +138,16 @@ class SplatTrainer:
         return self.model.capacity()
 
     def state(self) -> dict:
-        return {"params": {n: getattr(self.model, n).detach().clone() for n in PARAM_NAMES},
-                "active_degree": self.model.active_degree, "opt": self.opt.state_dict(),
-                "control": (self.control.grad_sum, self.control.count, self.control.max_radii),
-                "split_rng": self.control.generator.get_state(),
-                "rng": self.rng.bit_generator.state, "losses": self.losses, "degree_loss": self.degree_loss}
+        return {
+            "params": {n: getattr(self.model, n).detach().clone() for n in PARAM_NAMES},
+            "active_degree": self.model.active_degree,
+            "opt": self.opt.state_dict(),
+            "control": (self.control.grad_sum, self.control.count, self.control.max_radii),
+            "split_rng": self.control.generator.get_state(),
+            "rng": self.rng.bit_generator.state,
+            "losses": self.losses,
+            "degree_loss": self.degree_loss,
+        }
 
     def load(self, state: dict) -> None:
         for n in PARAM_NAMES:

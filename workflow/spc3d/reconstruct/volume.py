@@ -37,8 +37,9 @@ def composite_weights(sigmas: torch.Tensor, deltas: torch.Tensor) -> torch.Tenso
     return trans * alpha
 
 
-def composite(sigmas: torch.Tensor, rgbs: torch.Tensor, t_vals: torch.Tensor, background=0.0,
-              dir_norm: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+def composite(
+    sigmas: torch.Tensor, rgbs: torch.Tensor, t_vals: torch.Tensor, background=0.0, dir_norm: torch.Tensor | None = None
+) -> dict[str, torch.Tensor]:
     """Alpha-composite S samples on R rays.
 
     sigmas (R, S); rgbs (R, S, 3); t_vals: edges (R, S+1) or deltas (R, S) in ray-parameter units;
@@ -53,8 +54,9 @@ def composite(sigmas: torch.Tensor, rgbs: torch.Tensor, t_vals: torch.Tensor, ba
     return accumulate(composite_weights(sigmas, deltas), rgbs, mids, t_end, background)
 
 
-def accumulate(weights: torch.Tensor, rgbs: torch.Tensor, mids: torch.Tensor, t_end: torch.Tensor,
-               background=0.0) -> dict[str, torch.Tensor]:
+def accumulate(
+    weights: torch.Tensor, rgbs: torch.Tensor, mids: torch.Tensor, t_end: torch.Tensor, background=0.0
+) -> dict[str, torch.Tensor]:
     """Sum weighted samples: weights (R, S), rgbs (R, S, 3), mids (R, S), t_end (R,) -> composite dict."""
     acc = weights.sum(-1)
     bg = torch.as_tensor(background, dtype=rgbs.dtype, device=rgbs.device)
@@ -63,8 +65,9 @@ def accumulate(weights: torch.Tensor, rgbs: torch.Tensor, mids: torch.Tensor, t_
     return {"rgb": rgb, "depth": depth, "acc": acc, "weights": weights}
 
 
-def stratified_t(n_rays: int, n_samples: int, perturb: bool, near: float = 0.0, far: float = 1.0,
-                 device=None) -> tuple[torch.Tensor, torch.Tensor]:
+def stratified_t(
+    n_rays: int, n_samples: int, perturb: bool, near: float = 0.0, far: float = 1.0, device=None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(points (R, S), edges (R, S+1)): one sample per uniform bin, jittered when ``perturb``."""
     edges = torch.linspace(near, far, n_samples + 1, device=device).expand(n_rays, -1)
     u = torch.rand(n_rays, n_samples, device=device) if perturb else torch.full((n_rays, n_samples), 0.5, device=device)
@@ -79,8 +82,9 @@ def edges_from_points(points: torch.Tensor, near: float = 0.0, far: float = 1.0)
     return torch.cat([lo, mids, hi], dim=1)
 
 
-def sample_pdf(bins: torch.Tensor, weights: torch.Tensor, n_samples: int, deterministic: bool = False,
-               eps: float = 1e-5) -> torch.Tensor:
+def sample_pdf(
+    bins: torch.Tensor, weights: torch.Tensor, n_samples: int, deterministic: bool = False, eps: float = 1e-5
+) -> torch.Tensor:
     """Inverse-CDF samples (R, n) from the piecewise-constant pdf of weights (R, B) on edges (R, B+1).
 
     Sorted along each ray and inside [bins[:, 0], bins[:, -1]]. ``deterministic`` uses evenly spaced
@@ -104,8 +108,9 @@ def sample_pdf(bins: torch.Tensor, weights: torch.Tensor, n_samples: int, determ
 
 
 @torch.no_grad()
-def render_chunked(model, rays_o: torch.Tensor, rays_d: torch.Tensor, viewdirs: torch.Tensor | None = None,
-                   chunk: int = 4096) -> dict[str, torch.Tensor]:
+def render_chunked(
+    model, rays_o: torch.Tensor, rays_d: torch.Tensor, viewdirs: torch.Tensor | None = None, chunk: int = 4096
+) -> dict[str, torch.Tensor]:
     """Evaluate ``model(rays_o, rays_d, train=False, viewdirs=...)`` in chunks of rays (no grad)."""
     outs: dict[str, list] = {}
     for i in range(0, rays_o.shape[0], chunk):

@@ -60,8 +60,12 @@ def shared_content(train: list[str], evaluate: list[str]) -> dict[str, tuple[lis
 def _check_args(layout: str, height: int, width: int, views: int, supersample: int) -> None:
     if layout not in LAYOUTS:
         raise ValueError(f"unknown layout {layout!r}; available layouts: {', '.join(sorted(LAYOUTS))}")
-    for name, value, lo, hi in (("views", views, 2, MAX_VIEWS), ("height", height, 8, None),
-                                ("width", width, 8, None), ("supersample", supersample, 1, None)):
+    for name, value, lo, hi in (
+        ("views", views, 2, MAX_VIEWS),
+        ("height", height, 8, None),
+        ("width", width, 8, None),
+        ("supersample", supersample, 1, None),
+    ):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise ValueError(f"{name} must be an integer, got {value!r}")
         if value < lo or (hi is not None and value > hi):
@@ -69,8 +73,9 @@ def _check_args(layout: str, height: int, width: int, views: int, supersample: i
             raise ValueError(f"{name} must be {bound}, got {value}")
 
 
-def render_scene(layout: str, height: int, width: int, views: int = 24, supersample: int = 3,
-                 seed: int = 0) -> SceneData:
+def render_scene(
+    layout: str, height: int, width: int, views: int = 24, supersample: int = 3, seed: int = 0
+) -> SceneData:
     """Render built-in ``layout`` as ``views`` forward-facing views of (height, width) pixels.
 
     Returns SceneData with images (N, H, W, 3) float32 sRGB in [0, 1], depths (N, H, W) float32
@@ -87,14 +92,27 @@ def render_scene(layout: str, height: int, width: int, views: int = 24, supersam
         images[i], depths[i] = render_view(scene, cams, i, supersample)
     bounds = np.stack([depth_bounds(d) for d in depths])
     cams = Cameras(cams.w2c, cams.intrinsics, height, width, bounds)
-    settings = {"height": height, "width": width, "views": views, "supersample": supersample,
-                "hfov_deg": scene.rig.hfov_deg, "depth": "z-depth of the pixel-centre ray"}
+    settings = {
+        "height": height,
+        "width": width,
+        "views": views,
+        "supersample": supersample,
+        "hfov_deg": scene.rig.hfov_deg,
+        "depth": "z-depth of the pixel-centre ray",
+    }
     meta = {"layout": layout, "description": scene.description, "seed": seed, "settings": settings}
     return SceneData(images, cams, [f"image{i:03d}" for i in range(views)], depths, meta)
 
 
-def write_builtin_scene(layout: str, out_dir: str | os.PathLike, height: int, width: int, views: int = 24,
-                        supersample: int = 3, seed: int = 0) -> SceneData:
+def write_builtin_scene(
+    layout: str,
+    out_dir: str | os.PathLike,
+    height: int,
+    width: int,
+    views: int = 24,
+    supersample: int = 3,
+    seed: int = 0,
+) -> SceneData:
     """Render ``layout`` and write it as the canonical LLFF scene folder ``out_dir`` (atomically).
 
     ``scene.json`` records {"source": "builtin", "layout", "seed", "settings", "wall_s"}.
@@ -102,7 +120,12 @@ def write_builtin_scene(layout: str, out_dir: str | os.PathLike, height: int, wi
     """
     start = time.perf_counter()
     scene = render_scene(layout, height, width, views, supersample, seed)
-    record = {"source": "builtin", "layout": layout, "seed": seed, "settings": scene.meta["settings"],
-              "wall_s": round(time.perf_counter() - start, 3)}
+    record = {
+        "source": "builtin",
+        "layout": layout,
+        "seed": seed,
+        "settings": scene.meta["settings"],
+        "wall_s": round(time.perf_counter() - start, 3),
+    }
     write_scene(out_dir, scene, record)
     return scene

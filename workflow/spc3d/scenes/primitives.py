@@ -88,13 +88,21 @@ class Plane:
         return self.texture.sample(*self.uv(points), footprint * density)
 
 
-def quad(centre, width: float, height: float, texture: Texture, yaw: float = 0.0,
-         tile: tuple[float, float] | None = None, **kw) -> Plane:
+def quad(
+    centre,
+    width: float,
+    height: float,
+    texture: Texture,
+    yaw: float = 0.0,
+    tile: tuple[float, float] | None = None,
+    **kw,
+) -> Plane:
     """Upright rectangle facing +z (towards the cameras) turned by ``yaw`` degrees about y; the
     texture spans it once (poster, card) unless ``tile`` (world size of one span) is given."""
     R = yaw_matrix(yaw)
-    return Plane(np.asarray(centre, float), R[:, 2], R[:, 0], texture, tile or (width, height),
-                 (width / 2, height / 2), **kw)
+    return Plane(
+        np.asarray(centre, float), R[:, 2], R[:, 0], texture, tile or (width, height), (width / 2, height / 2), **kw
+    )
 
 
 def ground(y: float, texture: Texture, tile: float, **kw) -> Plane:
@@ -104,8 +112,9 @@ def ground(y: float, texture: Texture, tile: float, **kw) -> Plane:
 
 def backdrop(z: float, texture: Texture, tile: tuple[float, float], centre_y: float = 0.0, **kw) -> Plane:
     """Infinite vertical plane at depth ``z`` facing +z (a wall or far backdrop)."""
-    return Plane(np.array([0.0, centre_y, z]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), texture,
-                 tile, **kw)
+    return Plane(
+        np.array([0.0, centre_y, z]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), texture, tile, **kw
+    )
 
 
 @dataclass(frozen=True, eq=False)

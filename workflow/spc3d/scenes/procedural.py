@@ -35,8 +35,8 @@ def fbm(h: int, w: int, rng: np.random.Generator, cells: int = 4, octaves: int =
     """(h, w) fractal noise in [0, 1]: octaves of value noise, each twice as fine and half as strong."""
     total, norm = np.zeros((h, w)), 0.0
     for k in range(octaves):
-        total += 0.5 ** k * value_noise(h, w, cells * 2 ** k, rng)
-        norm += 0.5 ** k
+        total += 0.5**k * value_noise(h, w, cells * 2**k, rng)
+        norm += 0.5**k
     return total / norm
 
 
@@ -56,7 +56,7 @@ def marble(h: int, w: int) -> np.ndarray:
     rng = np.random.default_rng(11)
     y, x = _grid(h, w)
     veins = np.abs(np.sin(np.pi * (3.0 * x + 1.5 * y + 5.0 * fbm(h, w, rng, cells=3))))
-    return mix((0.28, 0.3, 0.36), (0.86, 0.84, 0.8), veins ** 0.35) * (0.9 + 0.1 * fbm(h, w, rng, cells=16))[..., None]
+    return mix((0.28, 0.3, 0.36), (0.86, 0.84, 0.8), veins**0.35) * (0.9 + 0.1 * fbm(h, w, rng, cells=16))[..., None]
 
 
 def wood(h: int, w: int) -> np.ndarray:
@@ -66,7 +66,7 @@ def wood(h: int, w: int) -> np.ndarray:
     r = np.hypot((x - 0.3) * 2.2, (y + 0.8) * 0.5) + 0.06 * fbm(h, w, rng, cells=4)
     rings = 0.5 + 0.5 * np.sin(2 * np.pi * 14.0 * r)
     grain = fbm(h, w, rng, cells=32, octaves=3)
-    return mix((0.18, 0.08, 0.03), (0.55, 0.3, 0.12), 0.7 * rings ** 2 + 0.3 * grain)
+    return mix((0.18, 0.08, 0.03), (0.55, 0.3, 0.12), 0.7 * rings**2 + 0.3 * grain)
 
 
 def weave(h: int, w: int) -> np.ndarray:
@@ -77,8 +77,11 @@ def weave(h: int, w: int) -> np.ndarray:
     cy, cx = np.floor(y * n).astype(int), np.floor(x * n).astype(int)
     warp_on_top = (cx + cy) % 4 < 2
     across = np.where(warp_on_top, np.sin(np.pi * (x * n % 1.0)), np.sin(np.pi * (y * n % 1.0)))
-    colour = np.where(warp_on_top[..., None], mix((0.05, 0.12, 0.35), (0.12, 0.25, 0.6), across),
-                      mix((0.35, 0.06, 0.04), (0.7, 0.2, 0.1), across))
+    colour = np.where(
+        warp_on_top[..., None],
+        mix((0.05, 0.12, 0.35), (0.12, 0.25, 0.6), across),
+        mix((0.35, 0.06, 0.04), (0.7, 0.2, 0.1), across),
+    )
     return colour * (0.85 + 0.15 * fbm(h, w, rng, cells=8))[..., None]
 
 

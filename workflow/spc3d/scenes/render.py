@@ -144,8 +144,9 @@ def light_directions(light: Lighting, sub: np.ndarray, ss: int) -> np.ndarray:
     return dirs / np.sqrt(dot(dirs, dirs))
 
 
-def surface(prims: tuple, points: np.ndarray, unit: np.ndarray, ends: np.ndarray,
-            footprint: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def surface(
+    prims: tuple, points: np.ndarray, unit: np.ndarray, ends: np.ndarray, footprint: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normals facing the viewer (3, M), albedo (3, M) and shading weight (M,) at hit points (3, M).
 
     The rays are grouped by primitive: primitive k was hit by rays ``ends[k]:ends[k + 1]``.

@@ -30,15 +30,60 @@ from ..spc import srgb_to_linear
 from .procedural import PATTERNS, pattern
 
 SAMPLE_IMAGES = (
-    "astronaut", "brick", "camera", "chelsea", "coffee", "coins", "colorwheel", "grass", "gravel",
-    "horse", "hubble_deep_field", "immunohistochemistry", "moon", "page", "retina", "rocket", "text",
-    "clock", "cell",
+    "astronaut",
+    "brick",
+    "camera",
+    "chelsea",
+    "coffee",
+    "coins",
+    "colorwheel",
+    "grass",
+    "gravel",
+    "horse",
+    "hubble_deep_field",
+    "immunohistochemistry",
+    "moon",
+    "page",
+    "retina",
+    "rocket",
+    "text",
+    "clock",
+    "cell",
 )
 # Disjoint pools of content (photographs and procedural patterns; "solid" paint is no content).
-TRAIN_SOURCES = frozenset({"astronaut", "brick", "camera", "cell", "clock", "coins", "grass", "gravel", "horse",
-                           "text", "proc:marble", "proc:wood", "proc:weave"})
-EVAL_SOURCES = frozenset({"chelsea", "coffee", "colorwheel", "hubble_deep_field", "immunohistochemistry", "moon",
-                          "page", "retina", "rocket", "proc:cobbles", "proc:masonry", "proc:tiles"})
+TRAIN_SOURCES = frozenset(
+    {
+        "astronaut",
+        "brick",
+        "camera",
+        "cell",
+        "clock",
+        "coins",
+        "grass",
+        "gravel",
+        "horse",
+        "text",
+        "proc:marble",
+        "proc:wood",
+        "proc:weave",
+    }
+)
+EVAL_SOURCES = frozenset(
+    {
+        "chelsea",
+        "coffee",
+        "colorwheel",
+        "hubble_deep_field",
+        "immunohistochemistry",
+        "moon",
+        "page",
+        "retina",
+        "rocket",
+        "proc:cobbles",
+        "proc:masonry",
+        "proc:tiles",
+    }
+)
 MAX_SIZE = 512  # textures are area-downscaled once so that their longer side is at most this
 
 
@@ -125,8 +170,10 @@ def mip_pyramid(img: np.ndarray) -> tuple[np.ndarray, ...]:
 def _raw_image(name: str) -> np.ndarray:
     """Sample image ``name`` as stored by scikit-image (cheap: no filtering)."""
     if name not in SAMPLE_IMAGES:
-        raise ValueError(f"unknown texture {name!r}; available: {', '.join(SAMPLE_IMAGES)} or "
-                         f"{', '.join('proc:' + p for p in PATTERNS)}")
+        raise ValueError(
+            f"unknown texture {name!r}; available: {', '.join(SAMPLE_IMAGES)} or "
+            f"{', '.join('proc:' + p for p in PATTERNS)}"
+        )
     import skimage.data  # lazy: only scene generation needs it
 
     img = np.asarray(getattr(skimage.data, name)())
@@ -169,14 +216,19 @@ def pattern_shape(kind: str) -> tuple[int, int]:
 
 
 @functools.cache
-def texture(name: str, tint: tuple[float, float, float] = (1.0, 1.0, 1.0),
-            base: tuple[float, float, float] = (0.0, 0.0, 0.0), gain: float = 1.0) -> Texture:
+def texture(
+    name: str,
+    tint: tuple[float, float, float] = (1.0, 1.0, 1.0),
+    base: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    gain: float = 1.0,
+) -> Texture:
     """Cached texture of source ``name`` (a sample image or "proc:<pattern>"), coloured in linear light.
 
     Each texel becomes ``base + gain * texel * (tint - base)`` (per channel, clipped to [0, 1]): a
     duotone for gray images (black -> ``base``, white -> ``tint``), a colour cast for colour ones.
     Colours are linear RGB in [0, 1].
     """
+
     def build():
         tint_a, base_a = np.asarray(tint, float), np.asarray(base, float)
         return mip_pyramid(np.clip(base_a + gain * _base_image(name) * (tint_a - base_a), 0.0, 1.0))

@@ -29,8 +29,11 @@ from .knobs import check_setting, split_combination, used_knobs
 WIDTH_KEYS = {"pix2pixhd": "ngf", "pix2pix": "ngf", "cyclegan": "ngf", "restormer": "dim", "diffusion": "base_channels"}
 # Stage-2 settings counted in iterations, scaled with the ``iters`` knob.
 ITERATION_FIELD = {"3dgs": "iterations", "nerf": "n_iters", "nerf-grid": "n_iters"}
-SCHEDULE_FIELDS = {"3dgs": ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_interval"),
-                   "nerf": (), "nerf-grid": ("occupancy_every", "occupancy_warmup")}
+SCHEDULE_FIELDS = {
+    "3dgs": ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_interval"),
+    "nerf": (),
+    "nerf-grid": ("occupancy_every", "occupancy_warmup"),
+}
 CROP_MULTIPLE = 16  # translator training crops: a multiple of every default network's stride
 
 
@@ -49,13 +52,22 @@ def resolve_point(base: dict, setting: dict, combo: str) -> dict:
     if base["scene_name"] in train_scenes:
         raise ValueError(f"{combo}: scene {base['scene_name']!r} is both evaluated and trained on; keep them apart")
     spc = spc_settings(base["spc"], base["seed"], frames=knobs.get("K"), detection=knobs.get("detection"))
-    return {"combination": combo, "source": source, "model": model, "seed": base["seed"], "setting": knobs,
-            "used_knobs": used_knobs(combo), "scene_name": base["scene_name"], "scene": scene,
-            "train_scenes": train_scenes, "spc": spc,
-            "frames": source_frames(base, source, knobs, spc),
-            "augment": augment_settings(base["augment"], list(train_scenes) if stage1 else []),
-            "translator": translator_settings(base["translator"], source, knobs, scene) if stage1 else None,
-            "stage2": stage2_settings(base["stage2"]["settings"], model, knobs)}
+    return {
+        "combination": combo,
+        "source": source,
+        "model": model,
+        "seed": base["seed"],
+        "setting": knobs,
+        "used_knobs": used_knobs(combo),
+        "scene_name": base["scene_name"],
+        "scene": scene,
+        "train_scenes": train_scenes,
+        "spc": spc,
+        "frames": source_frames(base, source, knobs, spc),
+        "augment": augment_settings(base["augment"], list(train_scenes) if stage1 else []),
+        "translator": translator_settings(base["translator"], source, knobs, scene) if stage1 else None,
+        "stage2": stage2_settings(base["stage2"]["settings"], model, knobs),
+    }
 
 
 def scale_spec(spec: dict, res: int | None) -> dict:
@@ -67,9 +79,6 @@ def scale_spec(spec: dict, res: int | None) -> dict:
         spec["height"] = max(8, round(res * spec["height"] / spec["width"]))
     spec["width"] = res
     return spec
-
-
-
 
 
 def source_frames(base: dict, source: str, knobs: dict, spc: dict) -> int | None:

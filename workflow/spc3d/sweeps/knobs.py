@@ -19,8 +19,10 @@ KNOBS: dict[str, tuple[type, str]] = {
     "iters": (int, "stage-2 iterations (3DGS iterations, NeRF n_iters); iteration schedules scale with it"),
     "res": (int, "image width in pixels; built-in scenes keep the config's aspect (4:3), LLFF scenes theirs"),
     "K": (int, "binary frames: spc.frames, and the frames the source uses (stage-1 input, bernoulli, MLE)"),
-    "width": (int, "the translator's main width: ngf (pix2pixhd, pix2pix, cyclegan), dim (restormer), "
-                   "base_channels (diffusion)"),
+    "width": (
+        int,
+        "the translator's main width: ngf (pix2pixhd, pix2pix, cyclegan), dim (restormer), base_channels (diffusion)",
+    ),
     "steps": (int, "the translator's training iterations"),
     "cap": (int, "3DGS capacity cap: max_gaussians"),
     "grid": (int, "nerf-grid final grid resolution (the res_schedule is scaled to end there)"),
@@ -36,8 +38,9 @@ def split_combination(combo: str) -> tuple[str, str]:
     return source, model
 
 
-def parse_combinations(combos: list[str], nerf_variant: str, sources: tuple[str, ...] | list[str],
-                       key: str) -> list[str]:
+def parse_combinations(
+    combos: list[str], nerf_variant: str, sources: tuple[str, ...] | list[str], key: str
+) -> list[str]:
     """Checked combinations with the family ``nerf`` resolved to ``nerf_variant``; errors name ``key``."""
     out = []
     for combo in combos:
@@ -57,9 +60,16 @@ def used_knobs(combo: str) -> list[str]:
     """The knobs that change the result of ``combo`` (in :data:`KNOBS` order)."""
     source, model = split_combination(combo)
     stage1 = source not in PLAIN_SOURCES
-    used = {"iters": True, "res": True, "K": stage1 or source in ("mle", "bernoulli"),
-            "width": stage1, "steps": stage1, "cap": model == "3dgs", "grid": model == "nerf-grid",
-            "detection": source != "gt"}
+    used = {
+        "iters": True,
+        "res": True,
+        "K": stage1 or source in ("mle", "bernoulli"),
+        "width": stage1,
+        "steps": stage1,
+        "cap": model == "3dgs",
+        "grid": model == "nerf-grid",
+        "detection": source != "gt",
+    }
     return [k for k in KNOBS if used[k]]
 
 
@@ -91,8 +101,10 @@ def read_table(path: str | os.PathLike) -> pd.DataFrame:
     try:
         table = pd.read_csv(path, sep=sep, comment="#", skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: not a {'tab' if sep == chr(9) else 'comma'}-separated table "
-                         f"({str(e).strip().splitlines()[-1]}); every row needs one value per column") from None
+        raise ValueError(
+            f"{path}: not a {'tab' if sep == chr(9) else 'comma'}-separated table "
+            f"({str(e).strip().splitlines()[-1]}); every row needs one value per column"
+        ) from None
     table.columns = [str(c).strip() for c in table.columns]
     if table.empty:
         raise ValueError(f"{path}: the sweep table has no rows")
@@ -128,8 +140,16 @@ def photon_table(levels: list[float], frames: list[int], key: str = "photon_leve
 
 def label(setting: dict, knobs: list[str]) -> str:
     """Short human label of a setting from the given knobs, e.g. ``"1200it 128px cap40k"``."""
-    fmt = {"iters": "{}it", "res": "{}px", "K": "K{}", "width": "w{}", "steps": "{}st", "cap": "cap{}",
-           "grid": "grid{}", "detection": "p{}"}
+    fmt = {
+        "iters": "{}it",
+        "res": "{}px",
+        "K": "K{}",
+        "width": "w{}",
+        "steps": "{}st",
+        "cap": "cap{}",
+        "grid": "grid{}",
+        "detection": "p{}",
+    }
     parts = []
     for k in knobs:
         v = setting.get(k)
@@ -138,4 +158,3 @@ def label(setting: dict, knobs: list[str]) -> str:
             v = f"{v // 1000}k" if k == "cap" and v >= 1000 and v % 1000 == 0 else v
             parts.append(fmt[k].format(v))
     return " ".join(parts)
-

@@ -49,12 +49,20 @@ def collect_points(paths: list[str | os.PathLike]) -> pd.DataFrame:
     for path in paths:
         rec = io.read_json(path)
         spc = rec.get("spc_record") or {}
-        rows.append({"combination": rec["combination"], **rec["setting"],
-                     "wall_time_s": rec["wall_s"], "peak_memory_mb": rec["peak_rss_mb"],
-                     **{k: rec["mean"][k] for k in SCORES}, "cpu_time_s": rec["cpu_s"],
-                     "stage1_psnr": (rec.get("stage1") or {}).get("psnr", np.nan),
-                     "measured_detection": spc.get("mean_detection_rate", np.nan),
-                     "used": tuple(rec["used_knobs"]), "path": str(path)})
+        rows.append(
+            {
+                "combination": rec["combination"],
+                **rec["setting"],
+                "wall_time_s": rec["wall_s"],
+                "peak_memory_mb": rec["peak_rss_mb"],
+                **{k: rec["mean"][k] for k in SCORES},
+                "cpu_time_s": rec["cpu_s"],
+                "stage1_psnr": (rec.get("stage1") or {}).get("psnr", np.nan),
+                "measured_detection": spc.get("mean_detection_rate", np.nan),
+                "used": tuple(rec["used_knobs"]),
+                "path": str(path),
+            }
+        )
     if not rows:
         raise ValueError("no sweep points to summarise")
     return pd.DataFrame(rows)
@@ -80,8 +88,20 @@ def tradeoff_table(paths: list[str | os.PathLike], combos: list[str], clock: str
             df.loc[i, "label"] = label(row.to_dict(), varying or list(row["used"]))
     df["order"] = df["combination"].map({c: i for i, c in enumerate(combos)})
     df = df.sort_values(["order", time_key]).reset_index(drop=True)
-    return df[["combination", "setting", *knobs, "wall_time_s", "peak_memory_mb", *SCORES, "cpu_time_s", "stage1_psnr",
-               "pareto", "label"]]
+    return df[
+        [
+            "combination",
+            "setting",
+            *knobs,
+            "wall_time_s",
+            "peak_memory_mb",
+            *SCORES,
+            "cpu_time_s",
+            "stage1_psnr",
+            "pareto",
+            "label",
+        ]
+    ]
 
 
 def clock_column(clock: str) -> str:
@@ -96,5 +116,6 @@ def photon_table(paths: list[str | os.PathLike], combos: list[str]) -> pd.DataFr
     df = collect_points(paths)
     df["order"] = df["combination"].map({c: i for i, c in enumerate(combos)})
     df = df.sort_values(["order", "K", "detection"]).reset_index(drop=True)
-    return df[["combination", "K", "detection", "measured_detection", *SCORES, "stage1_psnr", "wall_time_s",
-               "peak_memory_mb"]]
+    return df[
+        ["combination", "K", "detection", "measured_detection", *SCORES, "stage1_psnr", "wall_time_s", "peak_memory_mb"]
+    ]

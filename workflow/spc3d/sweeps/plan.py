@@ -20,8 +20,9 @@ class ByCombination(dict):
         return self[wildcards.combo]
 
 
-def sweep_scenes(scene: str | None, train: list[str] | None, eval_scenes: list[str], train_scenes: list[str],
-                 known: list[str]) -> tuple[str, list[str]]:
+def sweep_scenes(
+    scene: str | None, train: list[str] | None, eval_scenes: list[str], train_scenes: list[str], known: list[str]
+) -> tuple[str, list[str]]:
     """(evaluation scene, training scenes) of the sweeps: ``tradeoff.scene`` / ``train_scenes`` or the
     first of ``scenes.eval`` / ``scenes.train``; every name must be ``known`` and the two disjoint."""
     scene = scene or eval_scenes[0]
@@ -29,8 +30,9 @@ def sweep_scenes(scene: str | None, train: list[str] | None, eval_scenes: list[s
     for key, names in (("tradeoff.scene", [scene]), ("tradeoff.train_scenes", train)):
         for name in names:
             if name not in known:
-                raise ValueError(f"{key}: unknown scene {name!r}; use a built-in layout or an llff_scenes name "
-                                 f"({', '.join(known)})")
+                raise ValueError(
+                    f"{key}: unknown scene {name!r}; use a built-in layout or an llff_scenes name ({', '.join(known)})"
+                )
     if scene in train:
         raise ValueError(f"tradeoff.scene {scene!r} is also in tradeoff.train_scenes: evaluate held-out content")
     return scene, train
@@ -45,8 +47,14 @@ def photon_budget(budget: dict) -> dict:
     return budget
 
 
-def point_base(combo: str, config: dict, scene: str, train: list[str], specs: dict[str, dict],
-               translators: dict[str, tuple[dict, dict]]) -> dict:
+def point_base(
+    combo: str,
+    config: dict,
+    scene: str,
+    train: list[str],
+    specs: dict[str, dict],
+    translators: dict[str, tuple[dict, dict]],
+) -> dict:
     """The config's values a point of ``combo`` starts from (the ``base`` of :mod:`.budget`).
 
     ``specs``: scene name -> spec; ``translators``: stage-1 method -> (model overrides, training
@@ -57,10 +65,16 @@ def point_base(combo: str, config: dict, scene: str, train: list[str], specs: di
     if source in translators:
         settings, train_settings = translators[source]
         translator = {"settings": settings, "train": train_settings, "frames": config["stage1"]["frames"]}
-    return {"seed": config["seed"], "scene_name": scene, "scene": specs[scene],
-            "train_scenes": {name: specs[name] for name in train} if translator or source in BUDGET_SOURCES else {},
-            "spc": dict(config["spc"]), "augment": dict(config["augment"]), "translator": translator,
-            "stage2": {"settings": dict(config["stage2"][model]), "frames": config["stage2"]["frames"]}}
+    return {
+        "seed": config["seed"],
+        "scene_name": scene,
+        "scene": specs[scene],
+        "train_scenes": {name: specs[name] for name in train} if translator or source in BUDGET_SOURCES else {},
+        "spc": dict(config["spc"]),
+        "augment": dict(config["augment"]),
+        "translator": translator,
+        "stage2": {"settings": dict(config["stage2"][model]), "frames": config["stage2"]["frames"]},
+    }
 
 
 def scene_inputs(base: dict) -> list[str]:

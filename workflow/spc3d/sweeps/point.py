@@ -98,9 +98,17 @@ def point_digests(plan: dict, base: dict) -> dict:
     return {"point": hashlib.sha256(text.encode()).hexdigest()}
 
 
-def run_point(out_dir: str | os.PathLike, combo: str, setting: dict, base: dict, lpips_dir: str | os.PathLike,
-              threads: int = 1, keep_work: bool = False, checkpoints: str | os.PathLike | None = None,
-              policy: CheckpointPolicy = CheckpointPolicy()) -> dict:
+def run_point(
+    out_dir: str | os.PathLike,
+    combo: str,
+    setting: dict,
+    base: dict,
+    lpips_dir: str | os.PathLike,
+    threads: int = 1,
+    keep_work: bool = False,
+    checkpoints: str | os.PathLike | None = None,
+    policy: CheckpointPolicy = CheckpointPolicy(),
+) -> dict:
     """Run ``combo`` at ``setting`` (see :mod:`.budget` for ``base``); write and return metrics.json.
 
     ``checkpoints``: the folder of the trainings' checkpoints (see the module docstring)."""
@@ -113,20 +121,34 @@ def run_point(out_dir: str | os.PathLike, combo: str, setting: dict, base: dict,
     resume = Resume(Path(checkpoints) if checkpoints else None, point_digests(plan, base), policy)
     log.info("%s at %s", combo, plan["setting"])
     scene_dir, spc_dir = prepare_and_simulate(plan, work, times)
-    model_record, image_dir = run_stage1(plan, work, lpips_dir, threads, times, resume) if plan["translator"] \
-        else (None, None)
+    model_record, image_dir = (
+        run_stage1(plan, work, lpips_dir, threads, times, resume) if plan["translator"] else (None, None)
+    )
     display_dir = meter_display(plan, work, times) if plan["source"] in BUDGET_SOURCES else None
     with timed(times, "reconstruct"):
-        recon = reconstruct(scene_dir, out / "recon", plan["source"], plan["model"], plan["stage2"], plan["seed"],
-                            spc_dir=spc_dir, image_dir=image_dir, frames=plan["frames"], threads=threads,
-                            display_dir=display_dir, **resume.kwargs("reconstruct"))
+        recon = reconstruct(
+            scene_dir,
+            out / "recon",
+            plan["source"],
+            plan["model"],
+            plan["stage2"],
+            plan["seed"],
+            spc_dir=spc_dir,
+            image_dir=image_dir,
+            frames=plan["frames"],
+            threads=threads,
+            display_dir=display_dir,
+            **resume.kwargs("reconstruct"),
+        )
     with timed(times, "evaluate"):
         scores = evaluate(out / "recon", scene_dir, work / "eval.json", lpips_dir=lpips_dir)
         stage1 = score_source(plan, work, image_dir, lpips_dir)
     record = point_record(plan, scores, stage1, times, time.perf_counter() - t0, cpu_seconds() - cpu0)
     record["translator"] = model_record and {k: model_record[k] for k in TRANSLATOR_KEYS}
-    record["resumed_from"] = {"train": model_record and model_record["resumed_from"],
-                              "reconstruct": recon["resumed_from"]}
+    record["resumed_from"] = {
+        "train": model_record and model_record["resumed_from"],
+        "reconstruct": recon["resumed_from"],
+    }
     record["spc_record"] = io.read_json(spc_dir / "spc.json") if spc_dir else None
     io.write_json(out / "metrics.json", record)
     if not keep_work:
@@ -149,8 +171,14 @@ def prepare_and_simulate(plan: dict, work: Path, times: dict) -> tuple[Path, Pat
     s = plan["spc"]
     with timed(times, "simulate"):
         for name in names:
-            simulate_scene(work / "scenes" / name, work / "spc" / name, SPCParams(**s["physics"]),
-                           s["flux_scale"], s["target_detection"], s["seed"])
+            simulate_scene(
+                work / "scenes" / name,
+                work / "spc" / name,
+                SPCParams(**s["physics"]),
+                s["flux_scale"],
+                s["target_detection"],
+                s["seed"],
+            )
     return work / "scenes" / names[0], work / "spc" / names[0]
 
 
@@ -160,14 +188,19 @@ def meter_display(plan: dict, work: Path, times: dict) -> Path:
 
     with timed(times, "simulate"):
         train = list(plan["train_scenes"])
-        calibrate_display([work / "scenes" / n for n in train], [work / "spc" / n for n in train], plan["frames"],
-                          work / "display.json")
+        calibrate_display(
+            [work / "scenes" / n for n in train],
+            [work / "spc" / n for n in train],
+            plan["frames"],
+            work / "display.json",
+        )
         write_display(work / "spc" / plan["scene_name"], work / "display.json", plan["frames"], work / "display")
     return work / "display"
 
 
-def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict,
-               resume: Resume = Resume(None, {})) -> tuple[dict, Path]:
+def run_stage1(
+    plan: dict, work: Path, lpips_dir, threads: int, times: dict, resume: Resume = Resume(None, {})
+) -> tuple[dict, Path]:
     """Augment the training scenes, train the translator, translate the evaluation scene."""
     from ..lpips_weights import cache_file, load_npz
     from ..translate.apply import translate_scene
@@ -177,17 +210,32 @@ def run_stage1(plan: dict, work: Path, lpips_dir, threads: int, times: dict,
     with timed(times, "augment"):
         settings = AugmentSettings(**{k: tuple(v) if k == "zoom" else v for k, v in aug["settings"].items()})
         for name, count in aug["counts"].items():
-            augment_scene(work / "scenes" / name, work / "spc" / name, work / "augment" / name, count, settings,
-                          plan["seed"])
+            augment_scene(
+                work / "scenes" / name, work / "spc" / name, work / "augment" / name, count, settings, plan["seed"]
+            )
     with timed(times, "train"):
-        record = train_translator(tr["method"], [str(work / "augment" / n) for n in aug["counts"]], work / "model",
-                                  tr["settings"], tr["train"], seed=plan["seed"], frames=plan["frames"],
-                                  vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"), threads=threads,
-                                  **resume.kwargs("translator"))
+        record = train_translator(
+            tr["method"],
+            [str(work / "augment" / n) for n in aug["counts"]],
+            work / "model",
+            tr["settings"],
+            tr["train"],
+            seed=plan["seed"],
+            frames=plan["frames"],
+            vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"),
+            threads=threads,
+            **resume.kwargs("translator"),
+        )
     eval_name = plan["scene_name"]
     with timed(times, "translate"):
-        translate_scene(work / "model", work / "spc" / eval_name, work / "scenes" / eval_name, work / "translate",
-                        frames=plan["frames"], threads=threads)
+        translate_scene(
+            work / "model",
+            work / "spc" / eval_name,
+            work / "scenes" / eval_name,
+            work / "translate",
+            frames=plan["frames"],
+            threads=threads,
+        )
     return record, work / "translate" / "images"
 
 
@@ -205,13 +253,24 @@ def score_source(plan: dict, work: Path, image_dir: Path | None, lpips_dir) -> d
 
 def point_record(plan: dict, scores: dict, stage1: dict | None, times: dict, wall_s: float, cpu_s: float) -> dict:
     """metrics.json of a point (see the module docstring)."""
-    return {"combination": plan["combination"], "source": plan["source"], "model": plan["model"],
-            "scene": scores["scene"], "seed": plan["seed"], "setting": plan["setting"],
-            "used_knobs": [k for k in plan["used_knobs"] if k in plan["setting"]],
-            "times_s": {stage: round(times.get(stage, 0.0), 3) for stage in STAGES},
-            "wall_s": wall_s, "cpu_s": cpu_s, "peak_rss_mb": peak_rss_mb(),
-            "mean": scores["mean"], "per_view": scores["per_view"], "stage1": stage1,
-            "iterations": scores["iterations"], "capacity": scores["capacity"],
-            "frames": plan["frames"],
-            "resolved": {k: plan[k] for k in ("scene", "train_scenes", "spc", "augment", "translator", "stage2")},
-            "conventions": scores["conventions"]}
+    return {
+        "combination": plan["combination"],
+        "source": plan["source"],
+        "model": plan["model"],
+        "scene": scores["scene"],
+        "seed": plan["seed"],
+        "setting": plan["setting"],
+        "used_knobs": [k for k in plan["used_knobs"] if k in plan["setting"]],
+        "times_s": {stage: round(times.get(stage, 0.0), 3) for stage in STAGES},
+        "wall_s": wall_s,
+        "cpu_s": cpu_s,
+        "peak_rss_mb": peak_rss_mb(),
+        "mean": scores["mean"],
+        "per_view": scores["per_view"],
+        "stage1": stage1,
+        "iterations": scores["iterations"],
+        "capacity": scores["capacity"],
+        "frames": plan["frames"],
+        "resolved": {k: plan[k] for k in ("scene", "train_scenes", "spc", "augment", "translator", "stage2")},
+        "conventions": scores["conventions"],
+    }

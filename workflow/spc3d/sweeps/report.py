@@ -6,7 +6,7 @@ PSNR-time Pareto front) and the figure: PSNR and LPIPS-alex against wall (or CPU
 per combination, points numbered by setting (the settings are listed under the panels), each front
 as a step line (the best quality reachable within a time budget).
 
-``photon_report``: ``photon_level.csv`` and the figure: PSNR and LPIPS-alex against the mean
+``photon_level_report``: ``photon_level.csv`` and the figure: PSNR and LPIPS-alex against the mean
 detection probability (logit axis), one line per (combination, K), and in grey the PSNR of the MLE
 image itself before 3D.
 """
@@ -27,8 +27,9 @@ K_STYLES = ("-", "--", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)))
 K_MARKERS = ("o", "s", "^", "D", "v", "P")
 
 
-def tradeoff_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[str, str] | None = None,
-                    clock: str = "wall") -> None:
+def tradeoff_figure(
+    table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[str, str] | None = None, clock: str = "wall"
+) -> None:
     """PSNR and LPIPS-alex against time (log), fronts as step lines, points labelled by setting."""
     plt = pyplot()
     time_key = clock_column(clock)
@@ -42,15 +43,21 @@ def tradeoff_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dic
             t, q = front_steps(group[time_key], sign * group[key])
             ax.step(np.append(t, t[-1] * 1.15), sign * np.append(q, q[-1]), where="post", color=c, lw=1.3, alpha=0.8)
             for _, row in group.iterrows():
-                ax.annotate(str(row["setting"]), (row[time_key], row[key]), fontsize=8, color=c,
-                            textcoords="offset points", xytext=(4, 4), fontweight="bold")
+                ax.annotate(
+                    str(row["setting"]),
+                    (row[time_key], row[key]),
+                    fontsize=8,
+                    color=c,
+                    textcoords="offset points",
+                    xytext=(4, 4),
+                    fontweight="bold",
+                )
         _log_seconds(ax)
         ax.set_xlabel(f"{'wall' if clock == 'wall' else 'CPU'} time of the whole point (s, log scale; 1 thread)")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=8, title="combination (line: Pareto front)", title_fontsize=8)
-    fig.suptitle("Speed–accuracy trade-off: held-out view quality against the time of the whole pipeline",
-                 fontsize=11)
+    fig.suptitle("Speed–accuracy trade-off: held-out view quality against the time of the whole pipeline", fontsize=11)
     fig.text(0.01, 0.01, setting_legend(table), fontsize=7.5, family="monospace", va="bottom")
     fig.tight_layout(rect=(0, 0.03 + 0.028 * table["setting"].nunique(), 1, 1))
     save_png(fig, out_png, dpi=130)
@@ -84,12 +91,26 @@ def photon_figure(table: pd.DataFrame, out_png: str | os.PathLike, labels: dict[
     for ax, (key, ylabel) in zip(axes, (("psnr", "PSNR (dB) ↑"), ("lpips_alex", "LPIPS-alex ↓"))):
         for i, (combo, group) in enumerate(table.groupby("combination", sort=False)):
             for k, line in group.groupby("K"):
-                style = dict(color=colours[i % len(colours)], ls=K_STYLES[ks.index(k) % len(K_STYLES)],
-                             marker=K_MARKERS[ks.index(k) % len(K_MARKERS)], ms=4, lw=1.4)
+                style = dict(
+                    color=colours[i % len(colours)],
+                    ls=K_STYLES[ks.index(k) % len(K_STYLES)],
+                    marker=K_MARKERS[ks.index(k) % len(K_MARKERS)],
+                    ms=4,
+                    lw=1.4,
+                )
                 ax.plot(line["detection"], line[key], label=f"{_combo_label(combo, labels)}, K={k}", **style)
                 if key == "psnr" and combo.startswith("mle+") and line["stage1_psnr"].notna().any():
-                    ax.plot(line["detection"], line["stage1_psnr"], color="0.35", ls=style["ls"], lw=1.0,
-                            marker=style["marker"], ms=3, mfc="none", label=f"MLE image alone (no 3D), K={k}")
+                    ax.plot(
+                        line["detection"],
+                        line["stage1_psnr"],
+                        color="0.35",
+                        ls=style["ls"],
+                        lw=1.0,
+                        marker=style["marker"],
+                        ms=3,
+                        mfc="none",
+                        label=f"MLE image alone (no 3D), K={k}",
+                    )
         _logit_levels(ax, sorted(table["detection"].unique()))
         ax.set_ylabel(ylabel)
     handles, names = axes[0].get_legend_handles_labels()
@@ -117,9 +138,14 @@ def _combo_label(combo: str, labels: dict[str, str] | None) -> str:
     return f"{(labels or {}).get(source, source)} + {model}"
 
 
-def tradeoff_report(paths: list[str | os.PathLike], combos: list[str], out_csv: str | os.PathLike,
-                    out_png: str | os.PathLike, labels: dict[str, str] | None = None,
-                    clock: str = "wall") -> pd.DataFrame:
+def tradeoff_report(
+    paths: list[str | os.PathLike],
+    combos: list[str],
+    out_csv: str | os.PathLike,
+    out_png: str | os.PathLike,
+    labels: dict[str, str] | None = None,
+    clock: str = "wall",
+) -> pd.DataFrame:
     """Write the trade-off table and figure (Pareto front against ``clock``); return the table."""
     table = tradeoff_table(paths, combos, clock)
     io.write_text(out_csv, table.to_csv(index=False, float_format="%.4g"))
@@ -127,8 +153,13 @@ def tradeoff_report(paths: list[str | os.PathLike], combos: list[str], out_csv: 
     return table
 
 
-def photon_report(paths: list[str | os.PathLike], combos: list[str], out_csv: str | os.PathLike,
-                  out_png: str | os.PathLike, labels: dict[str, str] | None = None) -> pd.DataFrame:
+def photon_level_report(
+    paths: list[str | os.PathLike],
+    combos: list[str],
+    out_csv: str | os.PathLike,
+    out_png: str | os.PathLike,
+    labels: dict[str, str] | None = None,
+) -> pd.DataFrame:
     """Write the photon-level table and figure; return the table."""
     table = photon_table(paths, combos)
     io.write_text(out_csv, table.to_csv(index=False, float_format="%.4g"))

@@ -18,6 +18,10 @@ from __future__ import annotations
 
 from . import cyclegan, diffusion, pix2pix, pix2pixhd, restormer
 
-TRANSLATORS = {"pix2pixhd": pix2pixhd, "pix2pix": pix2pix, "cyclegan": cyclegan, "restormer": restormer,
-               "diffusion": diffusion}
-
+TRANSLATORS = {
+    "pix2pixhd": pix2pixhd,
+    "pix2pix": pix2pix,
+    "cyclegan": cyclegan,
+    "restormer": restormer,
+    "diffusion": diffusion,
+}

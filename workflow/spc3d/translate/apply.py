@@ -1,6 +1,6 @@
 """Applying a trained stage-1 model to a scene, and scoring stage-1 images before 3D.
 
-``translate_scene`` (rule ``translate``) turns every view's binary input of a scene (the mean
+``translate_scene`` (rule ``translate_scene``) turns every view's binary input of a scene (the mean
 of its first K SPC frames, K = 1 by default) into sRGB with a trained model and writes
 ``results/translate/{scene}/{method}/`` (atomically):
 
@@ -9,7 +9,7 @@ of its first K SPC frames, K = 1 by default) into sRGB with a trained model and 
                         residual was added to (scored beside the translation, never a stage-2 source)
     translate.json      method, model folder, frames, per-image inference time, the prior's settings
 
-``score_images`` (rule ``stage1_evaluate``) compares the held-out views of any image source
+``score_images`` (rule ``score_images``) compares the held-out views of any image source
 (a translator's folder, the MLE image, the raw binary frame) with the ground truth, so stage-1
 and stage-2 errors can be told apart: ``results/stage1/{scene}/{source}.json``.
 """
@@ -33,8 +33,14 @@ from .model_io import load_translator
 log = logging.getLogger(__name__)
 
 
-def translate_scene(model_dir: str | os.PathLike, spc_dir: str | os.PathLike, scene_dir: str | os.PathLike,
-                    out_dir: str | os.PathLike, frames: int = 1, threads: int | None = None) -> dict:
+def translate_scene(
+    model_dir: str | os.PathLike,
+    spc_dir: str | os.PathLike,
+    scene_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    frames: int = 1,
+    threads: int | None = None,
+) -> dict:
     """Translate all views of a scene with the model in ``model_dir``; returns the record."""
     if threads:
         torch.set_num_threads(threads)
@@ -57,17 +63,30 @@ def translate_scene(model_dir: str | os.PathLike, spc_dir: str | os.PathLike, sc
                     base = model.prior(x)[0].clamp(0.0, 1.0)
                 io.write_image(Path(tmp) / "prior" / f"{name}.png", base.permute(1, 2, 0).cpu().numpy())
         prior = None if model.prior is None else {"sigma": model.prior.sigma, "gain": model.prior.gain.tolist()}
-        record = {"method": method, "model_dir": str(model_dir), "scene": Path(scene_dir).name, "frames": frames,
-                  "views": len(names), "seconds_per_image": float(np.mean(times)), "device": str(model.device),
-                  "prior": prior}
+        record = {
+            "method": method,
+            "model_dir": str(model_dir),
+            "scene": Path(scene_dir).name,
+            "frames": frames,
+            "views": len(names),
+            "seconds_per_image": float(np.mean(times)),
+            "device": str(model.device),
+            "prior": prior,
+        }
         io.write_json(Path(tmp) / "translate.json", record)
     log.info("%s: %d views of %s in %.2f s each", method, len(names), Path(scene_dir).name, record["seconds_per_image"])
     return record
 
 
-def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out_json: str | os.PathLike,
-                 source: str, lpips_dir: str | os.PathLike | None = None, frames: int | None = None,
-                 seed: int | None = None) -> dict:
+def score_images(
+    image_dir: str | os.PathLike,
+    scene_dir: str | os.PathLike,
+    out_json: str | os.PathLike,
+    source: str,
+    lpips_dir: str | os.PathLike | None = None,
+    frames: int | None = None,
+    seed: int | None = None,
+) -> dict:
     """PSNR / SSIM / LPIPS of a source's held-out views (before any 3D) against the ground truth.
 
     ``frames``: binary frames per view the source consumed (its photon budget K; None for ground
@@ -79,8 +98,15 @@ def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out
     scene = llff.read_scene(scene_dir, with_images=False)
     test = [scene.names[i] for i in split_views(len(scene.names))[1]]
     per_view = score_folder(Path(image_dir), scene_dir, test, source, lpips_dir)
-    record = {"scene": scene_dir.name, "source": source, "stage": 1, "frames": frames, "seed": seed,
-              "views": per_view, "mean": mean_scores(list(per_view.values()))}
+    record = {
+        "scene": scene_dir.name,
+        "source": source,
+        "stage": 1,
+        "frames": frames,
+        "seed": seed,
+        "views": per_view,
+        "mean": mean_scores(list(per_view.values())),
+    }
     prior_dir = Path(image_dir).parent / "prior"
     if Path(image_dir).name == "images" and prior_dir.is_dir():
         prior_views = score_folder(prior_dir, scene_dir, test, f"{source} (prior)", lpips_dir)
@@ -90,14 +116,16 @@ def score_images(image_dir: str | os.PathLike, scene_dir: str | os.PathLike, out
     return record
 
 
-def score_folder(image_dir: Path, scene_dir: Path, names: list[str], source: str,
-                 lpips_dir: str | os.PathLike | None) -> dict[str, dict]:
+def score_folder(
+    image_dir: Path, scene_dir: Path, names: list[str], source: str, lpips_dir: str | os.PathLike | None
+) -> dict[str, dict]:
     """Scores of ``image_dir/{name}.png`` against the scene's ground truth, per view name."""
     per_view = {}
     for name in names:
         pred_path = image_dir / f"{name}.png"
         if not pred_path.is_file():
             raise FileNotFoundError(f"{pred_path} is missing: source {source!r} has no image for view {name}")
-        per_view[name] = score_view(io.read_rgb(pred_path), io.read_rgb(scene_dir / "images" / f"{name}.png"),
-                                    lpips_dir)
+        per_view[name] = score_view(
+            io.read_rgb(pred_path), io.read_rgb(scene_dir / "images" / f"{name}.png"), lpips_dir
+        )
     return per_view

@@ -164,8 +164,10 @@ class TranslatorBase(abc.ABC):
         return {name: sum(p.numel() for p in m.parameters()) for name, m in self.modules().items()}
 
     def state(self) -> dict:
-        return {"modules": {k: m.state_dict() for k, m in self.modules().items()},
-                "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
+        return {
+            "modules": {k: m.state_dict() for k, m in self.modules().items()},
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()},
+        }
 
     def load(self, state: dict) -> None:
         for k, m in self.modules().items():

@@ -24,8 +24,14 @@ def plot_curve(frame: pd.DataFrame, path: Path, title: str, best_step: int | Non
     for ax, key in zip(axes[0], keys):
         points = frame[["iteration", key]].dropna()
         validation = key.startswith("val_")
-        ax.plot(points["iteration"], points[key], lw=1.2, marker="o" if validation else None, ms=2.5,
-                color="C1" if validation else "C0")
+        ax.plot(
+            points["iteration"],
+            points[key],
+            lw=1.2,
+            marker="o" if validation else None,
+            ms=2.5,
+            color="C1" if validation else "C0",
+        )
         if (points[key] > 0).all() and not validation:
             ax.set_yscale("log")
         if validation and best_step is not None:

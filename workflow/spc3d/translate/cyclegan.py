@@ -53,9 +53,22 @@ class Config:
 
 
 # Published sizes: resnet_9blocks generators (ngf 64), 70x70 PatchGANs (ndf 64).
-PAPER: dict = {"ngf": 64, "n_downsampling": 2, "n_blocks": 9, "ndf": 64, "n_layers_D": 3, "norm": "instance",
-                "gan_mode": "lsgan", "lambda_A": 10.0, "lambda_B": 10.0, "lambda_identity": 0.5, "pool_size": 50,
-                "lr": 2e-4, "beta1": 0.5, "prior_sigma": 0.0}
+PAPER: dict = {
+    "ngf": 64,
+    "n_downsampling": 2,
+    "n_blocks": 9,
+    "ndf": 64,
+    "n_layers_D": 3,
+    "norm": "instance",
+    "gan_mode": "lsgan",
+    "lambda_A": 10.0,
+    "lambda_B": 10.0,
+    "lambda_identity": 0.5,
+    "pool_size": 50,
+    "lr": 2e-4,
+    "beta1": 0.5,
+    "prior_sigma": 0.0,
+}
 
 
 def _generator(cfg: Config) -> ResnetGenerator:
@@ -133,15 +146,19 @@ class Translator(TranslatorBase):
             return [net(t) for t in batches]
         return list(net(torch.cat(batches)).split([t.shape[0] for t in batches]))
 
-    def _generator_terms(self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor, idt_a: Tensor | None,
-                         idt_b: Tensor | None) -> dict[str, Tensor]:
+    def _generator_terms(
+        self, a: Tensor, b: Tensor, fake_a: Tensor, fake_b: Tensor, idt_a: Tensor | None, idt_b: Tensor | None
+    ) -> dict[str, Tensor]:
         """Adversarial, cycle and identity terms of the joint generator objective (D frozen);
         ``idt_a`` / ``idt_b``: F(a) / G(b) when already computed, else computed here, last."""
         cfg = self.cfg
         set_requires_grad([self.D_A, self.D_B], False)
-        terms = {"G_GAN": self.gan(self.D_B(fake_b), True), "F_GAN": self.gan(self.D_A(fake_a), True),
-                 "cycle_A": cfg.lambda_A * F.l1_loss(self.F(fake_b), a),
-                 "cycle_B": cfg.lambda_B * F.l1_loss(self.g(fake_a), b)}
+        terms = {
+            "G_GAN": self.gan(self.D_B(fake_b), True),
+            "F_GAN": self.gan(self.D_A(fake_a), True),
+            "cycle_A": cfg.lambda_A * F.l1_loss(self.F(fake_b), a),
+            "cycle_B": cfg.lambda_B * F.l1_loss(self.g(fake_a), b),
+        }
         if cfg.lambda_identity > 0:
             idt_b = self.g(b) if idt_b is None else idt_b
             idt_a = self.F(a) if idt_a is None else idt_a

@@ -25,8 +25,10 @@ def binary_input(frames_npz: str | os.PathLike, frames: int) -> np.ndarray:
     """(H, W, 3) float32 mean of the first ``frames`` binary frames stored in ``frames_npz``."""
     bits = spc.unpack_frames(*io.load_frames(frames_npz))
     if not 1 <= frames <= bits.shape[0]:
-        raise ValueError(f"stage1.frames={frames} but {frames_npz} stores K={bits.shape[0]} frames "
-                         f"(use 1..{bits.shape[0]}, or simulate more with spc.frames)")
+        raise ValueError(
+            f"stage1.frames={frames} but {frames_npz} stores K={bits.shape[0]} frames "
+            f"(use 1..{bits.shape[0]}, or simulate more with spc.frames)"
+        )
     return bits[:frames].mean(0, dtype=np.float32)
 
 
@@ -40,13 +42,14 @@ def load_pairs(augment_dirs: list[str | os.PathLike], frames: int) -> tuple[list
     for folder in map(Path, augment_dirs):
         names = sorted(p.stem for p in (folder / "frames").glob("*.npz"))
         if not names:
-            raise FileNotFoundError(f"{folder}/frames holds no .npz pairs: run the augment rule first")
+            raise FileNotFoundError(f"{folder}/frames holds no .npz pairs: run the augment_scene rule first")
         for name in names:
             b = binary_input(folder / "frames" / f"{name}.npz", frames)
             r = io.read_rgb(folder / "rgb" / f"{name}.png")
             if b.shape != r.shape:
-                raise ValueError(f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; "
-                                 "rerun the augment rule")
+                raise ValueError(
+                    f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; rerun the augment_scene rule"
+                )
             binary.append(chw(b))
             rgb.append(chw(r))
     return binary, rgb
@@ -65,8 +68,9 @@ class PairSampler:
         self.binary, self.rgb = list(binary), list(rgb)
         smallest = min(min(x.shape[-2:]) for x in self.binary + self.rgb)
         if crop > smallest:
-            raise ValueError(f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); "
-                             f"use <= {smallest}")
+            raise ValueError(
+                f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); use <= {smallest}"
+            )
         self.batch, self.crop, self.paired = batch_size, crop, paired
         # (6, H, W): one crop
         self.pairs = [torch.cat(p, dim=0) for p in zip(self.binary, self.rgb)] if paired else None
@@ -81,7 +85,7 @@ class PairSampler:
             h, w = images[i].shape[-2:]
             y = int(torch.randint(0, h - self.crop + 1, (1,), generator=self.gen))
             x = int(torch.randint(0, w - self.crop + 1, (1,), generator=self.gen))
-            out.append(images[i][:, y:y + self.crop, x:x + self.crop])
+            out.append(images[i][:, y : y + self.crop, x : x + self.crop])
         return torch.stack(out)
 
     def _draw(self) -> tuple[Tensor, Tensor]:
@@ -104,8 +108,12 @@ class PairSampler:
 
     def describe(self) -> dict:
         """For train.json: the mode, the samples drawn and how many distinct pairs they came from."""
-        return {"mode": "fixed", "pairs": len(self.binary), "samples": self.drawn,
-                "distinct_samples": int(self.seen.sum())}
+        return {
+            "mode": "fixed",
+            "pairs": len(self.binary),
+            "samples": self.drawn,
+            "distinct_samples": int(self.seen.sum()),
+        }
 
     def state(self) -> dict:
         return {"gen": self.gen.get_state(), "seen": self.seen.clone(), "drawn": self.drawn}

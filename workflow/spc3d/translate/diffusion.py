@@ -69,13 +69,21 @@ class Config:
 
 # DiffBIR publishes no sizes for a pixel-space model: only sample_steps (50) and T (1000) come from
 # it; the widths are a GPU-sized version of this UNet, not Stable Diffusion's 865M-parameter UNet.
-PAPER: dict = {"timesteps": 1000, "sample_steps": 50, "base_channels": 128, "channel_mults": (1, 2, 2, 4),
-                "num_res_blocks": 2, "ema_decay": 0.9999, "prior_sigma": 0.0}
+PAPER: dict = {
+    "timesteps": 1000,
+    "sample_steps": 50,
+    "base_channels": 128,
+    "channel_mults": (1, 2, 2, 4),
+    "num_res_blocks": 2,
+    "ema_decay": 0.9999,
+    "prior_sigma": 0.0,
+}
 
 
 # ----------------------------------------------------------------------------------------------
 # Noise schedule and DDIM sampler (independent of the network, tested with an oracle)
 # ----------------------------------------------------------------------------------------------
+
 
 def make_betas(schedule: str, timesteps: int) -> Tensor:
     """(T,) float64 betas. Linear: Ho et al.'s 1e-4..0.02 rescaled to T; cosine: Nichol & Dhariwal."""
@@ -133,9 +141,16 @@ def ddim_timesteps(timesteps: int, steps: int) -> list[int]:
     return list(dict.fromkeys(ts.tolist()))
 
 
-def ddim_sample(predict: Callable[[Tensor, Tensor], Tensor], x_T: Tensor, schedule: NoiseSchedule,
-                steps: int, prediction: str, eta: float = 0.0, generator: torch.Generator | None = None,
-                clip: bool = True) -> Tensor:
+def ddim_sample(
+    predict: Callable[[Tensor, Tensor], Tensor],
+    x_T: Tensor,
+    schedule: NoiseSchedule,
+    steps: int,
+    prediction: str,
+    eta: float = 0.0,
+    generator: torch.Generator | None = None,
+    clip: bool = True,
+) -> Tensor:
     """DDIM (Song et al. 2021) from x_T to x0; predict(x_t (B, C, H, W), t (B,) long) -> network output.
 
     x_prev = sqrt(a') x0 + sqrt(1 - a' - sigma^2) eps + sigma z, with a' = 1 after the last step,
@@ -153,7 +168,7 @@ def ddim_sample(predict: Callable[[Tensor, Tensor], Tensor], x_T: Tensor, schedu
             eps = (x - math.sqrt(a_t) * x0) / math.sqrt(1.0 - a_t)
         a_prev = float(ab[ts[i + 1]]) if i + 1 < len(ts) else 1.0
         sigma = eta * math.sqrt((1 - a_prev) / (1 - a_t) * (1 - a_t / a_prev))
-        x = math.sqrt(a_prev) * x0 + math.sqrt(max(1 - a_prev - sigma ** 2, 0.0)) * eps
+        x = math.sqrt(a_prev) * x0 + math.sqrt(max(1 - a_prev - sigma**2, 0.0)) * eps
         if sigma > 0:
             x = x + sigma * torch.randn(x.shape, generator=generator, device=x.device, dtype=x.dtype)
     return x
@@ -162,6 +177,7 @@ def ddim_sample(predict: Callable[[Tensor, Tensor], Tensor], x_T: Tensor, schedu
 # ----------------------------------------------------------------------------------------------
 # The UNet
 # ----------------------------------------------------------------------------------------------
+
 
 def timestep_embedding(t: Tensor, dim: int) -> Tensor:
     """(B,) timesteps -> (B, dim) sinusoidal features (Transformer positional encoding)."""
@@ -316,6 +332,7 @@ class EMA(nn.Module):
 # The stage-1 translator
 # ----------------------------------------------------------------------------------------------
 
+
 def box_blur(x: Tensor, k: int) -> Tensor:
     """(B, C, H, W) -> k x k mean filter with replicated borders (the cheap stage-1 cleaner)."""
     r = k // 2
@@ -393,8 +410,9 @@ class Translator(TranslatorBase):
         def predict(x: Tensor, t: Tensor) -> Tensor:
             return net(torch.cat([x, cond], dim=1), t)
 
-        x0 = ddim_sample(predict, x_T, self.schedule, self.cfg.sample_steps, self.cfg.prediction,
-                         eta=self.cfg.eta, generator=gen)
+        x0 = ddim_sample(
+            predict, x_T, self.schedule, self.cfg.sample_steps, self.cfg.prediction, eta=self.cfg.eta, generator=gen
+        )
         if self.prior is not None:
             x0 = self.plus_prior(x0 / self.cfg.residual_scale, to_signed(binary), signed=True)
         return from_signed(x0).clamp(0.0, 1.0)

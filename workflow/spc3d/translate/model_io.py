@@ -37,8 +37,11 @@ def model_config(method: str, settings: dict):
     settings.pop("checkpoint", None)
     if preset not in (None, "paper"):
         raise ValueError(f"stage1.{method}.preset={preset!r}: use 'paper' or leave it out (CPU default)")
-    base = module.Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in module.PAPER.items()}) \
-        if preset == "paper" else None
+    base = (
+        module.Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in module.PAPER.items()})
+        if preset == "paper"
+        else None
+    )
     return build_config(module.Config, settings, f"stage1.{method}", base)
 
 

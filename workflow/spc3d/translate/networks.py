@@ -73,8 +73,10 @@ def check_multiple(x: Tensor, multiple: int, method: str) -> None:
     ``multiple``: the networks' skips / residuals only line up then (``translate`` pads itself)."""
     h, w = x.shape[-2:]
     if h % multiple or w % multiple:
-        raise ValueError(f"{method}: training crops of {h}x{w} px are not multiples of {multiple}; "
-                         f"set stage1.train.crop to a multiple of {multiple} (or shrink the network)")
+        raise ValueError(
+            f"{method}: training crops of {h}x{w} px are not multiples of {multiple}; "
+            f"set stage1.train.crop to a multiple of {multiple} (or shrink the network)"
+        )
 
 
 def set_requires_grad(nets: list[nn.Module], flag: bool) -> None:
@@ -94,8 +96,12 @@ class ResnetBlock(nn.Module):
     def __init__(self, channels: int, norm: str = "instance", dropout: float = 0.0):
         super().__init__()
         make_norm, bias = norm_layer(norm), conv_bias(norm)
-        layers = [nn.ReflectionPad2d(1), nn.Conv2d(channels, channels, 3, bias=bias),
-                  make_norm(channels), nn.ReLU(True)]
+        layers = [
+            nn.ReflectionPad2d(1),
+            nn.Conv2d(channels, channels, 3, bias=bias),
+            make_norm(channels),
+            nn.ReLU(True),
+        ]
         if dropout > 0:
             layers.append(nn.Dropout(dropout))
         layers += [nn.ReflectionPad2d(1), nn.Conv2d(channels, channels, 3, bias=bias), make_norm(channels)]
@@ -115,8 +121,16 @@ class ResnetGenerator(nn.Module):
     ``body`` alone. Sides must be multiples of 2**n_down.
     """
 
-    def __init__(self, in_ch: int = 3, out_ch: int = 3, ngf: int = 64, n_down: int = 2,
-                 n_blocks: int = 9, norm: str = "instance", dropout: float = 0.0):
+    def __init__(
+        self,
+        in_ch: int = 3,
+        out_ch: int = 3,
+        ngf: int = 64,
+        n_down: int = 2,
+        n_blocks: int = 9,
+        norm: str = "instance",
+        dropout: float = 0.0,
+    ):
         super().__init__()
         make_norm, bias = norm_layer(norm), conv_bias(norm)
         layers = [nn.ReflectionPad2d(3), nn.Conv2d(in_ch, ngf, 7, bias=bias), make_norm(ngf), nn.ReLU(True)]
@@ -127,8 +141,11 @@ class ResnetGenerator(nn.Module):
         layers += [ResnetBlock(width, norm, dropout) for _ in range(n_blocks)]
         for i in reversed(range(n_down)):  # (B, 2c, h, w) -> (B, c, 2h, 2w)
             c = ngf * 2**i
-            layers += [nn.ConvTranspose2d(2 * c, c, 3, stride=2, padding=1, output_padding=1, bias=bias),
-                       make_norm(c), nn.ReLU(True)]
+            layers += [
+                nn.ConvTranspose2d(2 * c, c, 3, stride=2, padding=1, output_padding=1, bias=bias),
+                make_norm(c),
+                nn.ReLU(True),
+            ]
         self.body = nn.Sequential(*layers)
         self.head = nn.Sequential(nn.ReflectionPad2d(3), nn.Conv2d(ngf, out_ch, 7), nn.Tanh())
 
@@ -143,8 +160,16 @@ class UnetBlock(nn.Module):
     ends in tanh and returns no skip; every other level returns concat(x, up(...)).
     """
 
-    def __init__(self, outer_ch: int, inner_ch: int, inner: UnetBlock | None, in_ch: int | None = None,
-                 outermost: bool = False, norm: str = "batch", dropout: float = 0.0):
+    def __init__(
+        self,
+        outer_ch: int,
+        inner_ch: int,
+        inner: UnetBlock | None,
+        in_ch: int | None = None,
+        outermost: bool = False,
+        norm: str = "batch",
+        dropout: float = 0.0,
+    ):
         super().__init__()
         make_norm, bias = norm_layer(norm), conv_bias(norm)
         in_ch = outer_ch if in_ch is None else in_ch
@@ -156,8 +181,11 @@ class UnetBlock(nn.Module):
             up = [nn.ReLU(True), nn.ConvTranspose2d(up_in, outer_ch, 4, stride=2, padding=1), nn.Tanh()]
         else:
             down = [nn.LeakyReLU(0.2, True), down_conv] + ([make_norm(inner_ch)] if inner is not None else [])
-            up = [nn.ReLU(True), nn.ConvTranspose2d(up_in, outer_ch, 4, stride=2, padding=1, bias=bias),
-                  make_norm(outer_ch)] + ([nn.Dropout(dropout)] if dropout > 0 else [])
+            up = [
+                nn.ReLU(True),
+                nn.ConvTranspose2d(up_in, outer_ch, 4, stride=2, padding=1, bias=bias),
+                make_norm(outer_ch),
+            ] + ([nn.Dropout(dropout)] if dropout > 0 else [])
         self.model = nn.Sequential(*down, *([inner] if inner is not None else []), *up)
 
     def forward(self, x: Tensor) -> Tensor:
@@ -173,8 +201,15 @@ class UnetGenerator(nn.Module):
     The innermost level has no norm on its way down (its output is 1x1 at the training size).
     """
 
-    def __init__(self, in_ch: int = 3, out_ch: int = 3, num_downs: int = 8, ngf: int = 64,
-                 norm: str = "batch", dropout: bool = True):
+    def __init__(
+        self,
+        in_ch: int = 3,
+        out_ch: int = 3,
+        num_downs: int = 8,
+        ngf: int = 64,
+        norm: str = "batch",
+        dropout: bool = True,
+    ):
         super().__init__()
         if num_downs < 2:
             raise ValueError(f"UnetGenerator num_downs must be >= 2, got {num_downs}")
@@ -208,8 +243,11 @@ class NLayerDiscriminator(nn.Module):
         for i in range(1, n_layers + 1):  # stride 2 for the first n_layers - 1, then stride 1
             c_next = ndf * min(2**i, 8)
             stride = 2 if i < n_layers else 1
-            stages.append(nn.Sequential(nn.Conv2d(c, c_next, 4, stride, padding, bias=bias),
-                                        make_norm(c_next), nn.LeakyReLU(0.2, True)))
+            stages.append(
+                nn.Sequential(
+                    nn.Conv2d(c, c_next, 4, stride, padding, bias=bias), make_norm(c_next), nn.LeakyReLU(0.2, True)
+                )
+            )
             c = c_next
         stages.append(nn.Sequential(nn.Conv2d(c, 1, 4, 1, padding)))
         self.stages = nn.ModuleList(stages)
@@ -229,11 +267,13 @@ class MultiscaleDiscriminator(nn.Module):
     ``features=True`` the list of that discriminator's stage outputs.
     """
 
-    def __init__(self, in_ch: int, ndf: int = 64, n_layers: int = 3, norm: str = "instance",
-                 num_D: int = 2, padding: int = 2):
+    def __init__(
+        self, in_ch: int, ndf: int = 64, n_layers: int = 3, norm: str = "instance", num_D: int = 2, padding: int = 2
+    ):
         super().__init__()
         self.discriminators = nn.ModuleList(
-            NLayerDiscriminator(in_ch, ndf, n_layers, norm, padding) for _ in range(num_D))
+            NLayerDiscriminator(in_ch, ndf, n_layers, norm, padding) for _ in range(num_D)
+        )
 
     def forward(self, x: Tensor, features: bool = False) -> list:
         outs = []
@@ -333,8 +373,10 @@ class VGGFeatures(nn.Module):
             for part in ("weight", "bias"):
                 key = f"conv{i}.{part}"
                 if key not in weights:
-                    raise ValueError(f"VGG weights: key {key!r} missing; expected the layout of "
-                                     f"spc3d.lpips_weights.lpips_weights('vgg')")
+                    raise ValueError(
+                        f"VGG weights: key {key!r} missing; expected the layout of "
+                        f"spc3d.lpips_weights.lpips_weights('vgg')"
+                    )
                 value = torch.as_tensor(np.asarray(weights[key], dtype=np.float32))
                 if tuple(value.shape) != expected[key]:
                     raise ValueError(f"VGG weights: {key} has shape {tuple(value.shape)}, expected {expected[key]}")
@@ -378,8 +420,9 @@ class VGGLoss(nn.Module):
         return sum(w * F.l1_loss(a, b.detach()) for w, a, b in zip(VGG_LOSS_WEIGHTS, fx, fy))
 
 
-def conditional_d_step(D: nn.Module, opt: torch.optim.Optimizer, gan: GANLoss, pool: ImagePool,
-                       x: Tensor, y: Tensor, fake: Tensor) -> dict[str, float]:
+def conditional_d_step(
+    D: nn.Module, opt: torch.optim.Optimizer, gan: GANLoss, pool: ImagePool, x: Tensor, y: Tensor, fake: Tensor
+) -> dict[str, float]:
     """One update of a conditional discriminator on real pairs (x, y) and pooled fake pairs
     (x, fake) with the 0.5-weighted objective of pix2pix / pix2pixHD; returns its losses."""
     fake_pair = pool.query(torch.cat([x, fake.detach()], 1))  # (B, 6, h, w)

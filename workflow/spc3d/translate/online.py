@@ -44,12 +44,15 @@ class SceneSource:
     params: spc.SPCParams  # its physics, with frames = the K frames averaged into the input
 
 
-def load_sources(scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike],
-                 frames: int) -> list[SceneSource]:
+def load_sources(
+    scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike], frames: int
+) -> list[SceneSource]:
     """The training views, exposure and physics of every training scene (paired folders in order)."""
     if len(scene_dirs) != len(spc_dirs) or not scene_dirs:
-        raise ValueError(f"online stage-1 data needs one SPC folder per training scene folder, got "
-                         f"{len(scene_dirs)} scene(s) and {len(spc_dirs)} SPC folder(s)")
+        raise ValueError(
+            f"online stage-1 data needs one SPC folder per training scene folder, got "
+            f"{len(scene_dirs)} scene(s) and {len(spc_dirs)} SPC folder(s)"
+        )
     sources = []
     for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
         record = read_spc_record(spc_dir)
@@ -66,12 +69,20 @@ def load_sources(scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.Pa
 class OnlineSampler:
     """Fresh (binary, rgb) crops of the training scenes, as :class:`.data.PairSampler` gives fixed ones."""
 
-    def __init__(self, sources: list[SceneSource], batch_size: int, crop: int, seed: int,
-                 augment: AugmentSettings = AugmentSettings(), paired: bool = True):
+    def __init__(
+        self,
+        sources: list[SceneSource],
+        batch_size: int,
+        crop: int,
+        seed: int,
+        augment: AugmentSettings = AugmentSettings(),
+        paired: bool = True,
+    ):
         smallest = min(min(v.shape[:2]) for s in sources for v in s.views)
         if crop > smallest:
-            raise ValueError(f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); "
-                             f"use <= {smallest}")
+            raise ValueError(
+                f"stage1.train.crop={crop} exceeds the smallest training image side ({smallest} px); use <= {smallest}"
+            )
         self.sources, self.batch, self.crop, self.augment, self.paired = sources, batch_size, crop, augment, paired
         self.rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, zlib.crc32(b"stage1-online")])))
         self.drawn = 0  # samples drawn so far (each one distinct)
@@ -116,9 +127,14 @@ class OnlineSampler:
 
     def describe(self) -> dict:
         """For train.json: the mode, the samples drawn (all distinct), the scenes and their views."""
-        return {"mode": "online", "samples": self.drawn, "distinct_samples": self.drawn,
-                "scenes": [s.name for s in self.sources], "training_views": sum(len(s.views) for s in self.sources),
-                "augment": dataclasses.asdict(self.augment)}
+        return {
+            "mode": "online",
+            "samples": self.drawn,
+            "distinct_samples": self.drawn,
+            "scenes": [s.name for s in self.sources],
+            "training_views": sum(len(s.views) for s in self.sources),
+            "augment": dataclasses.asdict(self.augment),
+        }
 
     def state(self) -> dict:
         """The generator's state (as JSON text: its 128-bit integers) and the count drawn."""
@@ -127,4 +143,3 @@ class OnlineSampler:
     def load(self, state: dict) -> None:
         self.rng.bit_generator.state = json.loads(state["rng"])
         self.drawn = int(state["drawn"])
-

@@ -49,9 +49,20 @@ class Config:
 
 
 # Published sizes: unet_256 on 256x256 crops, 70x70 PatchGAN with ndf 64.
-PAPER: dict = {"ngf": 64, "num_downs": 8, "dropout": True, "ndf": 64, "n_layers_D": 3, "norm": "batch",
-                "gan_mode": "vanilla", "lambda_L1": 100.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5,
-                "prior_sigma": 0.0}
+PAPER: dict = {
+    "ngf": 64,
+    "num_downs": 8,
+    "dropout": True,
+    "ndf": 64,
+    "n_layers_D": 3,
+    "norm": "batch",
+    "gan_mode": "vanilla",
+    "lambda_L1": 100.0,
+    "pool_size": 0,
+    "lr": 2e-4,
+    "beta1": 0.5,
+    "prior_sigma": 0.0,
+}
 
 
 class Translator(PairedGANBase):
@@ -89,5 +100,4 @@ class Translator(PairedGANBase):
         loss_g.backward()
         self.opt_G.step()
         set_requires_grad([self.D], True)
-        return {"loss": float(loss_g.detach()), "G_GAN": float(g_gan.detach()), "G_L1": float(g_l1.detach()),
-                **d_terms}
+        return {"loss": float(loss_g.detach()), "G_GAN": float(g_gan.detach()), "G_L1": float(g_l1.detach()), **d_terms}

@@ -59,16 +59,32 @@ class Config:
 
     def __post_init__(self):
         if self.ngf % 2**self.n_local_enhancers:
-            raise ValueError(f"pix2pixhd: ngf={self.ngf} must be divisible by 2**n_local_enhancers="
-                             f"{2**self.n_local_enhancers} (each local enhancer halves the width)")
+            raise ValueError(
+                f"pix2pixhd: ngf={self.ngf} must be divisible by 2**n_local_enhancers="
+                f"{2**self.n_local_enhancers} (each local enhancer halves the width)"
+            )
 
 
 # Published sizes: global generator 64 / 4 / 9 wrapped in one local enhancer of width 32 (the
 # reference's 1024p recipe, --netG local --ngf 32), 2 x 3-layer D, feature matching + VGG loss.
-PAPER: dict = {"ngf": 64, "n_downsample_global": 4, "n_blocks_global": 9, "n_local_enhancers": 1,
-                "n_blocks_local": 3, "ndf": 64, "n_layers_D": 3, "num_D": 2, "norm": "instance",
-                "feat_match": True, "vgg_loss": True, "lambda_feat": 10.0, "pool_size": 0, "lr": 2e-4, "beta1": 0.5,
-                "prior_sigma": 0.0}
+PAPER: dict = {
+    "ngf": 64,
+    "n_downsample_global": 4,
+    "n_blocks_global": 9,
+    "n_local_enhancers": 1,
+    "n_blocks_local": 3,
+    "ndf": 64,
+    "n_layers_D": 3,
+    "num_D": 2,
+    "norm": "instance",
+    "feat_match": True,
+    "vgg_loss": True,
+    "lambda_feat": 10.0,
+    "pool_size": 0,
+    "lr": 2e-4,
+    "beta1": 0.5,
+    "prior_sigma": 0.0,
+}
 
 
 class LocalEnhancer(nn.Module):
@@ -84,11 +100,21 @@ class LocalEnhancer(nn.Module):
         super().__init__()
         make_norm = norm_layer(norm)
         self.inner = inner
-        self.down = nn.Sequential(nn.ReflectionPad2d(3), nn.Conv2d(in_ch, ngf, 7), make_norm(ngf), nn.ReLU(True),
-                                  nn.Conv2d(ngf, 2 * ngf, 3, stride=2, padding=1), make_norm(2 * ngf), nn.ReLU(True))
-        self.up = nn.Sequential(*[ResnetBlock(2 * ngf, norm) for _ in range(n_blocks)],
-                                nn.ConvTranspose2d(2 * ngf, ngf, 3, stride=2, padding=1, output_padding=1),
-                                make_norm(ngf), nn.ReLU(True))
+        self.down = nn.Sequential(
+            nn.ReflectionPad2d(3),
+            nn.Conv2d(in_ch, ngf, 7),
+            make_norm(ngf),
+            nn.ReLU(True),
+            nn.Conv2d(ngf, 2 * ngf, 3, stride=2, padding=1),
+            make_norm(2 * ngf),
+            nn.ReLU(True),
+        )
+        self.up = nn.Sequential(
+            *[ResnetBlock(2 * ngf, norm) for _ in range(n_blocks)],
+            nn.ConvTranspose2d(2 * ngf, ngf, 3, stride=2, padding=1, output_padding=1),
+            make_norm(ngf),
+            nn.ReLU(True),
+        )
 
     def forward(self, x: Tensor) -> Tensor:
         half = F.avg_pool2d(x, 3, stride=2, padding=1, count_include_pad=False)  # (B, C, H/2, W/2)
@@ -129,8 +155,9 @@ class Translator(PairedGANBase):
         self.multiple = 2 ** (cfg.n_downsample_global + cfg.n_local_enhancers)
         self.G = init_weights(Generator(cfg)).to(self.device)
         self.make_prior(cfg.prior_sigma, self.G)
-        self.D = init_weights(MultiscaleDiscriminator(6, cfg.ndf, cfg.n_layers_D, cfg.norm, cfg.num_D,
-                                                      padding=2)).to(self.device)
+        self.D = init_weights(MultiscaleDiscriminator(6, cfg.ndf, cfg.n_layers_D, cfg.norm, cfg.num_D, padding=2)).to(
+            self.device
+        )
         self.vgg = self._vgg_loss(cfg, vgg_weights)
         self.gan = GANLoss("lsgan")
         self.pool = ImagePool(cfg.pool_size)
@@ -142,8 +169,10 @@ class Translator(PairedGANBase):
         if not cfg.vgg_loss:
             return None
         if vgg_weights is None:
-            raise ValueError("pix2pixhd: vgg_loss is True but no vgg_weights were given; pass the VGG16 "
-                             "weights from spc3d.lpips_weights.lpips_weights('vgg') or set vgg_loss: false")
+            raise ValueError(
+                "pix2pixhd: vgg_loss is True but no vgg_weights were given; pass the VGG16 "
+                "weights from spc3d.lpips_weights.lpips_weights('vgg') or set vgg_loss: false"
+            )
         return VGGLoss(vgg_weights).to(self.device)
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
@@ -181,8 +210,9 @@ class Translator(PairedGANBase):
         terms = {"G_GAN": self.gan(pred_fake, True)}
         if self.cfg.feat_match:
             weight = self.cfg.lambda_feat * 4.0 / (self.cfg.n_layers_D + 1) / self.cfg.num_D
-            terms["G_feat"] = weight * sum(F.l1_loss(f, r.detach()) for pf, pr in zip(pred_fake, pred_real)
-                                           for f, r in zip(pf[:-1], pr[:-1]))
+            terms["G_feat"] = weight * sum(
+                F.l1_loss(f, r.detach()) for pf, pr in zip(pred_fake, pred_real) for f, r in zip(pf[:-1], pr[:-1])
+            )
         if self.vgg is not None:
             terms["G_VGG"] = self.cfg.lambda_feat * self.vgg(fake, y)
         return terms

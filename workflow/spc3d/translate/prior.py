@@ -102,7 +102,9 @@ class PhysicsPrior(nn.Module):
             raise ValueError("PhysicsPrior.fit: no training images were given")
         mean_rate = rate_sum / rate_n
         if bool((mean_rate <= 0).any()):
-            raise ValueError(f"PhysicsPrior.fit: the training inputs have no detections in some channel "
-                             f"(mean rate {mean_rate.tolist()}); the gain would be infinite")
+            raise ValueError(
+                f"PhysicsPrior.fit: the training inputs have no detections in some channel "
+                f"(mean rate {mean_rate.tolist()}); the gain would be infinite"
+            )
         self.gain.copy_((linear_sum / linear_n / mean_rate).to(self.gain))
         return self.gain.clone()

@@ -57,13 +57,22 @@ class Config:
 
 
 # Published sizes (Restormer, Gaussian/real denoising configuration).
-PAPER: dict = {"dim": 48, "num_blocks": (4, 6, 6, 8), "num_refinement_blocks": 4, "heads": (1, 2, 4, 8),
-                "ffn_expansion_factor": 2.66, "bias": False, "layernorm_type": "BiasFree", "prior_sigma": 0.0}
+PAPER: dict = {
+    "dim": 48,
+    "num_blocks": (4, 6, 6, 8),
+    "num_refinement_blocks": 4,
+    "heads": (1, 2, 4, 8),
+    "ffn_expansion_factor": 2.66,
+    "bias": False,
+    "layernorm_type": "BiasFree",
+    "prior_sigma": 0.0,
+}
 
 
 # ----------------------------------------------------------------------------------------------
 # Building blocks
 # ----------------------------------------------------------------------------------------------
+
 
 def channel_variance(x: Tensor) -> Tensor:
     """(B, C, H, W) -> (B, 1, H, W) population variance over channels (two-pass: stable, and
@@ -229,8 +238,12 @@ class Restormer(nn.Module):
             raise ValueError("Restormer needs an even dim and 4 entries in num_blocks and heads")
 
         def stage(width: int, heads: int, n: int) -> nn.Sequential:
-            return nn.Sequential(*[TransformerBlock(width, heads, cfg.ffn_expansion_factor, cfg.bias,
-                                                    cfg.layernorm_type) for _ in range(n)])
+            return nn.Sequential(
+                *[
+                    TransformerBlock(width, heads, cfg.ffn_expansion_factor, cfg.bias, cfg.layernorm_type)
+                    for _ in range(n)
+                ]
+            )
 
         self.patch_embed = PatchEmbed(in_ch, d)
         self.encoder_level1 = stage(d, hd[0], nb[0])
@@ -266,6 +279,7 @@ class Restormer(nn.Module):
 # The stage-1 translator
 # ----------------------------------------------------------------------------------------------
 
+
 class Translator(TranslatorBase):
     """Restormer trained as a binary -> RGB denoiser with L1 (output = input + net(input))."""
 
@@ -278,8 +292,14 @@ class Translator(TranslatorBase):
         self.device = torch.device(device)
         self.net = Restormer(cfg).to(self.device)
         self.make_prior(cfg.prior_sigma, self.net)
-        self.opt = adam(self.net.parameters(), self.device, adamw=True, lr=cfg.lr, betas=tuple(cfg.betas),
-                        weight_decay=cfg.weight_decay)
+        self.opt = adam(
+            self.net.parameters(),
+            self.device,
+            adamw=True,
+            lr=cfg.lr,
+            betas=tuple(cfg.betas),
+            weight_decay=cfg.weight_decay,
+        )
 
     def modules(self) -> dict[str, nn.Module]:
         return self.with_prior({"net": self.net})
@@ -296,8 +316,10 @@ class Translator(TranslatorBase):
     def load_pretrained(self, path) -> None:
         """Load an official Restormer ``.pth`` into the network (the Config must match its architecture)."""
         if self.prior is not None:
-            raise ValueError(f"restormer: published weights ({path}) predict a residual over the input image, "
-                             "not over the physics prior; set stage1.restormer.prior_sigma: 0 to load them")
+            raise ValueError(
+                f"restormer: published weights ({path}) predict a residual over the input image, "
+                "not over the physics prior; set stage1.restormer.prior_sigma: 0 to load them"
+            )
         sd = _official_state_dict(Path(path))
         check_state_dict(self.net, sd, str(path))
         self.net.load_state_dict(sd, strict=True)
@@ -324,6 +346,7 @@ class Translator(TranslatorBase):
 # Official checkpoints
 # ----------------------------------------------------------------------------------------------
 
+
 def _official_state_dict(path: Path) -> dict[str, Tensor]:
     """Read the state_dict of an official Restormer ``.pth`` ({"params": sd}; also "params_ema" or a bare sd)."""
     blob = io.load_torch(path, "Restormer checkpoint")
@@ -342,16 +365,22 @@ def check_state_dict(module: nn.Module, sd: dict[str, Tensor], source: str) -> N
     own = module.state_dict()
     missing = sorted(set(own) - set(sd))
     unexpected = sorted(set(sd) - set(own))
-    shapes = sorted(f"{k}: checkpoint {tuple(sd[k].shape)} vs model {tuple(own[k].shape)}"
-                    for k in set(own) & set(sd) if sd[k].shape != own[k].shape)
+    shapes = sorted(
+        f"{k}: checkpoint {tuple(sd[k].shape)} vs model {tuple(own[k].shape)}"
+        for k in set(own) & set(sd)
+        if sd[k].shape != own[k].shape
+    )
     if missing or unexpected or shapes:
-        raise ValueError(f"{source}: checkpoint does not match Restormer with this Config "
-                         f"(dim, num_blocks, heads, bias, layernorm_type?); missing keys {missing}; "
-                         f"unexpected keys {unexpected}; shape mismatches {shapes}")
+        raise ValueError(
+            f"{source}: checkpoint does not match Restormer with this Config "
+            f"(dim, num_blocks, heads, bias, layernorm_type?); missing keys {missing}; "
+            f"unexpected keys {unexpected}; shape mismatches {shapes}"
+        )
 
 
-def load_official_checkpoint(path: str | Path, cfg: Config | None = None,
-                             device: torch.device | str = "cpu") -> Translator:
+def load_official_checkpoint(
+    path: str | Path, cfg: Config | None = None, device: torch.device | str = "cpu"
+) -> Translator:
     """A Translator whose network holds the weights of an official Restormer checkpoint.
 
     ``cfg`` must describe the checkpoint's architecture (default: ``Config(**PAPER)``, the

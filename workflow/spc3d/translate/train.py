@@ -56,8 +56,9 @@ class TrainSettings:
 
     def __post_init__(self):
         if self.iterations < 0 or self.batch_size < 1 or self.crop < 8 or self.log_every < 1:
-            raise ValueError(f"stage1.train: need iterations >= 0, batch_size >= 1, crop >= 8, log_every >= 1; "
-                             f"got {self}")
+            raise ValueError(
+                f"stage1.train: need iterations >= 0, batch_size >= 1, crop >= 8, log_every >= 1; got {self}"
+            )
         if not 0.0 <= self.decay_from <= 1.0:
             raise ValueError(f"stage1.train.decay_from={self.decay_from}: must be in [0, 1]")
 
@@ -75,8 +76,10 @@ def train_settings(train: dict, method: str, pretrained: str | None = None) -> T
     when the method starts from published weights (an untrained network is not a result)."""
     s = build_config(TrainSettings, train, f"stage1.{method}.train")
     if s.iterations == 0 and not pretrained:
-        raise ValueError(f"stage1.train.iterations = 0 for {method}: an untrained network is not a result; use "
-                         f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)")
+        raise ValueError(
+            f"stage1.train.iterations = 0 for {method}: an untrained network is not a result; use "
+            f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)"
+        )
     return s
 
 
@@ -114,8 +117,12 @@ class TranslatorTrainer:
         return self.validator is not None and self.validator.should_stop()
 
     def state(self) -> dict:
-        return {"model": self.model.state(), "sampler": self.sampler.state(), "curve": self.curve,
-                "validation": self.validator.state() if self.validator else None}
+        return {
+            "model": self.model.state(),
+            "sampler": self.sampler.state(),
+            "curve": self.curve,
+            "validation": self.validator.state() if self.validator else None,
+        }
 
     def load(self, state: dict) -> None:
         self.model.load(state["model"])
@@ -125,22 +132,39 @@ class TranslatorTrainer:
             self.validator.load(state["validation"])
 
 
-def fit(model, sampler, s: TrainSettings, checkpoint: Checkpoint | None = None,
-        policy: CheckpointPolicy = CheckpointPolicy(), desc: str = "stage1",
-        validator: Validator | None = None) -> dict:
+def fit(
+    model,
+    sampler,
+    s: TrainSettings,
+    checkpoint: Checkpoint | None = None,
+    policy: CheckpointPolicy = CheckpointPolicy(),
+    desc: str = "stage1",
+    validator: Validator | None = None,
+) -> dict:
     """Run the optimisation to ``s.iterations`` (or an early stop); returns timing, curve, final losses,
     the step it stopped at and why (``patience`` / ``budget``)."""
     trainer = TranslatorTrainer(model, sampler, s, validator)
     if s.iterations == 0:  # published weights used as they are (setup_training allows nothing else)
         if validator:
             validator.update(0, model)  # their score on the held-out views, for the record
-        return {"iterations": 0, "resumed_from": 0, "train_s": 0.0, "checkpoint": None, "final_losses": {},
-                "curve": [], "stopped": {"step": 0, "reason": "budget"}}
+        return {
+            "iterations": 0,
+            "resumed_from": 0,
+            "train_s": 0.0,
+            "checkpoint": None,
+            "final_losses": {},
+            "curve": [],
+            "stopped": {"step": 0, "reason": "budget"},
+        }
     result = run(trainer, s.iterations, checkpoint, policy, desc=desc, log_every=s.log_every)
     stopped = {"step": result["steps"], "reason": "patience" if result["stopped_early"] else "budget"}
     final = {k: v for k, v in trainer.curve[-1].items() if k != "iteration"}  # also when resumed at the end
-    return {**{k: v for k, v in result.items() if k not in ("final", "steps", "stopped_early")},
-            "final_losses": final, "curve": trainer.curve, "stopped": stopped}
+    return {
+        **{k: v for k, v in result.items() if k not in ("final", "steps", "stopped_early")},
+        "final_losses": final,
+        "curve": trainer.curve,
+        "stopped": stopped,
+    }
 
 
 DATA_MODES = ("fixed", "online")
@@ -149,8 +173,10 @@ DATA_MODES = ("fixed", "online")
 def data_mode(mode: str) -> str:
     """``stage1.data``, checked."""
     if mode not in DATA_MODES:
-        raise ValueError(f"stage1.data = {mode!r}: use one of {list(DATA_MODES)} (fixed: the augmented pairs of "
-                         f"results/augment; online: fresh augmentations and SPC photons every step)")
+        raise ValueError(
+            f"stage1.data = {mode!r}: use one of {list(DATA_MODES)} (fixed: the augmented pairs of "
+            f"results/augment; online: fresh augmentations and SPC photons every step)"
+        )
     return mode
 
 
@@ -174,17 +200,26 @@ class TrainingData:
             raise ValueError("stage1.data = 'online' needs the training scenes' folders and their SPC folders")
 
     def digests(self) -> dict[str, str | None]:
-        folders = {"pairs": self.augment_dirs if self.mode == "fixed" else (), "scenes": self.scene_dirs,
-                   "spc": self.spc_dirs}
+        folders = {
+            "pairs": self.augment_dirs if self.mode == "fixed" else (),
+            "scenes": self.scene_dirs,
+            "spc": self.spc_dirs,
+        }
         return {f"{k}[{i}]": digest_path(d) for k, dirs in folders.items() for i, d in enumerate(dirs)}
 
 
-def training_data(mode: str = "fixed", augment_dirs=(), scene_dirs=(), spc_dirs=(),
-                  augment: dict | None = None) -> TrainingData:
+def training_data(
+    mode: str = "fixed", augment_dirs=(), scene_dirs=(), spc_dirs=(), augment: dict | None = None
+) -> TrainingData:
     """TrainingData from the rule's values (``augment``: the config's augment block, ``count`` ignored)."""
     ranges = {k: v for k, v in (augment or {}).items() if k != "count"}
-    return TrainingData(mode, tuple(map(str, augment_dirs)), tuple(map(str, scene_dirs)), tuple(map(str, spc_dirs)),
-                        build_config(AugmentSettings, ranges, "augment"))
+    return TrainingData(
+        mode,
+        tuple(map(str, augment_dirs)),
+        tuple(map(str, scene_dirs)),
+        tuple(map(str, spc_dirs)),
+        build_config(AugmentSettings, ranges, "augment"),
+    )
 
 
 def make_sampler(data: TrainingData, s: TrainSettings, frames: int, seed: int, paired: bool):
@@ -202,8 +237,10 @@ def make_validator(data: TrainingData, validation: dict | None, frames: int, ite
     if v.every == 0:
         return None
     if not data.scene_dirs:
-        raise ValueError(f"stage1.validation.every = {v.every} needs the training scenes' folders and SPC folders "
-                         "(their held-out views); set stage1.validation.every: 0 to train without validation")
+        raise ValueError(
+            f"stage1.validation.every = {v.every} needs the training scenes' folders and SPC folders "
+            "(their held-out views); set stage1.validation.every: 0 to train without validation"
+        )
     return Validator(load_views(list(data.scene_dirs), list(data.spc_dirs), frames), v, iterations)
 
 
@@ -220,10 +257,19 @@ class TrainingJob:
     validator: Validator | None = None
 
 
-def setup_training(method: str, augment_dirs: list[str], settings: dict, train: dict, seed: int = 0,
-                   frames: int = 1, checkpoint: str | os.PathLike | None = None,
-                   vgg_weights: dict | None = None, input_digests: dict | None = None,
-                   data: TrainingData | None = None, validation: dict | None = None) -> TrainingJob:
+def setup_training(
+    method: str,
+    augment_dirs: list[str],
+    settings: dict,
+    train: dict,
+    seed: int = 0,
+    frames: int = 1,
+    checkpoint: str | os.PathLike | None = None,
+    vgg_weights: dict | None = None,
+    input_digests: dict | None = None,
+    data: TrainingData | None = None,
+    validation: dict | None = None,
+) -> TrainingJob:
     """Seed, build the model, its sampler and validator, and the checkpoint with this job's fingerprint.
 
     ``data`` (default: fixed pairs of ``augment_dirs``) says where samples come from; ``validation``
@@ -240,13 +286,30 @@ def setup_training(method: str, augment_dirs: list[str], settings: dict, train: 
     if model.prior is not None:
         model.prior.fit(sampler.calibration_pairs())  # the training data's gain (restored as it is on resume)
     validator = make_validator(data, validation, frames, s.iterations)
-    meta = {"method": method, "seed": seed, "frames": frames, "settings": dataclasses.asdict(cfg),
-            "train": dataclasses.asdict(s), "pretrained": pretrained, "data": data.mode,
-            "augment": dataclasses.asdict(data.augment) if data.mode == "online" else None,
-            "validation": dataclasses.asdict(validator.s) if validator else None}
+    meta = {
+        "method": method,
+        "seed": seed,
+        "frames": frames,
+        "settings": dataclasses.asdict(cfg),
+        "train": dataclasses.asdict(s),
+        "pretrained": pretrained,
+        "data": data.mode,
+        "augment": dataclasses.asdict(data.augment) if data.mode == "online" else None,
+        "validation": dataclasses.asdict(validator.s) if validator else None,
+    }
     inputs = input_digests or data.digests()
-    ckpt = Checkpoint(checkpoint, fingerprint("train_translator", meta, inputs | {
-        "pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)})) if checkpoint else None
+    ckpt = (
+        Checkpoint(
+            checkpoint,
+            fingerprint(
+                "train_translator",
+                meta,
+                inputs | {"pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)},
+            ),
+        )
+        if checkpoint
+        else None
+    )
     pairs = len(sampler.binary) if isinstance(sampler, PairSampler) else None
     return TrainingJob(model, sampler, s, ckpt, meta, pairs, validator)
 
@@ -261,26 +324,55 @@ def prior_record(model, validator: Validator | None) -> dict | None:
     return {"sigma": prior.sigma, "gain": prior.gain.tolist(), **scores}
 
 
-def train_translator(method: str, augment_dirs: list[str], out_dir: str | os.PathLike, settings: dict,
-                     train: dict, seed: int = 0, frames: int = 1, checkpoint: str | os.PathLike | None = None,
-                     vgg_weights: dict | None = None, threads: int | None = None,
-                     policy: CheckpointPolicy = CheckpointPolicy(), input_digests: dict | None = None,
-                     data: TrainingData | None = None, validation: dict | None = None) -> dict:
+def train_translator(
+    method: str,
+    augment_dirs: list[str],
+    out_dir: str | os.PathLike,
+    settings: dict,
+    train: dict,
+    seed: int = 0,
+    frames: int = 1,
+    checkpoint: str | os.PathLike | None = None,
+    vgg_weights: dict | None = None,
+    threads: int | None = None,
+    policy: CheckpointPolicy = CheckpointPolicy(),
+    input_digests: dict | None = None,
+    data: TrainingData | None = None,
+    validation: dict | None = None,
+) -> dict:
     """Train ``method`` on ``data`` (default: the augmented pairs of ``augment_dirs``), validating per
     ``validation``; write ``out_dir`` (see module doc). ``input_digests``: see
     :func:`spc3d.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
     if threads:
         torch.set_num_threads(threads)
     data = data or TrainingData("fixed", tuple(map(str, augment_dirs)))
-    job = setup_training(method, data.augment_dirs, settings, train, seed, frames, checkpoint, vgg_weights,
-                         input_digests, data, validation)
+    job = setup_training(
+        method,
+        data.augment_dirs,
+        settings,
+        train,
+        seed,
+        frames,
+        checkpoint,
+        vgg_weights,
+        input_digests,
+        data,
+        validation,
+    )
     result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method, validator=job.validator)
     best = job.validator.best_modules() if job.validator else None
-    record = {**job.meta, "prior": prior_record(job.model, job.validator), "pairs": job.pairs,
-              "augment_dirs": list(data.augment_dirs),
-              "data": job.sampler.describe(), "validation": job.validator.record() if job.validator else None,
-              "model_step": job.validator.best["step"] if best else result["stopped"]["step"],
-              "parameters": job.model.parameter_count(), "device": str(job.model.device),
-              "peak_rss_mb": peak_rss_mb(), **{k: v for k, v in result.items() if k != "curve"}}
+    record = {
+        **job.meta,
+        "prior": prior_record(job.model, job.validator),
+        "pairs": job.pairs,
+        "augment_dirs": list(data.augment_dirs),
+        "data": job.sampler.describe(),
+        "validation": job.validator.record() if job.validator else None,
+        "model_step": job.validator.best["step"] if best else result["stopped"]["step"],
+        "parameters": job.model.parameter_count(),
+        "device": str(job.model.device),
+        "peak_rss_mb": peak_rss_mb(),
+        **{k: v for k, v in result.items() if k != "curve"},
+    }
     write_model_folder(out_dir, job.model, record, result["curve"], best)
     return record

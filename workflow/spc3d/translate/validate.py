@@ -42,8 +42,7 @@ class ValidationSettings:
 
     def __post_init__(self):
         if self.every < 0 or self.patience < 0:
-            raise ValueError(f"need every >= 0 and patience >= 0, got every = {self.every}, "
-                             f"patience = {self.patience}")
+            raise ValueError(f"need every >= 0 and patience >= 0, got every = {self.every}, patience = {self.patience}")
 
 
 def validation_settings(values: dict | None, where: str = "stage1.validation") -> ValidationSettings:
@@ -60,17 +59,22 @@ class ValidationView:
     rgb: Tensor  # (3, H, W) ground truth sRGB
 
 
-def load_views(scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike],
-               frames: int) -> list[ValidationView]:
+def load_views(
+    scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike], frames: int
+) -> list[ValidationView]:
     """The held-out views of the training scenes with their stored binary input."""
     views = []
     for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
         names = llff.read_scene(scene_dir, with_images=False).names
         for i in split_views(len(names))[1]:
             name = names[i]
-            views.append(ValidationView(f"{scene_dir.name}/{name}",
-                                        chw(binary_input(spc_dir / "frames" / f"{name}.npz", frames)),
-                                        chw(io.read_rgb(scene_dir / "images" / f"{name}.png"))))
+            views.append(
+                ValidationView(
+                    f"{scene_dir.name}/{name}",
+                    chw(binary_input(spc_dir / "frames" / f"{name}.npz", frames)),
+                    chw(io.read_rgb(scene_dir / "images" / f"{name}.png")),
+                )
+            )
     return views
 
 
@@ -92,8 +96,10 @@ class Validator:
 
     def __init__(self, views: list[ValidationView], s: ValidationSettings, iterations: int):
         if s.every and not views:
-            raise ValueError("stage1.validation: no held-out views to validate on (every 8th view of each "
-                             "training scene); set stage1.validation.every: 0 to train without validation")
+            raise ValueError(
+                "stage1.validation: no held-out views to validate on (every 8th view of each "
+                "training scene); set stage1.validation.every: 0 to train without validation"
+            )
         self.views, self.s, self.iterations = views, s, iterations
         self.history: list[dict] = []
         self.best: dict | None = None  # {"step", "val_psnr", "modules"}
@@ -107,8 +113,9 @@ class Validator:
         scores = score(model.translate, self.views)
         self.history.append({"iteration": it, **scores})
         if self.best is None or scores["val_psnr"] > self.best["val_psnr"]:
-            modules = {k: {n: t.detach().cpu().clone() for n, t in m.state_dict().items()}
-                       for k, m in model.modules().items()}
+            modules = {
+                k: {n: t.detach().cpu().clone() for n, t in m.state_dict().items()} for k, m in model.modules().items()
+            }
             self.best, self.since_best = {"step": it, "val_psnr": scores["val_psnr"], "modules": modules}, 0
         else:
             self.since_best += 1
@@ -124,9 +131,15 @@ class Validator:
     def record(self) -> dict:
         """For train.json: settings, views, the best step and PSNR, and the validation curve."""
         best = self.best or {"step": None, "val_psnr": math.nan}
-        return {"every": self.s.every, "patience": self.s.patience, "views": [v.name for v in self.views],
-                "best_step": best["step"], "best_psnr": best["val_psnr"], "evaluations": len(self.history),
-                "curve": list(self.history)}
+        return {
+            "every": self.s.every,
+            "patience": self.s.patience,
+            "views": [v.name for v in self.views],
+            "best_step": best["step"],
+            "best_psnr": best["val_psnr"],
+            "evaluations": len(self.history),
+            "curve": list(self.history),
+        }
 
     def state(self) -> dict:
         return {"history": list(self.history), "best": self.best, "since_best": self.since_best}

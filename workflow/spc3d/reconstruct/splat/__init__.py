@@ -38,8 +38,16 @@ BACKENDS = {"native": rasterize_native, "reference": rasterize_reference, "gspla
 
 
 def rasterize(
-    means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depths: Tensor, radii: Tensor,
-    height: int, width: int, background: Tensor, backend: str = "native",
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    depths: Tensor,
+    radii: Tensor,
+    height: int,
+    width: int,
+    background: Tensor,
+    backend: str = "native",
 ) -> tuple[Tensor, Tensor]:
     """Composite screen-space Gaussians with the chosen back-end: image (H, W, C), alpha (H, W)."""
     if backend not in BACKENDS:
@@ -48,6 +56,14 @@ def rasterize(
 
 
 __all__ = [
-    "BACKENDS", "Projected", "eval_sh", "project_gaussians", "project_gaussians_native", "quat_to_rotmat",
-    "rasterize", "rasterize_dense", "rasterize_native", "rasterize_reference",
+    "BACKENDS",
+    "Projected",
+    "eval_sh",
+    "project_gaussians",
+    "project_gaussians_native",
+    "quat_to_rotmat",
+    "rasterize",
+    "rasterize_dense",
+    "rasterize_native",
+    "rasterize_reference",
 ]

@@ -27,8 +27,13 @@ SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199
 SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 SH_C3 = (
-    -0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-    -0.4570457994644658, 1.445305721320277, -0.5900435899266435,
+    -0.5900435899266435,
+    2.890611442640554,
+    -0.4570457994644658,
+    0.3731763325901154,
+    -0.4570457994644658,
+    1.445305721320277,
+    -0.5900435899266435,
 )
 MAX_RADIUS = 1 << 30  # radii are int32; a footprint wider than this is clipped to the image anyway
 
@@ -59,9 +64,20 @@ def check_camera(w2c, fx, fy, cx, cy, height, width, near, low_pass, label: str 
         nums = float(fx), float(fy), float(cx), float(cy), float(near), float(low_pass)
     except (TypeError, ValueError, RuntimeError):
         nums = None
-    if (nums is not None and W.shape == (3, 4) and nums[0] > 0 and nums[1] > 0 and nums[4] > 0 and nums[5] >= 0
-            and math.isfinite(sum(nums)) and np.isfinite(W).all() and type(height) is int and type(width) is int
-            and height > 0 and width > 0):  # the usual case, fast (~3 us); else find what is wrong
+    if (
+        nums is not None
+        and W.shape == (3, 4)
+        and nums[0] > 0
+        and nums[1] > 0
+        and nums[4] > 0
+        and nums[5] >= 0
+        and math.isfinite(sum(nums))
+        and np.isfinite(W).all()
+        and type(height) is int
+        and type(width) is int
+        and height > 0
+        and width > 0
+    ):  # the usual case, fast (~3 us); else find what is wrong
         return (W, *nums[:4], height, width, *nums[4:])
     if W.shape != (3, 4):
         raise CameraError(f"{label}: w2c has shape {W.shape}, expected (3, 4) (world-to-camera [R | t])")
@@ -71,8 +87,11 @@ def check_camera(w2c, fx, fy, cx, cy, height, width, near, low_pass, label: str 
     fx, fy = _number("fx", fx, label, positive=True), _number("fy", fy, label, positive=True)
     cx, cy = _number("cx", cx, label), _number("cy", cy, label)
     near, low_pass = _number("near", near, label, positive=True), _number("low_pass", low_pass, label, nonnegative=True)
-    if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (height, width)) \
-            or height < 1 or width < 1:
+    if (
+        not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in (height, width))
+        or height < 1
+        or width < 1
+    ):
         raise CameraError(f"{label}: image size height={height!r}, width={width!r}, must be integers >= 1")
     return W, fx, fy, cx, cy, int(height), int(width), near, low_pass
 
@@ -110,9 +129,15 @@ def _quat_basis() -> Tensor:
     K = torch.zeros(4, 4, 9, dtype=torch.float64)
     w, x, y, z = range(4)
     terms = {  # R[r][c] - I = 2 · Σ sign · q_i q_j
-        0: [(-1, y, y), (-1, z, z)], 1: [(1, x, y), (-1, w, z)], 2: [(1, x, z), (1, w, y)],
-        3: [(1, x, y), (1, w, z)], 4: [(-1, x, x), (-1, z, z)], 5: [(1, y, z), (-1, w, x)],
-        6: [(1, x, z), (-1, w, y)], 7: [(1, y, z), (1, w, x)], 8: [(-1, x, x), (-1, y, y)],
+        0: [(-1, y, y), (-1, z, z)],
+        1: [(1, x, y), (-1, w, z)],
+        2: [(1, x, z), (1, w, y)],
+        3: [(1, x, y), (1, w, z)],
+        4: [(-1, x, x), (-1, z, z)],
+        5: [(1, y, z), (-1, w, x)],
+        6: [(1, x, z), (-1, w, y)],
+        7: [(1, y, z), (1, w, x)],
+        8: [(-1, x, x), (-1, y, y)],
     }
     for entry, products in terms.items():
         for sign, i, j in products:
@@ -181,8 +206,18 @@ def _radii(cov2d: Tensor, det: Tensor, means2d: Tensor, valid: Tensor, height: i
 
 
 def project_gaussians(
-    means: Tensor, scales: Tensor, quats: Tensor, w2c: Tensor, fx: float, fy: float, cx: float, cy: float,
-    height: int, width: int, near: float = 0.01, low_pass: float = 0.3,
+    means: Tensor,
+    scales: Tensor,
+    quats: Tensor,
+    w2c: Tensor,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    height: int,
+    width: int,
+    near: float = 0.01,
+    low_pass: float = 0.3,
 ) -> Projected:
     """Project 3-D Gaussians into one pinhole camera.
 
@@ -225,12 +260,23 @@ def _sh_basis(degree: int, d: Tensor) -> list[Tensor]:
         out += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
     if degree >= 2:
         xx, yy, zz = x * x, y * y, z * z
-        out += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * zz - xx - yy), SH_C2[3] * x * z,
-                SH_C2[4] * (xx - yy)]
+        out += [
+            SH_C2[0] * x * y,
+            SH_C2[1] * y * z,
+            SH_C2[2] * (2 * zz - xx - yy),
+            SH_C2[3] * x * z,
+            SH_C2[4] * (xx - yy),
+        ]
     if degree >= 3:
-        out += [SH_C3[0] * y * (3 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4 * zz - xx - yy),
-                SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy), SH_C3[4] * x * (4 * zz - xx - yy),
-                SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3 * yy)]
+        out += [
+            SH_C3[0] * y * (3 * xx - yy),
+            SH_C3[1] * x * y * z,
+            SH_C3[2] * y * (4 * zz - xx - yy),
+            SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
+            SH_C3[4] * x * (4 * zz - xx - yy),
+            SH_C3[5] * z * (xx - yy),
+            SH_C3[6] * x * (xx - 3 * yy),
+        ]
     return out
 
 
@@ -247,4 +293,3 @@ def eval_sh(degree: int, sh: Tensor, dirs: Tensor) -> Tensor:
     basis = torch.stack(_sh_basis(degree, d), -1)  # (N, K)
     rgb = (basis[..., None] * sh[:, : basis.shape[-1]]).sum(-2)
     return (rgb + 0.5).clamp_min(0.0)
-

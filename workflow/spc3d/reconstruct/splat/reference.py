@@ -118,8 +118,15 @@ def _sorted_pairs(means2d, conics, opacities, depths, radii, height, width):
 
 
 def rasterize_reference(
-    means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depths: Tensor, radii: Tensor,
-    height: int, width: int, background: Tensor,
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    depths: Tensor,
+    radii: Tensor,
+    height: int,
+    width: int,
+    background: Tensor,
 ) -> tuple[Tensor, Tensor]:
     """Composite screen-space Gaussians front to back (exact pixel pairs, autograd).
 
@@ -140,8 +147,15 @@ def rasterize_reference(
 
 
 def rasterize_dense(
-    means2d: Tensor, conics: Tensor, opacities: Tensor, colors: Tensor, depths: Tensor, radii: Tensor,
-    height: int, width: int, background: Tensor,
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    depths: Tensor,
+    radii: Tensor,
+    height: int,
+    width: int,
+    background: Tensor,
 ) -> tuple[Tensor, Tensor]:
     """Same contract as :func:`rasterize_reference`, evaluating every Gaussian at every pixel.
 

@@ -1,4 +1,5 @@
-"""Adapter: rule mle_display -> spc3d.exposure.write_display."""
+"""Adapter: rule write_display -> spc3d.exposure.write_display."""
+
 from spc3d.exposure import write_display
 from spc3d.workflow import logged
 

@@ -1,4 +1,5 @@
-"""Adapter: rule scene_prepare -> spc3d.prepare.prepare_scene."""
+"""Adapter: rule prepare_scene -> spc3d.prepare.prepare_scene."""
+
 from spc3d.prepare import prepare_scene
 from spc3d.workflow import logged
 

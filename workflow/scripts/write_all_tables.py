@@ -1,8 +1,9 @@
-"""Adapter: rules paper_tables and tables -> spc3d.tables.write_all_tables.
+"""Adapter: rules write_all_tables and tables -> spc3d.tables.write_all_tables.
 
-paper_tables gets its metrics as inputs (built first); tables reads whichever of the configured
+write_all_tables gets its metrics as inputs (built first); tables reads whichever of the configured
 metrics files exist already, so `snakemake tables` regenerates the tables without training.
 """
+
 import logging
 from pathlib import Path
 
@@ -14,8 +15,13 @@ with logged(snakemake.log[0]):
     if snakemake.rule == "tables":
         metrics = [f for f in p.metrics if Path(f).is_file()]
         stage1 = [f for f in p.stage1 if Path(f).is_file()]
-        logging.info("%d of %d metrics files and %d of %d stage-1 files exist", len(metrics), len(p.metrics),
-                     len(stage1), len(p.stage1))
+        logging.info(
+            "%d of %d metrics files and %d of %d stage-1 files exist",
+            len(metrics),
+            len(p.metrics),
+            len(stage1),
+            len(p.stage1),
+        )
         folder = p.folder
     else:
         metrics, stage1 = list(snakemake.input.metrics), list(snakemake.input.stage1)

@@ -1,0 +1,18 @@
+"""Adapter: rule augment_scene -> spc3d.augment.augment_scene."""
+
+from spc3d.augment import AugmentSettings, augment_scene
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    s = dict(snakemake.params.settings)
+    settings = AugmentSettings(
+        zoom=tuple(s["zoom"]), rotation_deg=s["rotation_deg"], shear_deg=s["shear_deg"], flip_prob=s["flip_prob"]
+    )
+    augment_scene(
+        snakemake.input.scene,
+        snakemake.input.spc,
+        snakemake.output[0],
+        snakemake.params.n_pairs,
+        settings,
+        snakemake.params.seed,
+    )

@@ -1,0 +1,18 @@
+"""Adapter: rule score_images -> spc3d.translate.apply.score_images."""
+
+from pathlib import Path
+
+from spc3d.translate.apply import score_images
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    p = snakemake.params
+    score_images(
+        Path(snakemake.input.images) / p.subdir,
+        snakemake.input.scene,
+        snakemake.output[0],
+        snakemake.wildcards.source,
+        lpips_dir=Path(snakemake.input.lpips[0]).parent,
+        frames=p.frames,
+        seed=p.seed,
+    )

@@ -1,9 +1,0 @@
-"""Adapter: rule spc_simulate -> spc3d.simulate.simulate_scene."""
-from spc3d.simulate import simulate_scene
-from spc3d.spc import SPCParams
-from spc3d.workflow import logged
-
-with logged(snakemake.log[0]):
-    s = snakemake.params.settings
-    simulate_scene(snakemake.input[0], snakemake.output[0], SPCParams(**s["physics"]),
-                   s["flux_scale"], s["target_detection"], s["seed"])

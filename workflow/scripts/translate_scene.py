@@ -1,0 +1,14 @@
+"""Adapter: rule translate_scene -> spc3d.translate.apply.translate_scene."""
+
+from spc3d.translate.apply import translate_scene
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    translate_scene(
+        snakemake.input.model,
+        snakemake.input.spc,
+        snakemake.input.scene,
+        snakemake.output[0],
+        frames=snakemake.params.frames,
+        threads=snakemake.threads,
+    )
