@@ -13,6 +13,22 @@ from spc3d import lpips_weights
 REPO = Path(__file__).resolve().parents[1]
 LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"
 LLFF_SCENES = ("fern", "flower", "fortress", "trex")
+# Tiny translator settings (9k-33k parameters per network; crops of 16 px), as each method's
+# Config overrides; the physics prior keeps its default unless a test sets prior_sigma.
+TINY_TRANSLATORS = {
+    "pix2pix": {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2},
+    "pix2pixhd": {
+        "ngf": 8,
+        "ndf": 8,
+        "n_downsample_global": 2,
+        "n_blocks_global": 1,
+        "n_layers_D": 2,
+        "vgg_loss": False,
+    },
+    "cyclegan": {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2},
+    "restormer": {"dim": 8, "num_blocks": (1, 1, 1, 1), "heads": (1, 1, 2, 2)},
+    "diffusion": {"base_channels": 8, "channel_mults": (1, 2), "groups": 4, "timesteps": 50, "sample_steps": 4},
+}
 
 
 def llff_scene(name: str) -> Path:

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from conftest import TINY_TRANSLATORS
 from spc3d import lpips_specs
 from spc3d.translate import cyclegan, pix2pix, pix2pixhd
 from spc3d.translate.networks import (
@@ -22,26 +23,10 @@ from spc3d.translate.networks import (
 )
 
 CPU = torch.device("cpu")
-# Tiny settings: every network has 9k-33k parameters; crops of 16 px. The published networks, without
-# the physics prior (tested with it in test_translate_prior.py).
+# The published networks at tiny sizes, without the physics prior (tested with it in test_translate_prior.py).
 TINY = {
-    "pix2pix": (pix2pix, {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2, "prior_sigma": 0.0}),
-    "pix2pixhd": (
-        pix2pixhd,
-        {
-            "ngf": 8,
-            "ndf": 8,
-            "n_downsample_global": 2,
-            "n_blocks_global": 1,
-            "n_layers_D": 2,
-            "vgg_loss": False,
-            "prior_sigma": 0.0,
-        },
-    ),
-    "cyclegan": (
-        cyclegan,
-        {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2, "prior_sigma": 0.0},
-    ),
+    m: (module, {**TINY_TRANSLATORS[m], "prior_sigma": 0.0})
+    for m, module in (("pix2pix", pix2pix), ("pix2pixhd", pix2pixhd), ("cyclegan", cyclegan))
 }
 METHODS = sorted(TINY)
 COLOUR = torch.tensor([0.85, 0.25, 0.55]).view(1, 3, 1, 1)

@@ -8,27 +8,14 @@ import copy
 import numpy as np
 import pytest
 import torch
+from conftest import TINY_TRANSLATORS
 from spc3d import spc
 from spc3d.colour import linear_to_srgb
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.prior import P_MAX, PhysicsPrior, gaussian_kernel
 
 CPU = torch.device("cpu")
-# Tiny networks of every method, with the default physics prior (sigma 2 px).
-TINY = {
-    "pix2pix": {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2},
-    "pix2pixhd": {
-        "ngf": 8,
-        "ndf": 8,
-        "n_downsample_global": 2,
-        "n_blocks_global": 1,
-        "n_layers_D": 2,
-        "vgg_loss": False,
-    },
-    "cyclegan": {"ngf": 8, "ndf": 8, "n_downsampling": 1, "n_blocks": 1, "n_layers_D": 2},
-    "restormer": {"dim": 8, "num_blocks": (1, 1, 1, 1), "heads": (1, 1, 2, 2)},
-    "diffusion": {"base_channels": 8, "channel_mults": (1, 2), "groups": 4, "timesteps": 50, "sample_steps": 4},
-}
+TINY = TINY_TRANSLATORS  # tiny networks of every method, with the default physics prior (sigma 2 px)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
