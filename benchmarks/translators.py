@@ -1,7 +1,7 @@
 """Speed of one training step of every stage-1 translator at the default (CPU-sized) settings.
 
     python benchmarks/translators.py [--batch 4 --crop 64 --threads 1,2 --steps 6 --rounds 3]
-                                     [--methods pix2pixhd,pix2pix,...] [--allocator keep|default]
+                                     [--methods pix2pixhd,pix2pix,...] [--allocator keep|default] [--no-prior]
 
 Each method is built with its ``Config()`` defaults (what config.yaml's empty blocks select; the
 VGG loss of pix2pixHD gets random weights of the right shapes, which cost the same) and trained
@@ -41,13 +41,15 @@ def make_batch(batch: int, crop: int, seed: int = 0) -> tuple[torch.Tensor, torc
     return binary, rgb
 
 
-def build(method: str, seed: int = 0):
-    """The method's Translator with Config() defaults on the CPU (seeded)."""
+def build(method: str, seed: int = 0, prior: bool = True):
+    """The method's Translator with Config() defaults on the CPU (seeded); ``prior=False``: the
+    published network alone (``prior_sigma: 0``)."""
     torch.manual_seed(seed)
     module = TRANSLATORS[method]
     rng = np.random.default_rng(seed)
     vgg = {k: (0.01 * rng.standard_normal(s)).astype(np.float32) for k, s in lpips_specs.expected_shapes("vgg").items()}
-    return module.Translator(module.Config(), torch.device("cpu"), vgg)
+    cfg = module.Config() if prior else module.Config(prior_sigma=0.0)
+    return module.Translator(cfg, torch.device("cpu"), vgg)
 
 
 def cpu_seconds() -> tuple[float, float]:
@@ -90,6 +92,7 @@ def main() -> None:
         default="keep",
         help="keep: as a workflow job (freed memory reused); default: glibc's own behaviour",
     )
+    ap.add_argument("--no-prior", action="store_true", help="the published networks (prior_sigma: 0)")
     args = ap.parse_args()
     if args.allocator == "keep":
         from spc3d.runtime import keep_freed_memory
@@ -100,10 +103,13 @@ def main() -> None:
     results = {}
     for threads in (int(t) for t in args.threads.split(",")):
         torch.set_num_threads(threads)
-        models = {m: build(m) for m in methods}  # fresh models: every thread count starts alike
+        models = {
+            m: build(m, prior=not args.no_prior) for m in methods
+        }  # fresh models: every thread count starts alike
         results[threads] = measure(models, batch, args.steps, args.rounds)
     print(
-        f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, torch {torch.__version__}, "
+        f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, physics prior {not args.no_prior}, "
+        f"torch {torch.__version__}, "
         f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}, load average {os.getloadavg()[0]:.1f}"
     )
     print(f"{'method':<10} {'threads':>7} {'steps/s':>8} {'CPU s/step':>11} {'kernel':>7}")

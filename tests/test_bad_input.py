@@ -175,7 +175,7 @@ CASES = [
     Case(
         "pickled-code-in-weights",
         r"evil\.pth is not a readable Restormer checkpoint \(it holds pickled Python",
-        {"stage1": {"restormer": {"checkpoint": "WORK/evil.pth"}}},
+        {"stage1": {"restormer": {"checkpoint": "WORK/evil.pth", "prior_sigma": 0.0}}},
         files={"evil.pth": "EVIL"},
         forbid=r"weights_only=False|code from a weight file ran",
     ),

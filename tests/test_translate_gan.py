@@ -18,9 +18,8 @@ from spc3d.translate.networks import (
     ResnetBlock,
     ResnetGenerator,
     UnetGenerator,
-    VGGFeatures,
-    VGGLoss,
 )
+from spc3d.translate.vgg import VGGFeatures, VGGLoss
 
 CPU = torch.device("cpu")
 # The published networks at tiny sizes, without the physics prior (tested with it in test_translate_prior.py).

@@ -7,7 +7,8 @@
     diffusion   a compact conditional DDPM/DDIM restorer: the offline stand-in for DiffBIR
 
 Each module holds ``Config`` (CPU-budget defaults), ``PAPER`` (the published sizes) and
-``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks`. The
+``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks` (the VGG
+perceptual loss in :mod:`.vgg`, the physics prior in :mod:`.prior`). The
 training loop is :mod:`.train`, a model folder's files :mod:`.model_io` (its curve figure
 :mod:`.curves`), applying a model to a scene and stage-1 scoring :mod:`.apply`.
 Physics baselines without training (``mle``, the raw binary frame ``none``) are stage-2 sources

@@ -11,7 +11,7 @@ pyramid, judging concat(binary, image). Objective, as the reference implementati
         + lambda_feat * VGG(G(x), y)       (layer weights 1/32 .. 1; only with ``vgg_loss``)
 
 The VGG loss uses VGG16 (the LPIPS backbone) instead of the reference's VGG19; see
-``networks.VGGFeatures``. The reference's schedule of training the global generator alone first
+``vgg.VGGFeatures``. The reference's schedule of training the global generator alone first
 (``niter_fix_global``) is not reproduced: all generator parts train together.
 """
 
@@ -30,11 +30,11 @@ from .networks import (
     MultiscaleDiscriminator,
     ResnetBlock,
     ResnetGenerator,
-    VGGLoss,
     check_multiple,
     init_weights,
     norm_layer,
 )
+from .vgg import VGGLoss
 
 
 @dataclass(frozen=True)
