@@ -64,7 +64,9 @@ class Config:
     prior_sigma: float = 2.0  # > 0: the cleaner is the blurred-MLE prior of sigma px (prior.py), not the box blur,
     #                           and the model generates the residual over it; 0: box blur, whole image
     residual_scale: float = 6.0  # the residual is generated multiplied by this: its spread (~0.15 in [-1, 1]) then
-    #                              meets the unit scale the noise schedule assumes (latent diffusion scales its latents)
+    #                              meets the unit scale the noise schedule assumes (as latent diffusion scales
+    #                              its latents); 6 is the best of 1 / 3 / 6 on the training scenes' held-out
+    #                              views (val PSNR 15.86 / 17.32 / 17.72 after 300 steps on the default data)
 
 
 # DiffBIR publishes no sizes for a pixel-space model: only sample_steps (50) and T (1000) come from
