@@ -285,6 +285,21 @@ def test_two_stage_and_stage1_tables(tmp_path):
     assert list(df["combination"]) == ["pix2pixhd", "mle", "none", "mle-k16"] and list(df["K"]) == [1, 1, 1, 16]
     md = (tmp_path / "stage1.md").read_text()
     assert "**21.00**" in md and "**24.00**" in md and "MLE (K = 16)" in md
+    # Translators with their physics prior: one "prior" row per blur, its runs the scenes x seeds
+    # (two translators of one seed share a run; the gain differs between seeds)
+    s1 = []
+    for seed, src, p, gain in ((0, "pix2pix", 21.0, 0.2), (0, "restormer", 20.0, 0.2), (1, "pix2pix", 23.0, 0.3)):
+        s1.append(str(tmp_path / f"p{seed}{src}.json"))
+        scores = {"ssim": 0.5, "lpips_alex": 0.3, "lpips_vgg": 0.4}
+        prior = {"sigma": 2.0, "gain": [gain] * 3, "mean": {"psnr": 18.0 + seed, **scores}}
+        io.write_json(
+            s1[-1],
+            {"scene": "s", "source": src, "frames": 1, "seed": seed, "prior": prior, "mean": {"psnr": p, **scores}},
+        )
+    df = tables.stage1_table(s1, tmp_path / "stage1p", LABELS).set_index("combination")
+    assert list(df.index) == ["pix2pix", "restormer", "prior"]
+    assert df.loc["prior", "runs"] == 2 and df.loc["prior", "psnr_mean"] == pytest.approx(18.5)
+    assert df.loc["pix2pix", "runs"] == 2 and df.loc["prior", "approach"].startswith("physics prior")
 
 
 def test_qualitative_figure(world, tmp_path):

@@ -252,40 +252,28 @@ def two_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> p
     return df
 
 
+def stage1_row(rec: dict, combination: str, mean: dict) -> dict:
+    """One stage-1 record's scores as a table row named ``combination``."""
+    return {
+        "scene": rec["scene"],
+        "combination": combination,
+        "K": rec.get("frames"),
+        "init": None,
+        **{k: mean[k] for k in METRICS},
+    }
+
+
 def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> pd.DataFrame:
     """Stage-1 image quality of the held-out views before 3D, one row per source (best first)."""
-    rows, priors = [], {}
+    rows, prior_rows, names = [], {}, {}
     for path in stage1_files:
         rec = io.read_json(path)
-        rows.append(
-            {
-                "scene": rec["scene"],
-                "combination": rec["source"],
-                "K": rec.get("frames"),
-                "init": None,
-                **{k: rec["mean"][k] for k in METRICS},
-            }
-        )
-        if rec.get("prior"):  # the translators' physics prior alone: one row per distinct prior (they share one)
-            prior = rec["prior"]
-            name = priors.setdefault(
-                (prior.get("sigma"), tuple(prior.get("gain", ()))), "prior" if not priors else f"prior-{rec['source']}"
-            )
-            if not any(
-                r["combination"] == name and r["scene"] == rec["scene"] and r.get("seed") == rec.get("seed")
-                for r in rows
-            ):
-                rows.append(
-                    {
-                        "scene": rec["scene"],
-                        "combination": name,
-                        "K": rec.get("frames"),
-                        "init": None,
-                        "seed": rec.get("seed"),
-                        **{k: prior["mean"][k] for k in METRICS},
-                    }
-                )
-    rows = [{k: v for k, v in r.items() if k != "seed"} for r in rows]
+        rows.append(stage1_row(rec, rec["source"], rec["mean"]))
+        if rec.get("prior"):  # the translators' physics prior alone: one row per blur (they share one prior)
+            sigma = rec["prior"].get("sigma")
+            name = names.setdefault(sigma, "prior" if not names else f"prior-{sigma:g}px")
+            prior_rows.setdefault((name, rec["scene"], rec.get("seed")), stage1_row(rec, name, rec["prior"]["mean"]))
+    rows += prior_rows.values()
     summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", "K", "init", *METRICS]))
     spec = [
         (labels.get(split_source(src)[0], src), src, "image", None, "oracle" if src == "gt" else "ours")
