@@ -19,28 +19,12 @@ import time
 from pathlib import Path
 
 from spc3d.colmap import colmap_poses
-from spc3d.prepare import prepare_scene
-from spc3d.scenes import LAYOUTS
+from spc3d.prepare import named_spec, prepare_scene
 from spc3d.simulate import simulate_scene
 from spc3d.spc import SPCParams
 
 LLFF_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "llff"
 INPUTS = {"rgb": ("scene", "images"), "binary": ("spc", "binary"), "average": ("spc", "average")}
-
-
-def scene_spec(name: str, width: int) -> dict | None:
-    if name in LAYOUTS:
-        return {
-            "kind": "builtin",
-            "layout": name,
-            "height": width * 3 // 4,
-            "width": width,
-            "views": 24,
-            "supersample": 3,
-            "seed": 0,
-        }
-    path = LLFF_ROOT / name
-    return {"kind": "llff", "path": str(path), "factor": 8, "width": width} if path.is_dir() else None
 
 
 def fmt(value, scale=1.0, digits=2) -> str:
@@ -76,7 +60,7 @@ def main() -> None:
     print(f"{'scene':<10} {'input':<8} {'reg':>7} {'rot_deg':>8} {'centre_%':>9} {'reproj_px':>9} {'wall_s':>7}")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
-            spec = scene_spec(name, args.width)
+            spec = named_spec(name, args.width, LLFF_ROOT)
             if spec is None:
                 print(f"{name:<10} skipped: not a built-in layout and not in {LLFF_ROOT}")
                 continue

@@ -22,7 +22,7 @@ import yaml
 
 from spc3d import llff, metrics
 from spc3d.cameras import split_views
-from spc3d.prepare import prepare_scene
+from spc3d.prepare import named_spec, prepare_scene
 from spc3d.reconstruct import RECONSTRUCTORS
 from spc3d.simulate import simulate_scene
 from spc3d.sources import load_source
@@ -34,18 +34,9 @@ LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"
 
 def build_scene(name: str, width: int, work: Path) -> tuple[Path, Path]:
     scene_dir, spc_dir = work / "scenes" / name, work / "spc" / name
-    if (LLFF_ROOT / name).is_dir():
-        spec = {"kind": "llff", "path": str(LLFF_ROOT / name), "factor": 8, "width": width}
-    else:
-        spec = {
-            "kind": "builtin",
-            "layout": name,
-            "height": width * 3 // 4,
-            "width": width,
-            "views": 24,
-            "supersample": 3,
-            "seed": 0,
-        }
+    spec = named_spec(name, width, LLFF_ROOT)
+    if spec is None:
+        raise SystemExit(f"--scene {name}: neither a built-in layout nor a folder in {LLFF_ROOT}")
     prepare_scene(spec, scene_dir)
     simulate_scene(scene_dir, spc_dir, SPCParams(frames=16), seed=0)
     return scene_dir, spc_dir

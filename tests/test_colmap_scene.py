@@ -360,3 +360,27 @@ def test_prepare_scene_colmap_kind(builtin, tmp_path):
     assert back.meta["source"] == "colmap" and back.meta["settings"] == {"factor": 1, "width": 32, "undistort": False}
     with pytest.raises(ValueError, match="'builtin', 'llff' or 'colmap'"):
         prepare.prepare_scene({"kind": "nerfstudio"}, tmp_path / "x")
+
+
+def test_named_spec_for_tools_and_benchmarks(tmp_path):
+    """A built-in layout by name, else an LLFF folder under the root, else None."""
+    from spc3d.prepare import named_spec
+
+    spec = named_spec("courtyard", 128, tmp_path)
+    assert spec == {
+        "kind": "builtin",
+        "layout": "courtyard",
+        "height": 96,
+        "width": 128,
+        "views": 24,
+        "supersample": 3,
+        "seed": 0,
+    }
+    (tmp_path / "fern").mkdir()
+    assert named_spec("fern", 168, tmp_path) == {
+        "kind": "llff",
+        "path": str(tmp_path / "fern"),
+        "factor": 8,
+        "width": 168,
+    }
+    assert named_spec("nowhere", 64, tmp_path) is None

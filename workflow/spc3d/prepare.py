@@ -43,6 +43,27 @@ def prepare_scene(spec: dict, out_dir: str | os.PathLike) -> None:
         raise ValueError(f"scene spec kind must be 'builtin', 'llff' or 'colmap', got {kind!r} in {spec}")
 
 
+def named_spec(name: str, width: int, llff_root: str | os.PathLike) -> dict | None:
+    """The spec of a built-in layout, or else of the LLFF folder ``llff_root/name``, at ``width`` with
+    the default settings (built-in: 4:3, 24 views, 3x supersampling, seed 0; LLFF: ``images_8``);
+    None when ``name`` is neither. For tools and benchmarks; the workflow builds specs from its config
+    (:func:`spc3d.workflow.scene_specs`)."""
+    from .scenes import LAYOUTS
+
+    if name in LAYOUTS:
+        return {
+            "kind": "builtin",
+            "layout": name,
+            "height": width * 3 // 4,
+            "width": width,
+            "views": 24,
+            "supersample": 3,
+            "seed": 0,
+        }
+    path = Path(llff_root) / name
+    return {"kind": "llff", "path": str(path), "factor": 8, "width": width} if path.is_dir() else None
+
+
 def import_llff(src: str | os.PathLike, out_dir: str | os.PathLike, factor: int, width: int) -> None:
     """Read a real LLFF folder at ``factor``, area-downscale to ``width``, write it canonically."""
     t0 = time.perf_counter()
