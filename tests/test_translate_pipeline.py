@@ -5,6 +5,7 @@ A tiny one-layer translator is registered for these tests so they check the plum
 real models are tested in test_translate_gan.py / test_translate_denoisers.py)."""
 
 import dataclasses
+import json
 import types
 
 import numpy as np
@@ -16,7 +17,7 @@ from spc3d.figures import pick_view, qualitative_figure
 from spc3d.scenes import write_builtin_scene
 from spc3d.simulate import simulate_scene
 from spc3d.translate import base, data, model_io, train
-from spc3d.translate.apply import score_images, translate_scene
+from spc3d.translate.apply import score_images, self_ensemble, translate_scene
 from spc3d.checkpoints import CheckpointPolicy
 from spc3d.training import run
 from spc3d.workflow import LABELS, STAGE1_METHODS, translator_settings
@@ -219,9 +220,20 @@ def test_translate_scene_and_stage1_scores(world, tmp_path, tiny_registered, lpi
     rec = translate_scene(
         tmp_path / "model", world / "spc" / "gallery", world / "scenes" / "gallery", tmp_path / "translated"
     )
-    assert rec["views"] == 9 and rec["method"] == "tiny"
+    assert rec["views"] == 9 and rec["method"] == "tiny" and rec["ensemble"] == 1
     img = io.read_rgb(tmp_path / "translated" / "images" / "image000.png")
     assert img.shape == (32, 40, 3)
+    # the 4-flip self-ensemble is recorded and writes images of the same size
+    four = translate_scene(
+        tmp_path / "model", world / "spc" / "gallery", world / "scenes" / "gallery", tmp_path / "four", ensemble=4
+    )
+    assert four["ensemble"] == 4 and json.loads((tmp_path / "four" / "translate.json").read_text())["ensemble"] == 4
+    assert io.read_rgb(tmp_path / "four" / "images" / "image000.png").shape == (32, 40, 3)
+    with pytest.raises(ValueError, match=r"stage1.ensemble must be one of \[1, 2, 4\].*got 3"):
+        translate_scene(
+            tmp_path / "model", world / "spc" / "gallery", world / "scenes" / "gallery", tmp_path / "x", ensemble=3
+        )
+    assert not (tmp_path / "x").exists()
     scores = score_images(
         world / "scenes" / "gallery" / "images",
         world / "scenes" / "gallery",
@@ -233,6 +245,23 @@ def test_translate_scene_and_stage1_scores(world, tmp_path, tiny_registered, lpi
     assert sorted(scores["views"]) == ["image000", "image008"]
     with pytest.raises(FileNotFoundError, match="no image for view"):
         score_images(tmp_path, world / "scenes" / "gallery", tmp_path / "x.json", "empty", lpips_dir=lpips_cache)
+
+
+def test_self_ensemble_undoes_each_flip():
+    x = torch.rand(2, 3, 5, 7, generator=torch.Generator().manual_seed(0))
+    # an equivariant map (pointwise) is unchanged by the ensemble; one pass is the map itself
+    assert torch.allclose(self_ensemble(torch.sqrt, x, 4), torch.sqrt(x), atol=1e-6)
+    assert torch.equal(self_ensemble(torch.sqrt, x, 1), torch.sqrt(x))
+    # a map that adds a ramp along the width: the mirror pass adds the reversed ramp, their mean is constant
+    ramp = torch.arange(7.0)
+    out = self_ensemble(lambda b: b + ramp, x, 2)
+    assert torch.allclose(out, x + 3.0, atol=1e-6)
+    # a ramp along the height survives the horizontal mirror but is flattened by the vertical ones
+    col = torch.arange(5.0)[:, None]
+    assert torch.allclose(self_ensemble(lambda b: b + col, x, 2), x + col, atol=1e-6)
+    assert torch.allclose(self_ensemble(lambda b: b + col, x, 4), x + 2.0, atol=1e-6)
+    with pytest.raises(ValueError, match="stage1.ensemble"):
+        self_ensemble(torch.sqrt, x, 8)
 
 
 def test_load_translator_names_a_missing_model(tmp_path):

@@ -51,6 +51,7 @@ rule translate_scene:
         directory("results/translate/{scene}/{method}{rep}"),
     params:
         frames=config["stage1"]["frames"],
+        ensemble=config["stage1"]["ensemble"],
     log:
         "logs/translate_scene/{scene}/{method}{rep}.log",
     benchmark:

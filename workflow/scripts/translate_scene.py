@@ -11,4 +11,5 @@ with logged(snakemake.log[0]):
         snakemake.output[0],
         frames=snakemake.params.frames,
         threads=snakemake.threads,
+        ensemble=snakemake.params.ensemble,
     )

@@ -64,7 +64,12 @@ def point_base(
     translator = None
     if source in translators:
         settings, train_settings = translators[source]
-        translator = {"settings": settings, "train": train_settings, "frames": config["stage1"]["frames"]}
+        translator = {
+            "settings": settings,
+            "train": train_settings,
+            "frames": config["stage1"]["frames"],
+            "ensemble": config["stage1"]["ensemble"],
+        }
     return {
         "seed": config["seed"],
         "scene_name": scene,

@@ -235,6 +235,7 @@ def run_stage1(
             work / "translate",
             frames=plan["frames"],
             threads=threads,
+            ensemble=tr.get("ensemble", 1),
         )
     return record, work / "translate" / "images"
 
