@@ -21,9 +21,7 @@ report: "workflow/report/workflow.rst"
 
 
 include: "workflow/rules/common.smk"
-include: "workflow/rules/scenes.smk"
-include: "workflow/rules/spc.smk"
-include: "workflow/rules/augment.smk"
+include: "workflow/rules/inputs.smk"
 include: "workflow/rules/colmap.smk"
 include: "workflow/rules/summary.smk"
 include: "workflow/rules/stage1.smk"

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from spc3d.colmap import colmap_poses
-from spc3d.prepare import named_spec, prepare_scene
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import named_spec, prepare_scene
+from spc3d.inputs import simulate_scene
 from spc3d.spc import SPCParams
 
 LLFF_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "llff"

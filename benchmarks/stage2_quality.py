@@ -22,9 +22,9 @@ import yaml
 
 from spc3d import llff, metrics
 from spc3d.cameras import split_views
-from spc3d.prepare import named_spec, prepare_scene
+from spc3d.inputs import named_spec, prepare_scene
 from spc3d.reconstruct import RECONSTRUCTORS
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.sources import load_source
 from spc3d.spc import SPCParams
 

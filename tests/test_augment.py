@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spc3d import augment, cameras, io, llff, spc
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 
 IDENTITY = {"zoom": 1.0, "rotation_deg": 0.0, "shear_deg": 0.0, "flip": False}
 

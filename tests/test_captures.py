@@ -14,7 +14,7 @@ from spc3d import captures, hot_pixels, io, photon_cubes, sensors, spc
 from spc3d.reconstruct.objectives import BernoulliObjective
 from spc3d.metrics import psnr
 from spc3d.scenes import render_scene, write_builtin_scene
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from conftest import REPO
 
 BAYER = ("RGGB", "BGGR", "GRBG", "GBRG")

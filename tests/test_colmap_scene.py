@@ -1,6 +1,6 @@
 """COLMAP-format scenes (spc3d.colmap_scene): a COLMAP twin of an LLFF scene reads to the same
 cameras (.txt and .bin models), general intrinsics survive the canonical folder (intrinsics.npy),
-distorted cameras are refused or undistorted, and scene folders are told apart (prepare.scene_layout).
+distorted cameras are refused or undistorted, and scene folders are told apart (inputs.scene_layout).
 
 The twin's model is written here from the COLMAP text-format documentation (cameras.txt,
 images.txt with w-first quaternions of cam_from_world, points3D.txt with tracks), not by the code
@@ -19,7 +19,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from spc3d import colmap_scene, llff, prepare
+from spc3d import colmap_scene, inputs, llff
 from spc3d.cameras import Cameras, cameras_to_llff, llff_to_cameras, project
 from spc3d.scenes import write_builtin_scene
 
@@ -230,7 +230,7 @@ def test_off_centre_pinhole_survives_import_and_resize(builtin, tmp_path):
     twin = colmap_twin(builtin, tmp_path / "twin", camera_lines=lines)
     got = colmap_scene.load_colmap(twin)
     np.testing.assert_allclose(got.cameras.intrinsics, intr, rtol=INTR_RTOL)  # per view, exactly as written
-    prepare.import_colmap(twin, tmp_path / "canonical", width=16)  # 32 x 24 -> 16 x 12
+    inputs.import_colmap(twin, tmp_path / "canonical", width=16)  # 32 x 24 -> 16 x 12
     assert (tmp_path / "canonical" / llff.INTRINSICS_FILE).is_file()
     back = llff.read_scene(tmp_path / "canonical")
     np.testing.assert_allclose(back.cameras.intrinsics, intr / 2, rtol=INTR_RTOL)  # principal point scaled too
@@ -333,10 +333,10 @@ def test_image_size_must_match_the_cameras(builtin, tmp_path):
 
 def test_scene_layout(builtin, tmp_path, caplog):
     twin = colmap_twin(builtin, tmp_path / "twin")
-    assert prepare.scene_layout(builtin) == "llff" and prepare.scene_layout(twin) == "colmap"
+    assert inputs.scene_layout(builtin) == "llff" and inputs.scene_layout(twin) == "colmap"
     shutil.copy(builtin / "poses_bounds.npy", twin / "poses_bounds.npy")
-    with caplog.at_level(logging.INFO, logger="spc3d.prepare"):
-        assert prepare.scene_layout(twin) == "llff"
+    with caplog.at_level(logging.INFO, logger="spc3d.inputs"):
+        assert inputs.scene_layout(twin) == "llff"
     assert "read as LLFF" in caplog.text and "sparse/0" in caplog.text
     empty = tmp_path / "empty"
     (empty / "sparse" / "0").mkdir(parents=True)
@@ -347,24 +347,24 @@ def test_scene_layout(builtin, tmp_path, caplog):
         match=r"neither an LLFF .* holds: notes\.txt, sparse/; sparse/0/ holds: "
         r"cameras\.bin",
     ):
-        prepare.scene_layout(empty)
+        inputs.scene_layout(empty)
     with pytest.raises(FileNotFoundError, match="does not exist"):
-        prepare.scene_layout(tmp_path / "nowhere")
+        inputs.scene_layout(tmp_path / "nowhere")
 
 
 def test_prepare_scene_colmap_kind(builtin, tmp_path):
     twin = colmap_twin(builtin, tmp_path / "twin", "bin")
-    prepare.prepare_scene({"kind": "colmap", "path": str(twin), "width": 32}, tmp_path / "out")
+    inputs.prepare_scene({"kind": "colmap", "path": str(twin), "width": 32}, tmp_path / "out")
     back, ref = llff.read_scene(tmp_path / "out"), llff.read_scene(builtin)
     assert_same_cameras(back.cameras, ref.cameras)
     assert back.meta["source"] == "colmap" and back.meta["settings"] == {"factor": 1, "width": 32, "undistort": False}
     with pytest.raises(ValueError, match="'builtin', 'llff' or 'colmap'"):
-        prepare.prepare_scene({"kind": "nerfstudio"}, tmp_path / "x")
+        inputs.prepare_scene({"kind": "nerfstudio"}, tmp_path / "x")
 
 
 def test_named_spec_for_tools_and_benchmarks(tmp_path):
     """A built-in layout by name, else an LLFF folder under the root, else None."""
-    from spc3d.prepare import named_spec
+    from spc3d.inputs import named_spec
 
     spec = named_spec("courtyard", 128, tmp_path)
     assert spec == {

@@ -8,7 +8,7 @@ from spc3d import exposure, io, spc
 from spc3d.augment import AugmentSettings, augment_scene
 from spc3d.findings import Comparison, bootstrap, evaluate_claims, per_view, verdict, write_findings
 from spc3d.scenes import write_builtin_scene
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.stage2 import reconstruct
 from spc3d.translate.apply import translate_scene
 from spc3d.translate.train import train_translator

@@ -31,7 +31,7 @@ import yaml
 from spc3d import io, metrics, spc
 from spc3d.scenes import write_builtin_scene
 from spc3d.exposure import calibrate_display, write_display
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.stage2 import reconstruct
 from conftest import REPO, child_processes, process_alive, run_snakemake, snakemake_process, wait_until
 

@@ -6,6 +6,7 @@ import json
 import platform
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -53,3 +54,27 @@ def test_logged_sets_up_the_job(tmp_path, monkeypatch):
     with workflow.logged(str(tmp_path / "job.log")):
         pass
     assert calls == [1]
+
+
+def test_logged_writes_the_jobs_own_benchmark(tmp_path, monkeypatch):
+    """logs/{rule}/x.log -> benchmarks/{rule}/x.tsv: wall, user, sys, peak RSS and status, measured
+    by the job itself (getrusage), also for a job that fails; no file for a log outside logs/."""
+    from spc3d import workflow
+
+    monkeypatch.chdir(tmp_path)
+    with workflow.logged("logs/score_images/courtyard/pix2pix.log"):
+        block = bytearray(64 << 20)  # touched: the peak RSS must see it
+        sum(block[::4096])
+        t_end = time.process_time() + 0.2
+        while time.process_time() < t_end:
+            pass
+    header, row = (tmp_path / "benchmarks/score_images/courtyard/pix2pix.tsv").read_text().splitlines()
+    values = dict(zip(header.split("\t"), row.split("\t")))
+    assert list(values) == list(workflow.BENCHMARK_COLUMNS) and values["status"] == "ok"
+    assert float(values["s"]) >= 0.2 and float(values["user_s"]) + float(values["sys_s"]) >= 0.2
+    assert float(values["max_rss_mb"]) >= 64
+    with pytest.raises(RuntimeError), workflow.logged("logs/evaluate/x.log"):
+        raise RuntimeError("boom")
+    assert (tmp_path / "benchmarks/evaluate/x.tsv").read_text().splitlines()[1].endswith("\tfailed")
+    assert workflow.benchmark_path("elsewhere/x.log") is None
+    assert not list(tmp_path.glob("benchmarks/**/.*.tmp"))

@@ -6,7 +6,7 @@ import pytest
 from spc3d import io, spc
 from spc3d.scenes import write_builtin_scene
 from spc3d.metrics import psnr
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from spc3d import augment, io, spc, translate
 from spc3d.augment import AugmentSettings
 from spc3d.cameras import split_views
 from spc3d.scenes import write_builtin_scene
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.checkpoints import Checkpoint, CheckpointPolicy
 from spc3d.training import run
 from spc3d.translate import base, model_io, online, train, validate

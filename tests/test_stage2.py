@@ -11,7 +11,7 @@ from spc3d.reconstruct import RECONSTRUCTORS, build_config
 from spc3d.reconstruct.gaussians import GaussianConfig
 from spc3d.reconstruct.objectives import BernoulliObjective
 from spc3d.scenes import write_builtin_scene
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.sources import load_source
 from spc3d.stage2 import reconstruct
 

@@ -15,7 +15,7 @@ from spc3d import io, spc, tables, translate
 from spc3d.augment import AugmentSettings, augment_scene
 from spc3d.figures import pick_view, qualitative_figure
 from spc3d.scenes import write_builtin_scene
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.translate import base, data, model_io, train
 from spc3d.translate.apply import score_images, self_ensemble, translate_scene
 from spc3d.checkpoints import CheckpointPolicy

@@ -11,8 +11,6 @@ rule colmap_poses:
         seed=config["seed"],
     log:
         "logs/colmap_poses/{scene}_{images}.log",
-    benchmark:
-        "benchmarks/colmap_poses/{scene}_{images}.tsv"
     threads: 1
     conda:
         ENV

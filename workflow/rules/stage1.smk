@@ -29,8 +29,6 @@ rule train_translator:
         policy=config["checkpoints"],
     log:
         "logs/train_translator/{method}{rep}.log",
-    benchmark:
-        "benchmarks/train_translator/{method}{rep}.tsv"
     threads: 1
     resources:
         gpu=1,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
@@ -54,8 +52,6 @@ rule translate_scene:
         ensemble=config["stage1"]["ensemble"],
     log:
         "logs/translate_scene/{scene}/{method}{rep}.log",
-    benchmark:
-        "benchmarks/translate_scene/{scene}/{method}{rep}.tsv"
     threads: 1
     priority: 10
     conda:
@@ -78,8 +74,6 @@ rule score_images:
         seed=get_seed,
     log:
         "logs/score_images/{scene}/{source}{rep}.log",
-    benchmark:
-        "benchmarks/score_images/{scene}/{source}{rep}.tsv"
     threads: 1
     conda:
         ENV

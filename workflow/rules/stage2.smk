@@ -28,8 +28,6 @@ rule reconstruct:
         policy=config["checkpoints"],
     log:
         "logs/reconstruct/{scene}/{source}+{model}{rep}.log",
-    benchmark:
-        "benchmarks/reconstruct/{scene}/{source}+{model}{rep}.tsv"
     threads: 1
     resources:
         gpu=get_stage2_gpus,
@@ -49,8 +47,6 @@ rule evaluate:
         "results/eval/{scene}/{source}+{model}{rep}/metrics.json",
     log:
         "logs/evaluate/{scene}/{source}+{model}{rep}.log",
-    benchmark:
-        "benchmarks/evaluate/{scene}/{source}+{model}{rep}.tsv"
     threads: 1
     conda:
         ENV

@@ -44,8 +44,6 @@ rule tradeoff_point:
         policy=config["checkpoints"],
     log:
         f"logs/tradeoff/{{combo}}/{TRADEOFF_SPACE.wildcard_pattern}.log",
-    benchmark:
-        f"benchmarks/tradeoff/{{combo}}/{TRADEOFF_SPACE.wildcard_pattern}.tsv"
     wildcard_constraints:
         combo="|".join(map(re.escape, TRADEOFF_COMBOS)),
         **KNOB_PATTERNS,
@@ -100,8 +98,6 @@ rule photon_level_point:
         policy=config["checkpoints"],
     log:
         f"logs/photon_level/{{combo}}/{PHOTON_SPACE.wildcard_pattern}.log",
-    benchmark:
-        f"benchmarks/photon_level/{{combo}}/{PHOTON_SPACE.wildcard_pattern}.tsv"
     wildcard_constraints:
         combo="|".join(map(re.escape, PHOTON_COMBOS)),
         **KNOB_PATTERNS,

@@ -1,6 +1,6 @@
-"""Adapter: rule prepare_scene -> spc3d.prepare.prepare_scene."""
+"""Adapter: rule prepare_scene -> spc3d.inputs.prepare_scene."""
 
-from spc3d.prepare import prepare_scene
+from spc3d.inputs import prepare_scene
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):

@@ -1,6 +1,6 @@
-"""Adapter: rule simulate_scene -> spc3d.simulate.simulate_scene."""
+"""Adapter: rule simulate_scene -> spc3d.inputs.simulate_scene."""
 
-from spc3d.simulate import simulate_scene
+from spc3d.inputs import simulate_scene
 from spc3d.spc import SPCParams
 from spc3d.workflow import logged
 

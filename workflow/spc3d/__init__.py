@@ -15,12 +15,11 @@ checkpoints   fingerprinted checkpoints of both stages: digests, policy, safe re
 scenes        procedural forward-facing built-in scenes (disjoint training / evaluation content)
 llff          reading LLFF folders (``images*/`` + ``poses_bounds.npy``) to the canonical scene
 colmap_scene  reading COLMAP-format scenes (``images/`` + ``sparse/0/``, binary or text models)
-prepare       a scene specification -> the canonical scene folder (rule ``prepare_scene``)
+inputs        a scene's inputs: spec -> scene folder (``prepare_scene``), its SPC frames (``simulate_scene``)
 spc           the SPC photon physics: 1-bit frames, flux estimates
 flux_scale    the simulated exposure: the flux scale that gives a scene its mean detection rate
 colour        sRGB transfer functions on torch tensors (both stages)
 montecarlo    Monte-Carlo renewal SPAD simulator (the tests' reference for ``spc``)
-simulate      a scene's SPC frames and their physics inversions (rule ``simulate_scene``)
 exposure      display gain of the physics rows without ground truth (fitted on training scenes)
 photon_cubes  photon-cube files of real SPAD sensors (bit-packed ``.npy``/``.npy.gz``, PNG frames, ``.npz``)
 sensors       monochrome and colour-filter-array SPAD sensors: masks, mosaics, demosaicing, masked MLE

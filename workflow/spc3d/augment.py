@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from . import io, llff, spc
 from .cameras import split_views
-from .simulate import params_from_record, read_spc_record
+from .inputs import params_from_record, read_spc_record
 
 log = logging.getLogger(__name__)
 

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from . import io, llff, spc
-from .simulate import params_from_record, read_spc_record
+from .inputs import params_from_record, read_spc_record
 
 RULE = (
     "display gain g = mean MLE flux of the scene's first K frames (all views) / k; k fitted on the "

@@ -27,7 +27,7 @@ from .cameras import split_views
 from .exposure import read_gain
 from .reconstruct.objectives import BernoulliObjective
 from .reconstruct.train import Views
-from .simulate import read_spc_record
+from .inputs import read_spc_record
 from .workflow import SOURCE_IMAGES, split_source
 
 FRAME_SOURCES = ("bernoulli",)

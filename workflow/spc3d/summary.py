@@ -18,7 +18,7 @@ import pandas as pd
 
 from . import io, spc
 from .plotting import pyplot, save_png
-from .simulate import read_spc_record
+from .inputs import read_spc_record
 
 
 def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role: str) -> dict:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import resource
 import time
 from pathlib import Path
 
@@ -22,7 +24,8 @@ class ConfigError(ValueError):
 
 @contextlib.contextmanager
 def logged(log_path: str):
-    """Send stdout, stderr and ``logging`` of a rule script to its log file; log the wall time.
+    """Send stdout, stderr and ``logging`` of a rule script to its log file; log the wall time and
+    write the job's benchmark (:func:`write_benchmark`, beside the log under ``benchmarks/``).
 
     Every rule script enters here, so this is also where the job's process is set up: freed
     memory is kept for reuse (:func:`spc3d.runtime.keep_freed_memory`: without it the large
@@ -36,17 +39,57 @@ def logged(log_path: str):
         logging.basicConfig(
             stream=f, level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
         )
-        t0 = time.perf_counter()
+        t0, status = time.perf_counter(), "failed"
         try:
             yield
+            status = "ok"
         except Exception:
             logging.exception("failed after %.1f s", time.perf_counter() - t0)
             raise
+        finally:
+            write_benchmark(benchmark_path(log_path), time.perf_counter() - t0, status)
         logging.info("done in %.1f s", time.perf_counter() - t0)
 
 
+BENCHMARK_COLUMNS = ("s", "user_s", "sys_s", "max_rss_mb", "status")
+
+
+def benchmark_path(log_path: str | os.PathLike) -> Path | None:
+    """``logs/{rule}/x.log`` -> ``benchmarks/{rule}/x.tsv`` (None for a log outside ``logs/``)."""
+    parts = Path(log_path).parts
+    if len(parts) < 2 or parts[0] != "logs":
+        return None
+    return Path("benchmarks", *parts[1:]).with_suffix(".tsv")
+
+
+def write_benchmark(path: Path | None, wall_s: float, status: str) -> None:
+    """One TSV row of what the job's process (and any child it waited for) used: wall, user and
+    system CPU seconds, peak resident memory (MB), whether it succeeded.
+
+    The job measures itself, exactly and for free (``getrusage``). Snakemake's ``benchmark:``
+    directive instead samples the job from outside through ``/proc/{pid}/smaps`` (twice a second
+    for the first 15 s, then every 30 s): about 10 ms of kernel time a sample for a process with
+    torch loaded, a third of the system time of the default run, and it can miss a short peak.
+    """
+    if path is None:
+        return
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    peak_kb = max(own.ru_maxrss, children.ru_maxrss)  # kilobytes on Linux
+    row = (
+        f"{wall_s:.2f}",
+        f"{own.ru_utime + children.ru_utime:.2f}",
+        f"{own.ru_stime + children.ru_stime:.2f}",
+        f"{peak_kb / 1024:.1f}",
+        status,
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\t".join(BENCHMARK_COLUMNS) + "\n" + "\t".join(row) + "\n")
+    os.replace(tmp, path)
+
+
 def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
-    """Scene name -> spec for :func:`spc3d.prepare.prepare_scene`, checking every name in the config."""
+    """Scene name -> spec for :func:`spc3d.inputs.prepare_scene`, checking every name in the config."""
     res, llff_scenes = config["resolution"], config["llff_scenes"]
     specs = {}
     for role in ("train", "eval"):
@@ -205,7 +248,7 @@ SPC_PHYSICS = ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")
 
 
 def spc_settings(spc: dict, seed: int, frames: int | None = None, detection: float | None = None) -> dict:
-    """Arguments of :func:`spc3d.simulate.simulate_scene` from the config's ``spc`` block: the physics,
+    """Arguments of :func:`spc3d.inputs.simulate_scene` from the config's ``spc`` block: the physics,
     the exposure (a fixed ``flux_scale``, or calibration to ``target_detection``) and the seed.
     ``frames`` overrides K stored per view; ``detection`` sets a calibration target (whatever
     ``flux_scale`` says), as a sweep's ``K`` and ``detection`` knobs do."""

@@ -4,7 +4,7 @@
 
     {"seed": 0,
      "scene_name": "courtyard",        # the evaluation scene ...
-     "scene": {...},                   # ... and its spec (spc3d.prepare.prepare_scene)
+     "scene": {...},                   # ... and its spec (spc3d.inputs.prepare_scene)
      "train_scenes": {name: {...}},    # specs of the stage-1 training scenes (disjoint from it)
      "spc": {...},                     # the config's spc block
      "augment": {...},                 # the config's augment block (count = total pairs)

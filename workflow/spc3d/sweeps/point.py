@@ -2,8 +2,8 @@
 
 ``run_point`` calls the stage functions the workflow's rules call (the same arguments), in order:
 
-    prepare      spc3d.prepare.prepare_scene        the evaluation scene (+ training scenes)
-    simulate     spc3d.simulate.simulate_scene      SPC frames (not for gt)
+    prepare      spc3d.inputs.prepare_scene         the evaluation scene (+ training scenes)
+    simulate     spc3d.inputs.simulate_scene        SPC frames (not for gt)
     augment      spc3d.augment.augment_scene        training pairs       } stage-1
     train        spc3d.translate.train.train_translator                  } sources
     translate    spc3d.translate.apply.translate_scene                   } only
@@ -44,10 +44,9 @@ import torch
 from .. import io
 from ..augment import AugmentSettings, augment_scene
 from ..evaluate import evaluate
-from ..prepare import prepare_scene
+from ..inputs import prepare_scene, simulate_scene
 from ..checkpoints import CheckpointPolicy, canonical, digest_path
 from ..training import peak_rss_mb
-from ..simulate import simulate_scene
 from ..spc import SPCParams
 from ..stage2 import reconstruct
 from .budget import resolve_point

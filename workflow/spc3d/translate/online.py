@@ -30,7 +30,7 @@ from torch import Tensor
 from .. import llff, spc
 from ..augment import AugmentSettings, sample_params, warp_linear
 from ..cameras import split_views
-from ..simulate import params_from_record, read_spc_record
+from ..inputs import params_from_record, read_spc_record
 from .data import chw
 
 

@@ -1,0 +1,90 @@
+# The inputs every combination reads: scene folders (prepare_scene), their SPC frames (simulate_scene),
+# the metered MLE displays of the physics rows (calibrate_display, write_display) and the augmented
+# training pairs of stage 1 (augment_scene). Library: spc3d.inputs, spc3d.exposure, spc3d.augment.
+
+rule prepare_scene:
+    """Render a built-in scene or import a real LLFF folder into the canonical LLFF layout."""
+    input:
+        get_scene_source,
+    output:
+        directory("results/scenes/{scene}"),
+    params:
+        spec=get_scene_spec,
+    log:
+        "logs/prepare_scene/{scene}.log",
+    threads: 1
+    priority: 10  # upstream of every translator: first, so training starts early
+    conda:
+        ENV
+    script:
+        "../scripts/prepare_scene.py"
+
+
+rule simulate_scene:
+    """K binary SPC frames per view (one draw per seed), with the binary, average and MLE flux derived."""
+    input:
+        "results/scenes/{scene}",
+    output:
+        directory("results/spc/{scene}{rep}"),
+    params:
+        settings=get_spc_settings,
+    log:
+        "logs/simulate_scene/{scene}{rep}.log",
+    threads: 1
+    priority: 10
+    conda:
+        ENV
+    script:
+        "../scripts/simulate_scene.py"
+
+
+rule calibrate_display:
+    """The display level k of the metered MLE (g = mean flux / k), fitted on the training scenes at K frames."""
+    input:
+        unpack(get_display_training),
+    output:
+        "results/calibration/display-k{K}{rep}.json",
+    log:
+        "logs/calibrate_display/k{K}{rep}.log",
+    threads: 1
+    conda:
+        ENV
+    script:
+        "../scripts/calibrate_display.py"
+
+
+rule write_display:
+    """A scene's MLE images of its first K frames at the metered gain (no ground truth: spc3d.exposure)."""
+    input:
+        spc="results/spc/{scene}{rep}",
+        calibration="results/calibration/display-k{K}{rep}.json",
+    output:
+        directory("results/mle/{scene}/k{K}{rep}"),
+    log:
+        "logs/write_display/{scene}/k{K}{rep}.log",
+    threads: 1
+    conda:
+        ENV
+    script:
+        "../scripts/write_display.py"
+
+
+rule augment_scene:
+    """Zoom / rotation / shear / flip training pairs (RGB + SPC frames) of one training scene."""
+    input:
+        scene="results/scenes/{scene}",
+        spc="results/spc/{scene}{rep}",
+    output:
+        directory("results/augment/{scene}{rep}"),
+    params:
+        n_pairs=get_augment_count,
+        settings=config["augment"],
+        seed=get_seed,
+    log:
+        "logs/augment_scene/{scene}{rep}.log",
+    threads: 1
+    priority: 10
+    conda:
+        ENV
+    script:
+        "../scripts/augment_scene.py"
