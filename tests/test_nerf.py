@@ -270,3 +270,14 @@ def test_nerf_overfits(ndc_data):
 
     before, after = _fit(model, opt, nerf.lr_at, cfg, ndc_data, 120, 256, coarse)
     assert after > before + 5.0, (before, after)
+
+
+def test_total_variation_value_and_closed_form_gradient():
+    """The closed-form TV gradient against finite differences, and its value against the definition."""
+    g = torch.randn(4**3, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0), requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x: nerf_grid.total_variation(x, 4), (g,))
+    v = g.detach().view(4, 4, 4, 3)
+    direct = (
+        sum(((v.narrow(a, 1, 3) - v.narrow(a, 0, 3)) ** 2).mean() for a in range(3)) / 3.0
+    )  # mean squared neighbour difference, averaged over the axes
+    assert float(nerf_grid.total_variation(g, 4)) == pytest.approx(float(direct), rel=1e-12)

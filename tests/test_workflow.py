@@ -57,7 +57,8 @@ def test_dry_run_lists_the_dag(tmp_path):
     }
     assert counts["prepare_scene"] == 4 and counts["simulate_scene"] == 4 and counts["augment_scene"] == 3
     assert counts["colmap_poses"] == 12 and counts["write_summary"] == 1
-    assert counts["reconstruct"] == 15 and counts["evaluate"] == 15 and counts["write_all_tables"] == 1
+    assert counts["reconstruct"] == 18 and counts["evaluate"] == 18 and counts["write_all_tables"] == 1
+    assert counts["estimate_poses"] == 1  # three rows posed by COLMAP on the 16-frame MLE images
     assert counts["train_translator"] == 5 and counts["translate_scene"] == 5 and counts["score_images"] == 8
     assert counts["calibrate_display"] == 2 and counts["write_display"] == 2  # K = 1 and K = 16
     assert counts["qualitative_figure"] == 1 and "tables" not in counts  # `tables` is an explicit target only
@@ -149,7 +150,7 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     assert pose["registered"] >= 18  # real photos register from their RGB views
 
 
-@pytest.mark.parametrize("preset,reconstructs,translators", [("smoke", 7, 3), ("llff-cpu", 15, 5), ("paper", 45, 15)])
+@pytest.mark.parametrize("preset,reconstructs,translators", [("smoke", 7, 3), ("llff-cpu", 18, 5), ("paper", 54, 15)])
 def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
     """Every preset passes the schema and plans its DAG (the paper preset: 15 combinations x 3 seeds,
     each seed with its own translators: a repeat redraws everything random)."""

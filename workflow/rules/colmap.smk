@@ -16,3 +16,24 @@ rule colmap_poses:
         ENV
     script:
         "../scripts/colmap_poses.py"
+
+
+rule estimate_poses:
+    """COLMAP on a source's images of the training views: the cameras a row '...@{source}' trains on."""
+    input:
+        scene="results/scenes/{scene}",
+        images=get_stage1_images,
+    output:
+        directory("results/poses/{scene}/{source}{rep}"),
+    params:
+        subdir=get_stage1_subdir,
+        frames=get_source_frames,
+        max_features=config["colmap"]["max_features"],
+        seed=get_seed,
+    log:
+        "logs/estimate_poses/{scene}/{source}{rep}.log",
+    threads: 1
+    conda:
+        ENV
+    script:
+        "../scripts/estimate_poses.py"

@@ -14,8 +14,8 @@ resolve_paths(config, workflow.basedir)
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
 from spc3d.workflow import (PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budgets, llff_input_files,
-                            resolve_combinations, scene_specs, source_frames, spc_settings, split_source,
-                            stage1_sources, translator_settings, translator_validation)
+                            parse_combination, resolve_combinations, scene_specs, source_frames, spc_settings,
+                            split_source, stage1_sources, translator_settings, translator_validation)
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -27,7 +27,7 @@ ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
-check_settings(config, STAGE1_USED, sorted({c.partition("+")[2] for c in COMBINATIONS}), COMBINATIONS)
+check_settings(config, STAGE1_USED, sorted({parse_combination(c)[1] for c in COMBINATIONS}), COMBINATIONS)
 # Repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}". A repeat redraws
 # everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
 SEEDS = [config["seed"] + k for k in range(config["seeds"])]
@@ -35,14 +35,15 @@ REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
 # Frame budgets K of the metered display gain (mle / bernoulli rows), fitted on the training scenes.
 DISPLAY_KS = display_budgets(COMBINATIONS, config["stage2"]["frames"])
 # Sources scored before 3D (score_images): the translators in use and the training-free images.
-STAGE1_SCORED = STAGE1_USED + sorted({c.partition("+")[0] for c in COMBINATIONS
-                                      if split_source(c.partition("+")[0])[0] == "mle"}) + ["none"]
+STAGE1_SCORED = STAGE1_USED + sorted({parse_combination(c)[0] for c in COMBINATIONS
+                                      if split_source(parse_combination(c)[0])[0] == "mle"}) + ["none"]
 
 
 wildcard_constraints:
     scene="|".join(ALL_SCENES) or "(?!)",
     images="rgb|binary|average",
     source="[a-z0-9]+(-k[0-9]+)?",
+    poses="(@[a-z0-9]+(-k[0-9]+)?)?",  # "@mle-k16": poses COLMAP estimated from that source's images
     model="|".join(STAGE2_MODELS),
     method="|".join(STAGE1_METHODS),
     rep="(-seed[0-9]+)?",
@@ -59,7 +60,7 @@ def get_final_output():
 
 
 def get_table_outputs():
-    return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1"],
+    return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1", "estimated_poses"],
                   ext=["csv", "md", "tex", "html"]) + expand("results/tables/findings.{ext}", ext=["md", "json", "html"])
 
 
@@ -101,6 +102,8 @@ def get_reconstruct_inputs(wildcards):
         inputs["display"] = display_folder(wildcards)
     if wildcards.model == "3dgs" and config["stage2"]["init"] == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
+    if wildcards.poses:
+        inputs["poses"] = f"results/poses/{wildcards.scene}/{wildcards.poses[1:]}{wildcards.rep}"
     return inputs
 
 
@@ -111,7 +114,8 @@ def get_model_settings(wildcards):
 
 def get_checkpoint_path(wildcards):
     """Outside the rule's output folder, so Snakemake's clean-up of a failed job keeps it."""
-    return f"results/checkpoints/{wildcards.scene}/{wildcards.source}+{wildcards.model}{wildcards.rep}/checkpoint.pt"
+    combo = f"{wildcards.source}+{wildcards.model}{wildcards.poses}"
+    return f"results/checkpoints/{wildcards.scene}/{combo}{wildcards.rep}/checkpoint.pt"
 
 
 def get_scene_spec(wildcards):
@@ -196,13 +200,15 @@ def get_translator_checkpoint(wildcards):
 
 
 def get_stage1_images(wildcards):
-    """The folder holding a source's images of a scene (stage-1 output, metered MLE or binary frame)."""
+    """The folder holding a source's images of a scene (stage-1 output, metered MLE, binary frame, ground truth)."""
     base = split_source(wildcards.source)[0]
     kind = SOURCE_IMAGES[base][0]
     if kind == "translated":
         return f"results/translate/{wildcards.scene}/{base}{wildcards.rep}"
     if kind == "display":
         return display_folder(wildcards)
+    if kind == "scene":
+        return f"results/scenes/{wildcards.scene}"
     return f"results/spc/{wildcards.scene}{wildcards.rep}"
 
 

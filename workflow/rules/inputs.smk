@@ -47,6 +47,7 @@ rule calibrate_display:
     log:
         "logs/calibrate_display/k{K}{rep}.log",
     threads: 1
+    priority: 10
     conda:
         ENV
     script:
@@ -63,6 +64,7 @@ rule write_display:
     log:
         "logs/write_display/{scene}/k{K}{rep}.log",
     threads: 1
+    priority: 10
     conda:
         ENV
     script:

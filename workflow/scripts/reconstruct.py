@@ -25,4 +25,5 @@ with logged(snakemake.log[0]):
         points_dir=inp.get("colmap"),
         policy=CheckpointPolicy(**p.policy),
         init_setting=p.init,
+        poses_dir=inp.get("poses"),
     )

@@ -28,6 +28,7 @@ captures      captured SPAD scene folders read back; simulated scenes exported t
 augment       zoom / rotation / shear / flip augmentation of training views (rule ``augment_scene``)
 colmap        COLMAP (pycolmap) poses and their error against reference poses (rule ``colmap_poses``)
 alignment     similarity alignment of estimated onto reference cameras; pose and reprojection errors
+poses         poses from the photons: COLMAP on a source's training views, for stage 2 (``estimate_poses``)
 summary       the data summary table and figure (rule ``write_summary``)
 translate     stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
   .model_io   a stage-1 model folder: build a translator, write model.pt / train.json / curve.csv, load

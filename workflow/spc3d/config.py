@@ -137,6 +137,14 @@ def check_file(path: str | None, key: str, what: str) -> None:
 # --- typed settings ---------------------------------------------------------------------------
 
 
+def physics_sources(combinations: list[str]) -> set[str]:
+    """The MLE and SPAD-likelihood sources (with their frame suffixes) the combinations read, pose
+    sources included."""
+    from .workflow import BUDGET_SOURCES, combination_sources, split_source
+
+    return {s for s in combination_sources(combinations) if split_source(s)[0] in BUDGET_SOURCES}
+
+
 def check_settings(config: dict, methods: list[str], models: list[str], combinations: list[str] = ()) -> None:
     """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``), check
     published weights, input paths and the values that constrain each other, so that a wrong key
@@ -167,7 +175,7 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
 
 def check_consistency(config: dict, methods: list[str], combinations: list[str] = ()) -> None:
     """Values that are each valid but impossible together, and input paths that must exist."""
-    from .workflow import BUDGET_SOURCES, split_source
+    from .workflow import combination_sources, split_source
 
     spc_frames, train = config["spc"]["frames"], config["scenes"]["train"]
     for key in ("stage1", "stage2"):
@@ -176,12 +184,12 @@ def check_consistency(config: dict, methods: list[str], combinations: list[str] 
                 f"{key}.frames = {config[key]['frames']}: more than the spc.frames = {spc_frames} "
                 f"binary frames simulated per view; raise spc.frames or lower {key}.frames"
             )
-    physics = sorted({c for c in combinations if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES})
-    for combo in physics:
-        k = split_source(combo.partition("+")[0])[1]
+    physics = sorted({c for c in combinations if combination_sources([c]) & physics_sources(combinations)})
+    for source in sorted(physics_sources(combinations)):
+        k = split_source(source)[1]
         if k and k > spc_frames:
             raise ConfigError(
-                f"stage2.combinations: {combo!r} uses K = {k} frames per view but spc.frames = "
+                f"stage2.combinations: {source!r} uses K = {k} frames per view but spc.frames = "
                 f"{spc_frames} are simulated; raise spc.frames or lower K"
             )
     if physics and config["spc"]["mode"] != "bernoulli":

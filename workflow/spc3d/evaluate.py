@@ -38,6 +38,13 @@ def mean_scores(per_view: list[dict]) -> dict[str, float]:
     return {k: float(np.mean([v[k] for v in per_view])) for k in METRICS}
 
 
+def combination_name(train: dict) -> str:
+    """``source+model``, with ``@poses`` when the row trained on estimated poses."""
+    poses = train.get("poses")
+    at = f"@{poses['source']}" if isinstance(poses, dict) else ""
+    return f"{train['source']}+{train['model']}{at}"
+
+
 def evaluate(
     recon_dir: str | os.PathLike,
     scene_dir: str | os.PathLike,
@@ -50,12 +57,16 @@ def evaluate(
     scene = llff.read_scene(scene_dir)
     index = {n: i for i, n in enumerate(scene.names)}
     per_view = []
+    if train.get("status"):  # not reconstructed (e.g. COLMAP posed too few views): no scores, the reason
+        record = {"scene": Path(scene_dir).name, "combination": combination_name(train), **train, "mean": None}
+        io.write_json(out_json, record)
+        return record
     for name in train["test_views"]:
         pred = io.read_rgb(recon_dir / "renders" / f"{name}.png")
         per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir)})
     record = {
         "scene": Path(scene_dir).name,
-        "combination": f"{train['source']}+{train['model']}",
+        "combination": combination_name(train),
         **{
             k: train.get(k)
             for k in (

@@ -44,6 +44,8 @@ def qualitative_figure(
     gt = io.read_rgb(Path(scene_dir) / "images" / f"{view}.png")
     panels = [("binary SPC input (K=1)", io.read_rgb(Path(spc_dir) / "binary" / f"{view}.png"))]
     for combo, folder in recon_dirs.items():
+        if not (Path(folder) / "renders").is_dir():
+            continue  # not reconstructed (its train.json says why, e.g. COLMAP posed too few views)
         img = io.read_rgb(Path(folder) / "renders" / f"{view}.png")
         source, model = combo.split("+", 1)
         name = f"{(labels or {}).get(source, source)} + {model}"

@@ -39,7 +39,7 @@ def per_view(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
     rows = []
     for path in metrics_files:
         rec = io.read_json(path)
-        for v in rec["per_view"]:
+        for v in rec.get("per_view") or []:  # a row that was not reconstructed has no views
             rows.append(
                 {
                     "combination": rec["combination"],

@@ -76,6 +76,16 @@ def load_source(
     return Source(Views(torch.as_tensor(targets, dtype=torch.float32), cams, names), objective, name)
 
 
+def with_estimated_poses(src: Source, poses_dir: str | os.PathLike) -> Source:
+    """``src`` on the training views COLMAP posed (:mod:`spc3d.poses`), at their estimated cameras;
+    raises :class:`spc3d.poses.NoPoses` when too few were posed."""
+    from .poses import estimated_views
+
+    keep, cameras = estimated_views(src.views.names, poses_dir)
+    views = Views(src.views.targets[keep], cameras, [src.views.names[i] for i in keep])
+    return Source(views, src.objective, src.name)
+
+
 def _image_folder(name: str, scene_dir: Path, spc_dir, display_dir, frames: int) -> Path:
     """The folder of source ``name``'s images (spc3d.workflow.SOURCE_IMAGES), from the folders given."""
     kind, sub = SOURCE_IMAGES.get(split_source(name)[0], (None, None))

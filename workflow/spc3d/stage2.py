@@ -29,7 +29,8 @@ from .cameras import split_views
 from .checkpoints import Checkpoint, CheckpointPolicy, digest_path, fingerprint
 from .colmap import sparse_points
 from .reconstruct import RECONSTRUCTORS
-from .sources import load_source
+from .poses import NoPoses, poses_summary
+from .sources import load_source, with_estimated_poses
 from .training import peak_rss_mb, run, seed_everything
 
 log = logging.getLogger(__name__)
@@ -52,6 +53,7 @@ def reconstruct(
     input_digests: dict | None = None,
     display_dir: str | os.PathLike | None = None,
     init_setting: str | None = None,
+    poses_dir: str | os.PathLike | None = None,
 ) -> dict:
     """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
 
@@ -59,6 +61,10 @@ def reconstruct(
     bernoulli source fits that many; None for the oracle ``gt``). ``display_dir``: the metered MLE
     folder of that budget (mle and bernoulli sources, :mod:`spc3d.exposure`).
     ``init_setting``: the config's ``stage2.init``, recorded beside what was actually done.
+    ``poses_dir``: an ``estimate_poses`` folder (:mod:`spc3d.poses`): train on the training views
+    COLMAP posed, at their estimated cameras, instead of the scene's; the row's budget K is then
+    the larger of its source's and its pose source's. Too few posed views: the record says so and
+    nothing is rendered (evaluate scores no row).
 
     ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
     initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
@@ -73,6 +79,19 @@ def reconstruct(
         torch.set_num_threads(threads)
     seed_everything(seed)
     src = load_source(source, scene_dir, spc_dir, image_dir, frames or 1, display_dir)
+    poses = "ground truth (the scene's cameras)"
+    if poses_dir is not None:
+        poses = poses_summary(poses_dir)
+        frames = max(k for k in (frames, poses["frames"], 0) if k is not None) or None
+        try:
+            src = with_estimated_poses(src, poses_dir)
+        except NoPoses as e:
+            log.warning("%s", e)
+            return write_unposed(
+                scene_dir,
+                out_dir,
+                {"model": model, "source": source, "seed": seed, "frames": frames, "poses": poses, "status": str(e)},
+            )
     points, init = initial_points(points_dir)
     trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
     log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
@@ -83,7 +102,8 @@ def reconstruct(
         "seed": seed,
         "settings": dataclasses.asdict(cfg),
         "frames": frames,
-        "poses": "ground truth (the scene's cameras)",
+        "poses": poses,
+        "train_views": len(src.views.names),
         "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},
         "display": display_record(display_dir),
     }
@@ -100,6 +120,7 @@ def reconstruct(
                     "images": digest_path(image_dir),
                     "points": digest_path(points_dir),
                     "display": digest_path(display_dir),
+                    "poses": digest_path(poses_dir),
                 },
             ),
         )
@@ -121,7 +142,16 @@ def reconstruct(
         "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()},
     }
     render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
-    return record | {"render_s": render_s}
+    return record | meta | {"render_s": render_s}
+
+
+def write_unposed(scene_dir, out_dir, record: dict) -> dict:
+    """The folder of a row whose views COLMAP could not pose: ``train.json`` with the reason, no renders."""
+    scene = llff.read_scene(scene_dir, with_images=False)
+    test = [scene.names[i] for i in split_views(len(scene.names))[1]]
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        io.write_json(tmp / "train.json", record | {"test_views": test})
+    return record
 
 
 def display_record(display_dir) -> dict | None:

@@ -97,10 +97,22 @@ def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
                 "seed": rec.get("seed"),
                 "K": rec.get("frames"),
                 "init": init.get("used") if isinstance(init, dict) else init,
-                **{k: rec["mean"][k] for k in METRICS},
+                "poses": poses_text(rec.get("poses")),
+                **{k: (rec["mean"] or {}).get(k, np.nan) for k in METRICS},  # None: not reconstructed
             }
         )
-    return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "init", *METRICS])
+    return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "init", "poses", *METRICS])
+
+
+def poses_text(poses) -> str:
+    """How a row was posed: "ground truth", or COLMAP's source, views posed and errors."""
+    if not isinstance(poses, dict):
+        return "ground truth"
+    text = f"COLMAP on {poses['source']}: {poses['registered']}/{poses['total']} training views"
+    if poses["status"] != "ok":
+        return text + " (too few: not reconstructed)"
+    rot, cen = poses["rotation_deg"]["median"], poses["center_rel"]["median"]
+    return text + f", rotation {rot:.2f}°, centre {100 * cen:.1f} % of the spread (medians)"
 
 
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
@@ -112,6 +124,8 @@ def summarise(df: pd.DataFrame) -> pd.DataFrame:
     out["init"] = g["init"].agg(
         lambda v: "; ".join(sorted({str(x).split(" (")[0] for x in v if x is not None})) or None
     )
+    if "poses" in df:
+        out["poses"] = g["poses"].agg(lambda v: "; ".join(dict.fromkeys(v)))
     return out
 
 
@@ -128,7 +142,7 @@ def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str) -> list:
     rows = []
     for combo in summary.index:
         source, _, model = combo.partition("+")
-        if combo not in listed and split_source(source)[0] in PHYSICS:
+        if combo not in listed and "@" not in combo and split_source(source)[0] in PHYSICS:
             label = f"{LABELS[split_source(source)[0]]} + {model.upper() if model == '3dgs' else model}"
             rows.append((label, source, model, None, "ours"))
     return rows
@@ -147,7 +161,7 @@ def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
             "combination": combo,
             "role": role,
             "K": K,
-            "poses": "ground truth",
+            "poses": summary.loc[combo, "poses"] if have and "poses" in summary else "ground truth",
             "init": summary.loc[combo, "init"] if have else None,
             "runs": int(summary.loc[combo, "runs"]) if have else 0,
         }
@@ -172,10 +186,12 @@ def block(role: str, K, df: pd.DataFrame) -> int:
 
 
 def ranks(df: pd.DataFrame, key: str, higher_better: bool) -> pd.Series:
-    """1 = best, 2 = second among non-oracle rows of the same K that have a value; 0 otherwise."""
+    """1 = best, 2 = second among non-oracle rows of the same budget (K, and ground-truth or
+    estimated poses) that have a value; 0 otherwise."""
     out = pd.Series(0, index=df.index)
     ranked = df[(df["role"] != "oracle") & df[key].notna()]
-    for _, group in ranked.groupby(ranked["K"].astype("Int64").astype(str)):
+    budget = ranked["K"].astype("Int64").astype(str) + ranked["poses"].eq("ground truth").map({True: "", False: "@"})
+    for _, group in ranked.groupby(budget):
         order = group[key].rank(ascending=not higher_better, method="min")
         out[group.index] = order.where(order <= 2, 0).astype(int)
     return out
@@ -219,12 +235,12 @@ def k_text(K) -> str:
     return "–" if K is None or pd.isna(K) else str(int(K))
 
 
-def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None:
+def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protocol: str = PROTOCOL) -> None:
     """``stem``.csv (numbers), .md, .tex and .html (formatted) atomically."""
     stem = Path(stem)
     io.write_text(stem.with_suffix(".csv"), df.to_csv(index=False, float_format="%.6g"))
     md = formatted(df, lambda s: f"**{s}**", lambda s: f"*{s}*")
-    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + f"\n\n{PROTOCOL}\n")
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + f"\n\n{protocol}\n")
     tex = formatted(df, lambda s: f"\\textbf{{{s}}}", lambda s: f"\\textit{{{s}}}")
     tex = tex.map(
         lambda s: (
@@ -233,9 +249,9 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str) -> None
             else s
         )
     )
-    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {PROTOCOL}", escape=False))
+    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {protocol}", escape=False))
     html = formatted(df, lambda s: f"<b>{s}</b>", lambda s: f"<i>{s}</i>").to_html(index=False, escape=False)
-    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=PROTOCOL))
+    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
 
 
 def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
@@ -285,6 +301,43 @@ def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> 
     return df
 
 
+POSES_PROTOCOL = (
+    "Each row with poses from COLMAP trained on the cameras COLMAP estimated from the named source's images of "
+    "the training views (held-out views never reach COLMAP; views it did not pose are left out of training); "
+    "its twin on the ground-truth poses sits above it. Renders are scored in the reference frame: the estimated "
+    "world is mapped onto it by the similarity aligning the posed training cameras with theirs (the pose-free "
+    "novel-view-synthesis protocol); pose errors are after that alignment. K counts the binary frames per view "
+    "behind the images and the poses; ranks (bold, italic) only among rows of equal K and pose kind."
+)
+
+
+def estimated_poses_table(metrics_files: list[str], stem: str, labels: dict[str, str]) -> pd.DataFrame:
+    """Rows trained on estimated poses (``source+model@poses``), each below its ground-truth-pose twin."""
+    summary = summarise(collect(metrics_files))
+    spec = []
+    for combo in (c for c in summary.index if "@" in c):
+        twin, _, poses = combo.partition("@")
+        for c in ([twin] if twin in summary.index and twin not in {s[1] + "+" + s[2] for s in spec} else []) + [combo]:
+            source, _, model = c.partition("+")
+            name = f"{labels.get(split_source(source)[0], source)} + {model.partition('@')[0].upper()}"
+            spec.append((name, source, model, None, "oracle" if source == "gt" else "ours"))
+    df = table(summary, spec, "")
+    if df.empty:
+        write_text_table(stem, "No row with estimated poses: add e.g. 'bernoulli+3dgs@mle-k16' to stage2.combinations")
+        return df
+    write_table(df, stem, "Poses from the photons: rows on COLMAP poses beside ground-truth poses", POSES_PROTOCOL)
+    return df
+
+
+def write_text_table(stem: str | os.PathLike, text: str) -> None:
+    """A table's four files holding one sentence (a table with no rows)."""
+    stem = Path(stem)
+    io.write_text(stem.with_suffix(".csv"), "")
+    io.write_text(stem.with_suffix(".md"), text + "\n")
+    io.write_text(stem.with_suffix(".tex"), f"% {text}\n")
+    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=text, table="", protocol=""))
+
+
 def write_all_tables(
     metrics_files: list[str],
     stage1_files: list[str],
@@ -292,12 +345,14 @@ def write_all_tables(
     nerf_variant: str,
     labels: dict[str, str] = LABELS,
 ) -> None:
-    """single_stage.*, two_stage.*, stage1.* and the findings (findings.md / .json / .html) in ``folder``."""
+    """single_stage.*, two_stage.*, estimated_poses.*, stage1.* and the findings (findings.md / .json /
+    .html) in ``folder``."""
     from .findings import write_findings
 
     folder = Path(folder)
     single_stage_table(metrics_files, folder / "single_stage", nerf_variant)
     two_stage_table(metrics_files, folder / "two_stage", nerf_variant)
+    estimated_poses_table(metrics_files, folder / "estimated_poses", labels)
     if stage1_files:
         stage1_table(stage1_files, folder / "stage1", labels)
     write_findings(metrics_files, folder / "findings", nerf_variant)

@@ -205,13 +205,45 @@ def source_frames(source: str, stage1_frames: int, stage2_frames: int) -> int | 
     return k or stage2_frames
 
 
+def parse_combination(combo: str) -> tuple[str, str, str | None]:
+    """("bernoulli", "3dgs", "mle-k16") for "bernoulli+3dgs@mle-k16"; poses None for the scene's
+    (ground-truth) cameras. After "@": the image source COLMAP poses the training views from
+    (:mod:`spc3d.poses`)."""
+    head, _, poses = combo.partition("@")
+    source, _, model = head.partition("+")
+    return source, model, poses or None
+
+
+def combination_frames(combo: str, stage1_frames: int, stage2_frames: int) -> int | None:
+    """Binary frames per view a row consumes: its source's, or its pose source's when more (the
+    frames that posed the views were spent too); None for the oracle with ground-truth poses."""
+    source, _, poses = parse_combination(combo)
+    ks = [source_frames(s, stage1_frames, stage2_frames) for s in (source, poses) if s]
+    ks = [k for k in ks if k is not None]
+    return max(ks) if ks else None
+
+
+def check_pose_source(poses: str, combo: str, where: str) -> None:
+    base, k = split_source(poses)
+    if base not in SOURCE_IMAGES or (poses != base and (k is None or base != "mle")):
+        raise ConfigError(
+            f"{where}: {combo!r}: poses from {poses!r}? After '@' name the images COLMAP poses the "
+            f"training views from: {sorted(SOURCE_IMAGES)} (mle may take '-k<K>'), e.g. 'bernoulli+3dgs@mle-k16'"
+        )
+
+
 def resolve_combinations(combinations: list[str], nerf_variant: str, where: str = "stage2.combinations") -> list[str]:
-    """``source+model`` names with the family ``nerf`` resolved to the configured NeRF variant."""
+    """``source+model[@poses]`` names with the family ``nerf`` resolved to the configured NeRF variant."""
     out = []
     for combo in combinations:
-        source, sep, model = combo.partition("+")
-        if not sep or not source or model not in STAGE2_MODELS:
-            raise ConfigError(f"{where}: {combo!r} must be 'source+model' with model 3dgs, nerf or nerf-grid")
+        source, model, poses = parse_combination(combo)
+        if "+" not in combo or not source or model not in STAGE2_MODELS:
+            raise ConfigError(
+                f"{where}: {combo!r} must be 'source+model' (or 'source+model@poses') "
+                "with model 3dgs, nerf or nerf-grid"
+            )
+        if poses is not None:
+            check_pose_source(poses, combo, where)
         base, k = split_source(source)
         if base not in PLAIN_SOURCES + STAGE1_METHODS or (source != base and k is None):
             raise ConfigError(
@@ -223,24 +255,27 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
                 f"{where}: {combo!r}: only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' "
                 f"(translators use stage1.frames, 'none' is one frame, 'gt' none)"
             )
-        out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
+        resolved = f"{source}+{nerf_variant if model == 'nerf' else model}"
+        out.append(resolved + (f"@{poses}" if poses else ""))
     return list(dict.fromkeys(out))
 
 
+def combination_sources(combinations: list[str]) -> set[str]:
+    """Every image or frame source the combinations read: their sources and their pose sources."""
+    return {s for c in combinations for s in parse_combination(c)[::2] if s}
+
+
 def stage1_sources(combinations: list[str]) -> list[str]:
-    """The stage-1 methods the combinations need (in registry order)."""
-    used = {c.partition("+")[0] for c in combinations}
+    """The stage-1 methods the combinations need (in registry order), as sources or pose sources."""
+    used = combination_sources(combinations)
     return [m for m in STAGE1_METHODS if m in used]
 
 
 def display_budgets(combinations: list[str], stage2_frames: int) -> list[int]:
-    """The frame budgets K whose metered display gain the combinations need (mle / bernoulli rows)."""
-    ks = {
-        source_frames(c.partition("+")[0], 1, stage2_frames)
-        for c in combinations
-        if split_source(c.partition("+")[0])[0] in BUDGET_SOURCES
-    }
-    return sorted(ks)
+    """The frame budgets K whose metered display gain the combinations need (mle / bernoulli rows,
+    and MLE images that pose a row)."""
+    used = combination_sources(combinations)
+    return sorted({source_frames(s, 1, stage2_frames) for s in used if split_source(s)[0] in BUDGET_SOURCES})
 
 
 # The spc block's keys that are the camera's physics (spc3d.spc.SPCParams); the others set its exposure.

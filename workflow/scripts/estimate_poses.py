@@ -1,0 +1,19 @@
+"""Adapter: rule estimate_poses -> spc3d.poses.estimate_poses."""
+
+from pathlib import Path
+
+from spc3d.poses import estimate_poses
+from spc3d.workflow import logged
+
+with logged(snakemake.log[0]):
+    p = snakemake.params
+    estimate_poses(
+        Path(snakemake.input.images) / p.subdir,
+        snakemake.input.scene,
+        snakemake.output[0],
+        snakemake.wildcards.source,
+        p.frames,
+        max_features=p.max_features,
+        seed=p.seed,
+        num_threads=snakemake.threads,
+    )
