@@ -113,6 +113,11 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     two = pd.read_csv(res / "tables" / "two_stage.csv").set_index("combination")
     assert two.loc["pix2pixhd+3dgs", "runs"] == 1 and two.loc["pix2pix+nerf-grid", "runs"] == 0
     assert (res / "figures" / "qualitative_courtyard.png").stat().st_size > 10_000
+    # A row on poses COLMAP estimated from the training views (posed or recorded as not reconstructed).
+    posed = io.read_json(res / "poses" / "courtyard" / "gt" / "cameras.json")
+    assert posed["total"] == 7 and posed["source"] == "gt"  # 9 views, 2 held out: never given to COLMAP
+    est = pd.read_csv(res / "tables" / "estimated_poses.csv").set_index("combination")
+    assert list(est.index) == ["gt+3dgs", "gt+3dgs@gt"] and est.loc["gt+3dgs@gt", "poses"].startswith("COLMAP on gt")
     again = snakemake(tmp_path, "-n", "--cores", "2", *configs)
     assert "Nothing to be done" in again.stdout + again.stderr
     # `tables` rewrites the tables from the metrics on disk and runs nothing else.
@@ -150,7 +155,7 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     assert pose["registered"] >= 18  # real photos register from their RGB views
 
 
-@pytest.mark.parametrize("preset,reconstructs,translators", [("smoke", 7, 3), ("llff-cpu", 18, 5), ("paper", 54, 15)])
+@pytest.mark.parametrize("preset,reconstructs,translators", [("smoke", 8, 3), ("llff-cpu", 18, 5), ("paper", 54, 15)])
 def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
     """Every preset passes the schema and plans its DAG (the paper preset: 15 combinations x 3 seeds,
     each seed with its own translators: a repeat redraws everything random)."""

@@ -42,7 +42,6 @@ from tqdm import tqdm
 
 from . import io, llff, spc
 from .flux_scale import calibrate_flux_scale
-from .metrics import psnr
 
 log = logging.getLogger(__name__)
 
@@ -236,6 +235,9 @@ def simulate_scene(
 
 
 def view_stats(gt_srgb: np.ndarray, products: dict[str, np.ndarray], flux_scale: float) -> dict[str, float]:
+    from .metrics import psnr  # here, not at the top: metrics loads torch, which the scene, display,
+    # augmentation and summary jobs (and parsing the Snakefile) that import this module do not need
+
     exact = spc.linear_to_srgb(np.clip(products["mle"] / flux_scale, 0.0, 1.0))  # diagnostic: the exact gain
     return {
         "detection_rate": float(products["binary"].mean()),

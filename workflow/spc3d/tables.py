@@ -148,10 +148,11 @@ def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str) -> list:
     return rows
 
 
-def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
-    """Numeric table: the spec's rows (and other-budget physics rows) in blocks main | references | oracle."""
+def table(summary: pd.DataFrame, spec: list, nerf_variant: str, in_blocks: bool = True) -> pd.DataFrame:
+    """Numeric table: the spec's rows (and other-budget physics rows) in blocks main | references | oracle;
+    ``in_blocks=False``: the spec's rows alone, in the spec's order."""
     rows = []
-    for label, source, family, paper, role in spec + extra_rows(summary, spec, nerf_variant):
+    for label, source, family, paper, role in spec + (extra_rows(summary, spec, nerf_variant) if in_blocks else []):
         model = nerf_variant if family == "nerf" else family
         combo = f"{source}+{model}"
         have = combo in summary.index
@@ -174,7 +175,7 @@ def table(summary: pd.DataFrame, spec: list, nerf_variant: str) -> pd.DataFrame:
     if df.empty:
         return df
     df["block"] = [block(r, k, df) for r, k in zip(df["role"], df["K"])]
-    return df.sort_values("block", kind="stable").reset_index(drop=True)
+    return df.sort_values("block", kind="stable").reset_index(drop=True) if in_blocks else df
 
 
 def block(role: str, K, df: pd.DataFrame) -> int:
@@ -212,10 +213,9 @@ def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
             "n": df["runs"],
         }
     )
-    if df["combination"].str.endswith("+3dgs").any():  # where each 3DGS started (stage2.init, as done)
-        out["3DGS init"] = [
-            i if c.endswith("+3dgs") and isinstance(i, str) else "–" for c, i in zip(df["combination"], df["init"])
-        ]
+    is_3dgs = df["combination"].str.contains(r"\+3dgs(?:@|$)")
+    if is_3dgs.any():  # where each 3DGS started (stage2.init, as done)
+        out["3DGS init"] = [i if g and isinstance(i, str) else "–" for g, i in zip(is_3dgs, df["init"])]
     for k, (title, higher) in METRICS.items():
         r = ranks(df, f"{k}_mean", higher)
         digits = 2 if k == "psnr" else 4
@@ -321,7 +321,7 @@ def estimated_poses_table(metrics_files: list[str], stem: str, labels: dict[str,
             source, _, model = c.partition("+")
             name = f"{labels.get(split_source(source)[0], source)} + {model.partition('@')[0].upper()}"
             spec.append((name, source, model, None, "oracle" if source == "gt" else "ours"))
-    df = table(summary, spec, "")
+    df = table(summary, spec, "", in_blocks=False)
     if df.empty:
         write_text_table(stem, "No row with estimated poses: add e.g. 'bernoulli+3dgs@mle-k16' to stage2.combinations")
         return df
