@@ -341,10 +341,10 @@ def test_qualitative_figure(world, tmp_path):
     io.write_image(
         recon / "renders" / f"{view}.png", io.read_rgb(world / "scenes" / "gallery" / "images" / f"{view}.png")
     )
+    (tmp_path / "unposed").mkdir()  # a row COLMAP could not pose: train.json only, no renders -> no panel
     out = tmp_path / "fig.png"
-    qualitative_figure(
-        world / "scenes" / "gallery", world / "spc" / "gallery", {"gt+3dgs": str(recon)}, out, labels=LABELS
-    )
+    recons = {"gt+3dgs": str(recon), "mle-k4+3dgs@mle-k4": str(tmp_path / "unposed")}
+    qualitative_figure(world / "scenes" / "gallery", world / "spc" / "gallery", recons, out, labels=LABELS)
     assert io.read_image(out).shape[2] in (3, 4)
 
 
