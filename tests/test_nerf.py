@@ -280,4 +280,4 @@ def test_total_variation_value_and_closed_form_gradient():
     direct = (
         sum(((v.narrow(a, 1, 3) - v.narrow(a, 0, 3)) ** 2).mean() for a in range(3)) / 3.0
     )  # mean squared neighbour difference, averaged over the axes
-    assert float(nerf_grid.total_variation(g, 4)) == pytest.approx(float(direct), rel=1e-12)
+    assert float(nerf_grid.total_variation(g.detach(), 4)) == pytest.approx(float(direct), rel=1e-12)
