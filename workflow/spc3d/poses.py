@@ -35,6 +35,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pycolmap
 
 from . import io, llff
 from .alignment import similarity_of
@@ -106,8 +107,6 @@ def poses_record(colmap: dict, out: Path, ref: Cameras, names: list[str], source
     if colmap["registered"] < MIN_VIEWS or not pose.get("aligned"):
         why = pose.get("reason") or colmap["status"]
         return {**record, "status": f"failed: {colmap['registered']} of {colmap['total']} training views posed ({why})"}
-    import pycolmap
-
     rec = pycolmap.Reconstruction(str(out / "sparse" / "0"))
     est, idx = reconstruction_cameras(rec, names, ref)
     aligned = transform_cameras(est, *similarity_of(pose))

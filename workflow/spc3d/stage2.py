@@ -82,7 +82,8 @@ def reconstruct(
     poses = "ground truth (the scene's cameras)"
     if poses_dir is not None:
         poses = poses_summary(poses_dir)
-        frames = max(k for k in (frames, poses["frames"], 0) if k is not None) or None
+        spent = [k for k in (frames, poses["frames"]) if k is not None]  # the frames that posed the views count
+        frames = max(spent) if spent else None
         try:
             src = with_estimated_poses(src, poses_dir)
         except NoPoses as e:
