@@ -184,8 +184,9 @@ def check_consistency(config: dict, methods: list[str], combinations: list[str] 
                 f"{key}.frames = {config[key]['frames']}: more than the spc.frames = {spc_frames} "
                 f"binary frames simulated per view; raise spc.frames or lower {key}.frames"
             )
-    physics = sorted({c for c in combinations if combination_sources([c]) & physics_sources(combinations)})
-    for source in sorted(physics_sources(combinations)):
+    sources = physics_sources(combinations)
+    physics = sorted(c for c in combinations if combination_sources([c]) & sources)
+    for source in sorted(sources):
         k = split_source(source)[1]
         if k and k > spc_frames:
             raise ConfigError(

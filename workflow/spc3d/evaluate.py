@@ -54,13 +54,13 @@ def evaluate(
     """Write ``out_json`` for the renders in ``recon_dir/renders`` of the scene in ``scene_dir``."""
     recon_dir = Path(recon_dir)
     train = io.read_json(recon_dir / "train.json")
-    scene = llff.read_scene(scene_dir)
-    index = {n: i for i, n in enumerate(scene.names)}
-    per_view = []
     if train.get("status"):  # not reconstructed (e.g. COLMAP posed too few views): no scores, the reason
         record = {"scene": Path(scene_dir).name, "combination": combination_name(train), **train, "mean": None}
         io.write_json(out_json, record)
         return record
+    scene = llff.read_scene(scene_dir)
+    index = {n: i for i, n in enumerate(scene.names)}
+    per_view = []
     for name in train["test_views"]:
         pred = io.read_rgb(recon_dir / "renders" / f"{name}.png")
         per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir)})

@@ -148,7 +148,9 @@ def estimated_views(names: list[str], poses_dir: str | os.PathLike) -> tuple[lis
     unknown = sorted(set(cams["names"]) - set(names))
     if unknown:
         raise ValueError(f"{poses_dir}: posed views {unknown[:5]} are not training views of this scene")
-    order = [cams["names"].index(n) for n in names if n in cams["names"]]
+    row = {n: i for i, n in enumerate(cams["names"])}  # view -> its row in cameras.json
+    keep = [i for i, n in enumerate(names) if n in row]
+    order = [row[names[i]] for i in keep]
     cameras = Cameras(
         np.asarray(cams["w2c"], float)[order],
         np.asarray(cams["intrinsics"], float)[order],
@@ -156,7 +158,7 @@ def estimated_views(names: list[str], poses_dir: str | os.PathLike) -> tuple[lis
         int(cams["width"]),
         np.asarray(cams["bounds"], float)[order],
     )
-    return [i for i, n in enumerate(names) if n in cams["names"]], cameras
+    return keep, cameras
 
 
 def poses_summary(poses_dir: str | os.PathLike) -> dict:
