@@ -13,7 +13,8 @@ resolve_paths(config, workflow.basedir)
 
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import (PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budgets, llff_input_files,
+from spc3d.workflow import (PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budgets, folder_files,
+                            llff_input_files,
                             parse_combination, resolve_combinations, scene_specs, source_frames, spc_settings,
                             split_source, stage1_sources, translator_settings, translator_validation)
 
@@ -24,6 +25,10 @@ SCENE_SPECS = scene_specs(config, sorted(LAYOUTS))
 TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])
 ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
+# Captured SPAD scenes (config `captures`): their translators are trained for their sensor (one
+# model folder per sensor: results/models-rggb/...), and one without reference views is not scored.
+SENSORS = {"-" + s["sensor_tag"]: s["sensor"] for s in SCENE_SPECS.values() if s["kind"] == "capture"}
+NO_REFERENCE = [name for name, s in SCENE_SPECS.items() if s["kind"] == "capture" and not s["reference"]]
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
@@ -48,6 +53,7 @@ wildcard_constraints:
     method="|".join(STAGE1_METHODS),
     rep="(-seed[0-9]+)?",
     K="[0-9]+",
+    sensor="(" + "|".join(SENSORS) + ")?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
 
 
 def get_final_output():
@@ -55,7 +61,7 @@ def get_final_output():
     return [
         "results/summary/data_summary.md",
         *get_table_outputs(),
-        *expand("results/figures/qualitative_{scene}.png", scene=EVAL_SCENES),
+        *expand("results/figures/qualitative_{scene}.png", scene=[s for s in EVAL_SCENES if s not in NO_REFERENCE]),
     ]
 
 
@@ -65,13 +71,23 @@ def get_table_outputs():
 
 
 def get_stage1_outputs():
-    """Stage-1 scores (before 3D) of every scored source on every evaluation scene, for every seed."""
-    return expand("results/stage1/{scene}/{source}{rep}.json", scene=EVAL_SCENES, source=STAGE1_SCORED, rep=REPS)
+    """Stage-1 scores (before 3D) of every scored source on every evaluation scene with reference
+    views, for every seed."""
+    scored = [s for s in EVAL_SCENES if s not in NO_REFERENCE]
+    return expand("results/stage1/{scene}/{source}{rep}.json", scene=scored, source=STAGE1_SCORED, rep=REPS)
+
+
+def needs_reference(combo):
+    """Rows that read the ground truth before scoring (the oracle source or its poses)."""
+    source, _, poses = parse_combination(combo)
+    return source == "gt" or poses == "gt"
 
 
 def get_eval_outputs():
-    """metrics.json of every configured combination on every evaluation scene, for every seed."""
-    return expand("results/eval/{scene}/{combo}{rep}/metrics.json", scene=EVAL_SCENES, combo=COMBINATIONS, rep=REPS)
+    """metrics.json of every configured combination on every evaluation scene, for every seed (on a
+    capture without reference views, every row but those that need them)."""
+    return [f"results/eval/{scene}/{combo}{rep}/metrics.json" for scene in EVAL_SCENES for combo in COMBINATIONS
+            for rep in REPS if not (scene in NO_REFERENCE and needs_reference(combo))]
 
 
 def get_seed(wildcards):
@@ -123,13 +139,23 @@ def get_scene_spec(wildcards):
 
 
 def get_scene_source(wildcards):
-    """The files of a real LLFF scene (poses and every image read: an edit reruns it); none for built-ins."""
+    """The files of a real scene or capture (every one read: an edit reruns it); none for built-ins."""
     spec = SCENE_SPECS[wildcards.scene]
-    return llff_input_files(spec["path"], spec["factor"]) if spec["kind"] == "llff" else []
+    if spec["kind"] == "llff":
+        return llff_input_files(spec["path"], spec["factor"])
+    return folder_files(spec["path"]) if spec["kind"] in ("colmap", "capture") else []
+
+
+def scene_sensor(scene):
+    """"" for a simulated scene (the simulator's RGB sensor), "-<tag>" for a capture's sensor."""
+    spec = SCENE_SPECS[scene]
+    return "-" + spec["sensor_tag"] if spec["kind"] == "capture" else ""
 
 
 def get_spc_settings(wildcards):
-    return spc_settings(config["spc"], get_seed(wildcards))
+    """A simulated scene's physics and seed; a capture's folder (its frames are read, one measurement for every seed)."""
+    spec = SCENE_SPECS[wildcards.scene]
+    return {"capture": spec["path"]} if spec["kind"] == "capture" else spc_settings(config["spc"], get_seed(wildcards))
 
 
 def get_augment_count(wildcards):
@@ -151,6 +177,12 @@ def get_colmap_images(wildcards):
 
 def get_colmap_subdir(wildcards):
     return {"rgb": "images", "binary": "binary", "average": "average"}[wildcards.images]
+
+
+def get_summary_colmap():
+    """The COLMAP runs of the data summary (no RGB run on a capture without reference views)."""
+    return [f"results/colmap/{scene}/{images}" for scene in ALL_SCENES for images in COLMAP_INPUTS
+            if not (scene in NO_REFERENCE and images == "rgb")]
 
 
 def get_summary_roles():
@@ -196,7 +228,17 @@ def get_augment_ranges(wildcards):
 
 
 def get_translator_checkpoint(wildcards):
-    return f"results/checkpoints/models/{wildcards.method}{wildcards.rep}/checkpoint.pt"
+    return f"results/checkpoints/models{wildcards.sensor}/{wildcards.method}{wildcards.rep}/checkpoint.pt"
+
+
+def get_translator_sensor(wildcards):
+    """The sensor a translator's inputs are recorded by ({"cfa", "white"}); None: the simulator's RGB."""
+    return SENSORS.get(wildcards.sensor)
+
+
+def get_translator_model(wildcards):
+    """The model trained for the scene's sensor."""
+    return f"results/models{scene_sensor(wildcards.scene)}/{wildcards.method}{wildcards.rep}"
 
 
 def get_stage1_images(wildcards):

@@ -4,18 +4,18 @@
 
 rule train_translator:
     """Train one stage-1 method on the training scenes (fixed pairs or online samples), validated
-    on their held-out views."""
+    on their held-out views; "-<sensor>": with the inputs as a captured scene's sensor records them."""
     input:
         unpack(get_translator_data),
         vgg=LPIPS_WEIGHTS["vgg"],
         pretrained=get_translator_pretrained,
     output:
         report(
-            directory("results/models/{method}{rep}"),
+            directory("results/models{sensor}/{method}{rep}"),
             patterns=["{figure,curve}.png"],
             caption="../report/curve.rst",
             category="4. Stage 1 training",
-            labels={"translator": "{method}", "figure": "training curve"},
+            labels={"translator": "{method}{sensor}", "figure": "training curve"},
         ),
     params:
         settings=get_translator_settings,
@@ -23,12 +23,13 @@ rule train_translator:
         frames=config["stage1"]["frames"],
         data=config["stage1"]["data"],
         augment=get_augment_ranges,
+        sensor=get_translator_sensor,
         validation=get_translator_validation,
         seed=get_seed,
         checkpoint=get_translator_checkpoint,
         policy=config["checkpoints"],
     log:
-        "logs/train_translator/{method}{rep}.log",
+        "logs/train_translator/{method}{sensor}{rep}.log",
     threads: 1
     resources:
         gpu=1,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
@@ -42,7 +43,7 @@ rule train_translator:
 rule translate_scene:
     """Every view of a scene through a trained stage-1 method (stage 2 reads these as a source)."""
     input:
-        model="results/models/{method}{rep}",
+        model=get_translator_model,
         spc="results/spc/{scene}{rep}",
         scene="results/scenes/{scene}",
     output:

@@ -3,7 +3,7 @@ rule write_summary:
     input:
         scenes=expand("results/scenes/{scene}", scene=ALL_SCENES),
         spc=expand("results/spc/{scene}", scene=ALL_SCENES),
-        colmap=expand("results/colmap/{scene}/{images}", scene=ALL_SCENES, images=COLMAP_INPUTS),
+        colmap=get_summary_colmap(),
     output:
         csv="results/summary/data_summary.csv",
         md="results/summary/data_summary.md",

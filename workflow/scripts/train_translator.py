@@ -7,7 +7,9 @@ from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
     p, inputs = snakemake.params, snakemake.input
-    data = training_data(p.data, inputs.get("pairs", []), inputs.get("scenes", []), inputs.get("spc", []), p.augment)
+    data = training_data(
+        p.data, inputs.get("pairs", []), inputs.get("scenes", []), inputs.get("spc", []), p.augment, p.sensor
+    )
     train_translator(
         snakemake.wildcards.method,
         data.augment_dirs,

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from . import io, photon_cubes, sensors, spc
-from .exposure import display_srgb, metered_gain
+from .exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from .hot_pixels import detect_hot_pixels, read_hot_pixel_map, write_hot_pixel_map
 
 SENSOR_FILE = "sensor.json"
@@ -214,8 +214,6 @@ def reference_images(folder: str | os.PathLike, names: list[str]) -> np.ndarray 
 # --------------------------------------------------------------------------------------------
 # a first look at a capture: hot pixels, detection rates, MLE previews
 
-PREVIEW_LEVEL = 0.18  # average metering: the mean flux is shown at 18 % linear grey (a camera's default)
-
 
 def inspect_capture(
     folder: str | os.PathLike,
@@ -332,9 +330,8 @@ def _export_view(
 ) -> np.ndarray:
     """bool (K, H, W) of one view: channel bits where a pixel sees one channel, fresh draws elsewhere."""
     frames = spc.unpack_frames(*io.load_frames(spc_dir / "frames" / f"{view}.npz"))  # (K, H, W, 3)
-    cube, single = sensors.channel_bits(frames, pattern)
-    if single.all():
-        return cube
+    if sensors.channel_bits(frames[:1], pattern)[1].all():
+        return sensors.sensor_frames(frames, pattern)
     if scene_dir is None:
         raise ValueError(
             f"export of {spc_dir} with cfa {pattern.name}: its pixels that see several channels "
@@ -343,8 +340,7 @@ def _export_view(
     srgb = io.read_rgb(Path(scene_dir) / "images" / f"{view}.png")
     phi = spc.flux_from_srgb(srgb, rec["flux_scale"])  # (H, W, 3) photons/s
     rng = spc.view_rng(seed, f"{rec.get('scene', spc_dir.name)}/export", index)
-    fresh = sensors.simulate_mosaic(phi, pattern, dataclasses.replace(params, frames=len(cube)), rng)
-    return np.where(single[None], cube, fresh)
+    return sensors.sensor_frames(frames, pattern, phi, params, rng)
 
 
 def _copy_reference(scene_dir: Path, out: Path, names: list[str]) -> None:

@@ -84,10 +84,11 @@ RELAXED_INIT = {"init_min_num_inliers": 30, "init_min_tri_angle": 4.0}
 
 
 def mapping_options(
-    seed: int, num_threads: int, small: bool = False, relaxed: bool = False
+    seed: int, num_threads: int, small: bool = False, relaxed: bool = False, refine_focal: bool = False
 ) -> pycolmap.IncrementalPipelineOptions:
     """Incremental-mapping options: intrinsics fixed, seeded, ``num_threads`` threads (``small``:
-    the thresholds of :data:`SMALL_IMAGE_SETTINGS`; ``relaxed``: the first pair of :data:`RELAXED_INIT`)."""
+    the thresholds of :data:`SMALL_IMAGE_SETTINGS`; ``relaxed``: the first pair of :data:`RELAXED_INIT`;
+    ``refine_focal``: the focal length is only a first guess, refined by bundle adjustment)."""
     opts = pycolmap.IncrementalPipelineOptions()
     if small:
         s = SMALL_IMAGE_SETTINGS
@@ -96,10 +97,10 @@ def mapping_options(
     if relaxed:
         opts.mapper.init_min_num_inliers = RELAXED_INIT["init_min_num_inliers"]
         opts.mapper.init_min_tri_angle = RELAXED_INIT["init_min_tri_angle"]
-    opts.ba_refine_focal_length = False
+    opts.ba_refine_focal_length = refine_focal
     opts.ba_refine_principal_point = False
     opts.ba_refine_extra_params = False
-    opts.mapper.abs_pose_refine_focal_length = False
+    opts.mapper.abs_pose_refine_focal_length = refine_focal
     opts.mapper.abs_pose_refine_extra_params = False
     opts.num_threads = opts.mapper.num_threads = num_threads
     opts.random_seed = opts.mapper.random_seed = opts.triangulation.random_seed = seed
@@ -113,8 +114,10 @@ def run_colmap(
     max_features: int = 4096,
     seed: int = 0,
     num_threads: int = 1,
+    refine_focal: bool = False,
 ) -> pycolmap.Reconstruction | None:
-    """SIFT + exhaustive matching + incremental mapping with the intrinsics of ``cameras[0]``.
+    """SIFT + exhaustive matching + incremental mapping with the intrinsics of ``cameras[0]``
+    (fixed, or with ``refine_focal`` a first guess of the focal length that bundle adjustment refines).
 
     ``work_dir`` receives ``database.db``, ``models/`` and ``colmap.log``. Returns the
     reconstruction with the most registered images, or None when none could be built. Small
@@ -149,12 +152,12 @@ def run_colmap(
             device=pycolmap.Device.cpu,
         )
         pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
-        options = mapping_options(seed, num_threads, small)
+        options = mapping_options(seed, num_threads, small, refine_focal=refine_focal)
         best, how = largest(pycolmap.incremental_mapping(database, image_dir, work_dir / "models", options)), "default"
         posed = best.num_reg_images() if best else 0
         if small and posed < len(files) / 2:
             (work_dir / "models_relaxed").mkdir(exist_ok=True)
-            options = mapping_options(seed, num_threads, small, relaxed=True)
+            options = mapping_options(seed, num_threads, small, relaxed=True, refine_focal=refine_focal)
             retry = largest(pycolmap.incremental_mapping(database, image_dir, work_dir / "models_relaxed", options))
             if retry is not None and retry.num_reg_images() > posed:
                 best, how = retry, f"relaxed first pair {RELAXED_INIT} (the default posed {posed} of {len(files)})"
@@ -251,7 +254,7 @@ def reference_cameras(
         ref = scene_dir_or_cameras
         names = names if names is not None else [f.stem for f in image_files]
     else:
-        scene = llff.read_scene(scene_dir_or_cameras)
+        scene = llff.read_scene(scene_dir_or_cameras, with_images=False)
         ref, names = scene.cameras, names if names is not None else scene.names
     if len(names) != len(ref):
         raise ValueError(f"{len(names)} view names for {len(ref)} reference cameras")

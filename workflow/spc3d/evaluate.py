@@ -58,6 +58,8 @@ def evaluate(
         record = {"scene": Path(scene_dir).name, "combination": combination_name(train), **train, "mean": None}
         io.write_json(out_json, record)
         return record
+    if not llff.has_reference(scene_dir):
+        return write_unscored(recon_dir, scene_dir, out_json, train)
     scene = llff.read_scene(scene_dir)
     index = {n: i for i, n in enumerate(scene.names)}
     per_view = []
@@ -65,28 +67,48 @@ def evaluate(
         pred = io.read_rgb(recon_dir / "renders" / f"{name}.png")
         per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir)})
     record = {
-        "scene": Path(scene_dir).name,
-        "combination": combination_name(train),
-        **{
-            k: train.get(k)
-            for k in (
-                "source",
-                "model",
-                "objective",
-                "seed",
-                "iterations",
-                "train_s",
-                "render_s",
-                "capacity",
-                "settings",
-                "frames",
-                "poses",
-                "init",
-                "display",
-            )
-        },
+        **row_record(scene_dir, train),
         "mean": mean_scores(per_view),
         "per_view": per_view,
+        "conventions": CONVENTIONS,
+    }
+    io.write_json(out_json, record)
+    return record
+
+
+ROW_KEYS = (
+    "source",
+    "model",
+    "objective",
+    "seed",
+    "iterations",
+    "train_s",
+    "render_s",
+    "capacity",
+    "settings",
+    "frames",
+    "poses",
+    "init",
+    "display",
+)
+
+
+def row_record(scene_dir: str | os.PathLike, train: dict) -> dict:
+    """What a row consumed and how it was trained (train.json), for its metrics.json."""
+    row = {k: train.get(k) for k in ROW_KEYS}
+    return {"scene": Path(scene_dir).name, "combination": combination_name(train), **row}
+
+
+def write_unscored(recon_dir: Path, scene_dir: str | os.PathLike, out_json: str | os.PathLike, train: dict) -> dict:
+    """metrics.json of a row on a scene without reference views (a capture without images/): no
+    scores (mean null), the renders listed, and the held-out views' photons as a no-reference
+    statistic (:func:`heldout_photons`)."""
+    record = {
+        **row_record(scene_dir, train),
+        "reference": False,
+        "mean": None,
+        "status": "no reference views: renders only, not scored",
+        "renders": [str(recon_dir / "renders" / f"{n}.png") for n in train["test_views"]],
         "conventions": CONVENTIONS,
     }
     io.write_json(out_json, record)

@@ -35,26 +35,34 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io, llff, spc
+from . import io, llff, sensors, spc
 from .inputs import params_from_record, read_spc_record
 
 RULE = (
     "display gain g = mean MLE flux of the scene's first K frames (all views) / k; k fitted on the "
     "training scenes (same K) to minimise their sRGB MSE"
 )
+PREVIEW_LEVEL = 0.18  # average metering: the mean flux is shown at 18 % linear grey (a camera's default)
 LEVEL_RANGE = (1e-3, 1.0)  # linear display levels searched for k (1e-3: almost black; 1: full white)
 
 
 def mle_views(spc_dir: str | os.PathLike, K: int) -> tuple[list[str], np.ndarray]:
     """(view names, (N, H, W, 3) float32 MLE flux of each view's first ``K`` frames)."""
+    from .capture_import import spc_sensor
+
     spc_dir = Path(spc_dir)
     params = params_from_record(read_spc_record(spc_dir))
     if K > params.frames:
         raise ValueError(f"K = {K} frames asked of {spc_dir}, which stores K = {params.frames} per view")
+    sensor = spc_sensor(spc_dir)  # a capture: demosaiced, hot pixels filled (None: the simulator's RGB)
     names, out = [], []
     for path in sorted((spc_dir / "frames").glob("*.npz")):
-        bits = spc.unpack_frames(*io.load_frames(path))[:K]
-        out.append(spc.mle_flux(bits.sum(0, dtype=np.int64), K, params).astype(np.float32))
+        counts = spc.unpack_frames(*io.load_frames(path))[:K].sum(0, dtype=np.int64)
+        if sensor is None:
+            phi = spc.mle_flux(counts, K, params)
+        else:
+            phi = sensors.mle_rgb(counts, K, params, sensor[0], ~sensor[1])
+        out.append(phi.astype(np.float32))
         names.append(path.stem)
     if not names:
         raise FileNotFoundError(f"{spc_dir / 'frames'} holds no .npz frames (run simulate_scene first)")

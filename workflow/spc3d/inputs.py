@@ -8,11 +8,14 @@ as the workflow builds it from the config:
      "supersample": 3, "seed": 0}
     {"kind": "llff", "path": "../shared/data/llff/fern", "factor": 8, "width": 128}
     {"kind": "colmap", "path": "data/garden", "width": 128, "factor": 1, "undistort": False}
+    {"kind": "capture", "path": "data/my_spad_scene", "max_features": 4096, "seed": 0}
 
 All end as the same LLFF-layout folder at the working resolution (see :mod:`spc3d.llff`), so every
 later step reads one format whatever the origin of the scene. ``factor`` (default 1) and
 ``undistort`` (default False) of a COLMAP-format scene are optional (see
 :func:`spc3d.colmap_scene.load_colmap`); :func:`scene_layout` tells the two folder layouts apart.
+A captured SPAD scene (:mod:`spc3d.captures`) keeps its sensor's size, and its SPC folder holds
+its own frames, read instead of simulated (:mod:`spc3d.capture_import`).
 
 **The SPC frames** (``results/spc/{scene}/``) are simulated from the scene's views, with their
 physics inversions, one file per view and kind, stems as the scene's images:
@@ -60,8 +63,12 @@ def prepare_scene(spec: dict, out_dir: str | os.PathLike) -> None:
         import_colmap(
             spec["path"], out_dir, spec["width"], factor=spec.get("factor", 1), undistort=spec.get("undistort", False)
         )
+    elif kind == "capture":
+        from .capture_import import import_capture_scene
+
+        import_capture_scene(spec["path"], out_dir, spec.get("max_features", 4096), spec.get("seed", 0))
     else:
-        raise ValueError(f"scene spec kind must be 'builtin', 'llff' or 'colmap', got {kind!r} in {spec}")
+        raise ValueError(f"scene spec kind must be 'builtin', 'llff', 'colmap' or 'capture', got {kind!r} in {spec}")
 
 
 def named_spec(name: str, width: int, llff_root: str | os.PathLike) -> dict | None:

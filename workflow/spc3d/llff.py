@@ -32,6 +32,16 @@ from .cameras import Cameras, cameras_to_llff, llff_to_cameras
 INTRINSICS_FILE = "intrinsics.npy"  # optional, beside poses_bounds.npy (see the module docstring)
 
 
+class NoReference(ValueError):
+    """The scene has no reference RGB views (a SPAD capture without ``images/``)."""
+
+
+def has_reference(scene_dir: str | os.PathLike) -> bool:
+    """Whether a canonical scene folder holds reference RGB views (every scene but a capture without them)."""
+    meta = Path(scene_dir) / "scene.json"
+    return not meta.exists() or io.read_json(meta).get("reference", True) is not False
+
+
 @dataclass
 class SceneData:
     """Views of one scene. images: (N, H, W, 3) float32 sRGB in [0, 1] (None when read without them:
@@ -240,10 +250,13 @@ def write_scene(out_dir: str | os.PathLike, scene: SceneData, record: dict) -> N
     """Write the canonical scene folder atomically (built as a temporary folder, then renamed).
 
     ``intrinsics.npy`` is written only when ``poses_bounds.npy`` cannot hold the intrinsics
-    (see :func:`needs_intrinsics_file`)."""
+    (see :func:`needs_intrinsics_file`). A scene without reference views (``images`` None: a SPAD
+    capture without RGB) has no ``images/``; ``scene.json`` then lists its view names and says
+    ``"reference": false``, and only :func:`read_scene` ``with_images=False`` reads it."""
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for i, name in enumerate(scene.names):
-            io.write_image(tmp / "images" / f"{name}.png", scene.images[i])
+            if scene.images is not None:
+                io.write_image(tmp / "images" / f"{name}.png", scene.images[i])
             if scene.depths is not None:
                 io.write_image(tmp / "depth" / f"{name}.exr", scene.depths[i][:, :, None])
         io.save_npy(tmp / "poses_bounds.npy", cameras_to_llff(scene.cameras))
@@ -254,6 +267,8 @@ def write_scene(out_dir: str | os.PathLike, scene: SceneData, record: dict) -> N
             {
                 **scene.meta,
                 **record,
+                "reference": scene.images is not None,
+                **({} if scene.images is not None else {"names": list(scene.names)}),
                 "views": len(scene.names),
                 "height": scene.cameras.height,
                 "width": scene.cameras.width,
@@ -268,14 +283,23 @@ def read_scene(scene_dir: str | os.PathLike, with_depth: bool = False, with_imag
     consumer that must not see the ground truth (non-oracle sources, renderers) asks for.
     """
     scene_dir = Path(scene_dir)
-    if with_images:
+    meta_path = scene_dir / "scene.json"
+    meta = io.read_json(meta_path) if meta_path.exists() else {}
+    if meta.get("reference") is False:
+        if with_images:
+            raise NoReference(
+                f"{scene_dir} has no reference views (a capture without images/): its rows get outputs and "
+                "no-reference statistics only; a source or metric that needs the ground truth cannot run on it"
+            )
+        pb = np.load(scene_dir / "poses_bounds.npy", allow_pickle=False)
+        data = SceneData(None, llff_cameras(scene_dir, pb, meta["height"], meta["width"]), list(meta["names"]))
+    elif with_images:
         data = load_llff(scene_dir, factor=1)
     else:
         files, poses_bounds = llff_contents(scene_dir, 1)
         h, w, _ = io.image_shape(files[0])
         data = SceneData(None, llff_cameras(scene_dir, poses_bounds, h, w), [f.stem for f in files])
-    meta_path = scene_dir / "scene.json"
-    data.meta = io.read_json(meta_path) if meta_path.exists() else {}
+    data.meta = meta
     if with_depth and (scene_dir / "depth").is_dir():
         data.depths = np.stack([io.read_image(scene_dir / "depth" / f"{n}.exr")[:, :, 0] for n in data.names])
     return data

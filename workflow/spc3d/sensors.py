@@ -29,6 +29,7 @@ Conventions
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -204,6 +205,36 @@ def simulate_mosaic(
     the simulator's own sampler for ``params.mode``."""
     plane = mosaic(spc._check_flux(phi), pattern)
     return spc._SAMPLERS[params.mode](plane, params, rng)  # noqa: SLF001 - the simulator's sampler, reused
+
+
+def sensor_frames(
+    frames: np.ndarray,
+    pattern: CFAPattern,
+    phi: np.ndarray | None = None,
+    params: spc.SPCParams | None = None,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
+    """The simulator's bool (K, H, W, 3) frames as sensor ``pattern`` records them, bool (K, H, W):
+    pixels that see one channel keep its bits (:func:`channel_bits`, exact); pixels that see several
+    (W, mono) are drawn afresh from the flux ``phi`` (H, W, 3) photons/s with ``params`` and ``rng``
+    (:func:`simulate_mosaic`), which only they need."""
+    cube, single = channel_bits(frames, pattern)
+    if single.all():
+        return cube
+    if phi is None or params is None or rng is None:
+        raise ValueError(
+            f"pattern {pattern.name}: its pixels that see several channels (W, mono) are drawn from the "
+            "flux; give phi (H, W, 3 photons/s), params and rng"
+        )
+    fresh = simulate_mosaic(phi, pattern, dataclasses.replace(params, frames=len(cube)), rng)
+    return np.where(single[None], cube, fresh)
+
+
+def sensor_input(cube: np.ndarray, pattern: CFAPattern, valid: np.ndarray | None = None) -> np.ndarray:
+    """A stage-1 translator's input from a sensor's bool (K, H, W) frames: (H, W, 3) float32, the
+    bilinear demosaic of their mean (hot pixels, ``valid`` False, filled from their neighbours).
+    The simulator's RGB sensor gives the mean of its (K, H, W, 3) frames instead."""
+    return demosaic_average(cube, pattern, valid).astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------

@@ -70,6 +70,7 @@ def load_source(
             )
         targets = bit_fractions(Path(spc_dir), names, frames)
         objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir, likelihood=True))
+        targets, objective = sensor_targets(Path(spc_dir), targets, objective)
     else:
         folder = Path(image_dir) if image_dir else _image_folder(name, Path(scene_dir), spc_dir, display_dir, frames)
         targets, objective = np.stack([_read_view(folder, n, cams) for n in names]), None
@@ -115,8 +116,25 @@ def _read_view(folder: Path, name: str, cams) -> np.ndarray:
     return img
 
 
+def sensor_targets(spc_dir: Path, fractions: np.ndarray, objective: BernoulliObjective):
+    """A capture's (N, H, W) fractions as (N, H, W, 5) targets of the mosaic likelihood (each pixel's
+    fraction, the channel weights it sees, 0 at hot pixels: :func:`spc3d.sensors.pack_mosaic_target`);
+    the simulator's RGB fractions pass through."""
+    from .capture_import import spc_sensor
+    from .sensors import MosaicBernoulliObjective, cfa_mask, pack_mosaic_target
+
+    sensor = spc_sensor(spc_dir)
+    if sensor is None:
+        return fractions, objective
+    pattern, valid = sensor
+    weights = torch.from_numpy(cfa_mask(pattern, *fractions.shape[1:3]))
+    packed = pack_mosaic_target(torch.from_numpy(fractions), weights, torch.from_numpy(valid))
+    return packed.numpy(), MosaicBernoulliObjective(objective)
+
+
 def bit_fractions(spc_dir: Path, names: list[str], frames: int) -> np.ndarray:
-    """(N, H, W, 3) fraction of ones over the first ``frames`` binary frames of each view."""
+    """(N, H, W, 3) fraction of ones over the first ``frames`` binary frames of each view ((N, H, W)
+    for a capture's one bit per pixel)."""
     out = []
     for n in names:
         bits = spc.unpack_frames(*io.load_frames(spc_dir / "frames" / f"{n}.npz"))

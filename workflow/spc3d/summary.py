@@ -16,9 +16,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import io, spc
+from . import io
 from .plotting import pyplot, save_png
 from .inputs import read_spc_record
+from .exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 
 
 def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role: str) -> dict:
@@ -33,9 +34,10 @@ def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role
         "size": f"{meta['width']}x{meta['height']}",
         "K": rec["params"]["frames"],
         "flux_scale": rec["flux_scale"],
+        "sensor": (rec.get("sensor") or {}).get("name", "RGB (simulated)"),
         "detection_rate": rec["mean_detection_rate"],
-        "saturated": rec["mean_saturated_fraction"],
-        "mle_psnr_exact_gain_db": rec["mean_mle_psnr_exact_gain_db"],
+        "saturated": rec.get("mean_saturated_fraction"),
+        "mle_psnr_exact_gain_db": rec.get("mean_mle_psnr_exact_gain_db"),  # simulated scenes: the flux scale is known
     }
     for name, d in colmap_dirs.items():
         row |= colmap_columns(name, io.read_json(d / "pose_error.json"))
@@ -64,11 +66,13 @@ def write_tables(df: pd.DataFrame, csv_path: str | os.PathLike, md_path: str | o
 
 def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray]]:
     """(view name, [rgb, binary, average, MLE at the exact gain]) of the scene's first view (a test view)."""
-    view = sorted((scene_dir / "images").glob("*.png"))[0].stem
-    paths = [scene_dir / "images" / f"{view}.png"] + [spc_dir / k / f"{view}.png" for k in ("binary", "average")]
+    view = sorted(p.stem for p in (spc_dir / "binary").glob("*.png"))[0]
     flux = io.read_image(spc_dir / "mle" / f"{view}.exr")
-    mle = spc.linear_to_srgb(np.clip(flux / read_spc_record(spc_dir)["flux_scale"], 0.0, 1.0))
-    return view, [io.read_rgb(p) for p in paths] + [mle]
+    scale = read_spc_record(spc_dir)["flux_scale"]  # None for a capture: average metering instead
+    mle = display_srgb(flux, scale if scale is not None else metered_gain(flux, PREVIEW_LEVEL))
+    reference = scene_dir / "images" / f"{view}.png"
+    rgb = io.read_rgb(reference) if reference.is_file() else np.zeros_like(mle)  # a capture without reference views
+    return view, [rgb] + [io.read_rgb(spc_dir / k / f"{view}.png") for k in ("binary", "average")] + [mle]
 
 
 def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: int) -> None:

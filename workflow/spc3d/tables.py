@@ -254,6 +254,15 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protoco
     io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
 
 
+def write_empty_table(stem: str | os.PathLike, caption: str) -> None:
+    """The four files of a table without rows, each saying why (``caption``)."""
+    stem = Path(stem)
+    io.write_text(stem.with_suffix(".csv"), "combination\n")
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n")
+    io.write_text(stem.with_suffix(".tex"), f"% {caption}\n")
+    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table="", protocol=""))
+
+
 def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
     """Paper Table 2 layout (+ this project's rows) from the given metrics files."""
     df = table(summarise(collect(metrics_files)), SINGLE_STAGE, nerf_variant)
@@ -355,4 +364,6 @@ def write_all_tables(
     estimated_poses_table(metrics_files, folder / "estimated_poses", labels)
     if stage1_files:
         stage1_table(stage1_files, folder / "stage1", labels)
+    else:  # every evaluation scene is a capture without reference views: nothing to score before 3D
+        write_empty_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
     write_findings(metrics_files, folder / "findings", nerf_variant)

@@ -90,16 +90,14 @@ def write_benchmark(path: Path | None, wall_s: float, status: str) -> None:
 
 def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
     """Scene name -> spec for :func:`spc3d.inputs.prepare_scene`, checking every name in the config."""
-    res, llff_scenes = config["resolution"], config["llff_scenes"]
+    res, llff_scenes, captures = config["resolution"], config["llff_scenes"], config.get("captures", {})
     specs = {}
     for role in ("train", "eval"):
         for name in config["scenes"][role]:
-            if name in llff_scenes:
-                path = Path(base_dir) / llff_scenes[name]
-                if not (path / "poses_bounds.npy").is_file():
-                    raise ConfigError(f"llff_scenes.{name}: {path} is not an LLFF folder (no poses_bounds.npy)")
-                specs[name] = {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
-                llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")  # checked now, not in a job
+            if name in captures:
+                specs[name] = capture_spec(name, Path(base_dir) / captures[name], role, config)
+            elif name in llff_scenes:
+                specs[name] = real_scene_spec(name, Path(base_dir) / llff_scenes[name], res)
             elif name in builtin_layouts:
                 specs[name] = {
                     "kind": "builtin",
@@ -113,13 +111,63 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
             else:
                 raise ConfigError(
                     f"scenes.{role}: unknown scene {name!r}; use a built-in layout "
-                    f"({', '.join(builtin_layouts)}) or add it to llff_scenes as name: folder"
+                    f"({', '.join(builtin_layouts)}), add it to llff_scenes as name: folder, "
+                    "or to captures as name: capture folder"
                 )
     overlap = set(config["scenes"]["train"]) & set(config["scenes"]["eval"])
     if overlap:
         raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
     check_disjoint_content(config["scenes"]["train"], config["scenes"]["eval"])
     return specs
+
+
+def real_scene_spec(name: str, path: Path, res: dict) -> dict:
+    """The spec of a real RGB scene: an LLFF folder (checked now, not in a job) or a COLMAP-format one."""
+    from .inputs import scene_layout
+
+    try:
+        layout = scene_layout(path)
+    except FileNotFoundError as e:
+        raise ConfigError(f"llff_scenes.{name}: {path} is not an LLFF folder nor a COLMAP-format one: {e}") from None
+    if layout == "colmap":
+        return {"kind": "colmap", "path": str(path), "factor": 1, "width": res["width"], "undistort": True}
+    llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")
+    return {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
+
+
+def capture_spec(name: str, path: Path, role: str, config: dict) -> dict:
+    """The spec of a captured SPAD scene (:mod:`spc3d.captures`), its sensor.json checked now."""
+    from .capture_import import capture_sensor
+
+    where = f"captures.{name}"
+    if role != "eval":
+        raise ConfigError(
+            f"scenes.train lists capture {name!r}: translators train on simulated scenes (RGB truth and "
+            "photons drawn from it); list captures in scenes.eval"
+        )
+    if not (path / "sensor.json").is_file():
+        raise ConfigError(f"{where}: {path} is not a capture folder (no sensor.json; see spc3d.captures)")
+    try:
+        tag, sensor = capture_sensor(path)
+    except (ValueError, FileNotFoundError) as e:
+        raise ConfigError(f"{where}: {e}") from None
+    return {
+        "kind": "capture",
+        "path": str(path),
+        "sensor_tag": tag,
+        "sensor": sensor,
+        "reference": (path / "images").is_dir(),
+        "max_features": config["colmap"]["max_features"],
+        "seed": config["seed"],
+    }
+
+
+def folder_files(path: str | Path) -> list[str]:
+    """Every file of a capture or COLMAP-format scene folder (sensor.json, frames, reference views,
+    poses, sparse model): rule inputs, so an edit reruns the scene and what follows."""
+    path = Path(path)
+    files = [p for p in sorted(path.rglob("*")) if p.is_file() and not any(s.startswith(".") for s in p.parts)]
+    return [str(p) for p in files]
 
 
 def check_disjoint_content(train: list[str], evaluate: list[str]) -> None:

@@ -24,9 +24,12 @@ def sweep_scenes(
     scene: str | None, train: list[str] | None, eval_scenes: list[str], train_scenes: list[str], known: list[str]
 ) -> tuple[str, list[str]]:
     """(evaluation scene, training scenes) of the sweeps: ``tradeoff.scene`` / ``train_scenes`` or the
-    first of ``scenes.eval`` / ``scenes.train``; every name must be ``known`` and the two disjoint."""
-    scene = scene or eval_scenes[0]
+    first of ``scenes.eval`` / ``scenes.train``; every name must be ``known`` and the two disjoint.
+    A sweep simulates its scene at every budget, so its default is the first evaluation scene that is
+    not a capture (or, when all are, the first known scene outside the training ones)."""
     train = list(train_scenes if train is None else train)
+    simulated = [s for s in eval_scenes if s in known] or [s for s in known if s not in train]
+    scene = scene or simulated[0]
     for key, names in (("tradeoff.scene", [scene]), ("tradeoff.train_scenes", train)):
         for name in names:
             if name not in known:

@@ -78,6 +78,7 @@ def translate_scene(
     if threads:
         torch.set_num_threads(threads)
     method, model = load_translator(model_dir)
+    pattern, valid = input_sensor(model_dir, spc_dir)
     names = llff.read_scene(scene_dir, with_images=False).names
     times = []
     with io.atomic_path(out_dir, is_dir=True) as tmp:
@@ -85,7 +86,7 @@ def translate_scene(
         if model.prior is not None:
             (Path(tmp) / "prior").mkdir()
         for name in names:
-            x = torch.from_numpy(binary_input(Path(spc_dir) / "frames" / f"{name}.npz", frames))
+            x = torch.from_numpy(binary_input(Path(spc_dir) / "frames" / f"{name}.npz", frames, pattern, valid))
             x = x.permute(2, 0, 1)[None].to(model.device)
             t0 = time.perf_counter()
             y = self_ensemble(model.translate, x, ensemble)[0]
@@ -106,10 +107,30 @@ def translate_scene(
             "seconds_per_image": float(np.mean(times)),
             "device": str(model.device),
             "prior": prior,
+            "sensor": None if pattern is None else pattern.name,
         }
         io.write_json(Path(tmp) / "translate.json", record)
     log.info("%s: %d views of %s in %.2f s each", method, len(names), Path(scene_dir).name, record["seconds_per_image"])
     return record
+
+
+def input_sensor(model_dir: str | os.PathLike, spc_dir: str | os.PathLike):
+    """(pattern, valid) of a scene's SPC folder (None, None: the simulator's RGB frames), checked
+    against the sensor the model in ``model_dir`` was trained for (its train.json)."""
+    from ..capture_import import sensor_tag, spc_sensor
+    from .data import sensor_pattern
+
+    train_json = Path(model_dir) / "train.json"
+    trained = sensor_pattern(io.read_json(train_json).get("sensor")) if train_json.is_file() else None
+    found = spc_sensor(spc_dir)
+    have = None if found is None else sensor_tag(found[0])
+    want = None if trained is None else sensor_tag(trained)
+    if have != want:
+        raise ValueError(
+            f"{model_dir} was trained on inputs of the {want or 'simulated RGB'} sensor but {spc_dir} holds "
+            f"{have or 'simulated RGB'} frames; the workflow trains one model per sensor (results/models-<sensor>)"
+        )
+    return (None, None) if found is None else found
 
 
 def score_images(

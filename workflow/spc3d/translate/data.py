@@ -18,34 +18,74 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import io, spc
+from .. import io, sensors, spc
+from ..sensors import CFAPattern
 
 
-def binary_input(frames_npz: str | os.PathLike, frames: int) -> np.ndarray:
-    """(H, W, 3) float32 mean of the first ``frames`` binary frames stored in ``frames_npz``."""
+def binary_input(
+    frames_npz: str | os.PathLike,
+    frames: int,
+    pattern: CFAPattern | None = None,
+    valid: np.ndarray | None = None,
+    phi: np.ndarray | None = None,
+    params: spc.SPCParams | None = None,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
+    """(H, W, 3) float32 input of the first ``frames`` binary frames stored in ``frames_npz``.
+
+    The simulator's RGB frames (K, H, W, 3) give their mean; with a sensor ``pattern`` they are
+    first recorded as that sensor would (:func:`spc3d.sensors.sensor_frames`: ``phi``, ``params``
+    and ``rng`` draw its W / mono pixels). A capture's frames (K, H, W) give their demosaiced mean
+    (:func:`spc3d.sensors.sensor_input`, ``valid`` False at hot pixels).
+    """
     bits = spc.unpack_frames(*io.load_frames(frames_npz))
     if not 1 <= frames <= bits.shape[0]:
         raise ValueError(
             f"stage1.frames={frames} but {frames_npz} stores K={bits.shape[0]} frames "
             f"(use 1..{bits.shape[0]}, or simulate more with spc.frames)"
         )
-    return bits[:frames].mean(0, dtype=np.float32)
+    bits = bits[:frames]
+    if bits.ndim == 3:
+        if pattern is None:
+            raise ValueError(f"{frames_npz}: one bit per pixel (a capture's mosaic) but no sensor pattern was given")
+        return sensors.sensor_input(bits, pattern, valid)
+    if pattern is None:
+        return bits.mean(0, dtype=np.float32)
+    return sensors.sensor_input(sensors.sensor_frames(bits, pattern, phi, params, rng), pattern)
 
 
-def load_pairs(augment_dirs: list[str | os.PathLike], frames: int) -> tuple[list[Tensor], list[Tensor]]:
+def sensor_pattern(sensor: dict | None) -> CFAPattern | None:
+    """The pattern of a translator's ``sensor`` setting ({"cfa": ..., "white": ...}; None: the simulator's RGB)."""
+    return None if sensor is None else sensors.cfa_pattern(sensor["cfa"], sensor.get("white", "sum"))
+
+
+def load_pairs(
+    augment_dirs: list[str | os.PathLike], frames: int, sensor: dict | None = None
+) -> tuple[list[Tensor], list[Tensor]]:
     """All pairs of the given augment folders: binary and rgb lists of (3, H, W) float32 tensors.
 
     Scenes may differ in size (LLFF captures keep their aspect ratio): training crops a fixed
-    square from every pair, so only the crop must fit.
+    square from every pair, so only the crop must fit. ``sensor``: the inputs as that sensor
+    records them (:func:`binary_input`); its W / mono pixels are drawn from the pair's RGB at the
+    scene's exposure (augment.json), seeded by the pair.
     """
     binary, rgb = [], []
+    pattern = sensor_pattern(sensor)
     for folder in map(Path, augment_dirs):
         names = sorted(p.stem for p in (folder / "frames").glob("*.npz"))
         if not names:
             raise FileNotFoundError(f"{folder}/frames holds no .npz pairs: run the augment_scene rule first")
-        for name in names:
-            b = binary_input(folder / "frames" / f"{name}.npz", frames)
+        record = io.read_json(folder / "augment.json") if pattern is not None else None
+        for i, name in enumerate(names):
             r = io.read_rgb(folder / "rgb" / f"{name}.png")
+            drawn = {}
+            if record is not None:
+                drawn = {
+                    "phi": spc.flux_from_srgb(r, record["flux_scale"]),
+                    "params": spc.SPCParams(**record["spc_params"]),
+                    "rng": spc.view_rng(record["seed"], f"{record['scene']}/sensor", i),
+                }
+            b = binary_input(folder / "frames" / f"{name}.npz", frames, pattern, **drawn)
             if b.shape != r.shape:
                 raise ValueError(
                     f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; rerun the augment_scene rule"

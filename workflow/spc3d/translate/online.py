@@ -27,11 +27,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import llff, spc
+from .. import llff, sensors, spc
 from ..augment import AugmentSettings, sample_params, warp_linear
 from ..cameras import split_views
 from ..inputs import params_from_record, read_spc_record
-from .data import chw
+from .data import chw, sensor_pattern
 
 
 @dataclass
@@ -77,7 +77,9 @@ class OnlineSampler:
         seed: int,
         augment: AugmentSettings = AugmentSettings(),
         paired: bool = True,
+        sensor: dict | None = None,
     ):
+        """``sensor``: the inputs as that sensor records them ({"cfa", "white"}; None: the simulator's RGB)."""
         smallest = min(min(v.shape[:2]) for s in sources for v in s.views)
         if crop > smallest:
             raise ValueError(
@@ -87,6 +89,7 @@ class OnlineSampler:
         self.rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([seed, zlib.crc32(b"stage1-online")])))
         self.drawn = 0  # samples drawn so far (each one distinct)
         self.seed = seed
+        self.pattern = sensor_pattern(sensor)
 
     def window(self) -> tuple[SceneSource, np.ndarray]:
         """A random scene, training view, affine map and crop: (scene, linear crop (crop, crop, 3))."""
@@ -102,9 +105,17 @@ class OnlineSampler:
         in sRGB, both (3, crop, crop)."""
         source, linear = self.window()
         srgb = spc.linear_to_srgb(linear).astype(np.float32)
-        bits = spc.simulate_frames(srgb, source.flux_scale, source.params, self.rng)
         self.drawn += 1
-        return source, chw(bits.mean(0, dtype=np.float32)), chw(srgb)
+        return source, chw(self.input(srgb, source, self.rng)), chw(srgb)
+
+    def input(self, srgb: np.ndarray, source: SceneSource, rng: np.random.Generator) -> np.ndarray:
+        """(H, W, 3) input of a fresh Bernoulli sample of ``srgb``: the K-frame mean, or as the
+        sensor records it (demosaiced; its W / mono pixels drawn from the same flux)."""
+        bits = spc.simulate_frames(srgb, source.flux_scale, source.params, rng)
+        if self.pattern is None:
+            return bits.mean(0, dtype=np.float32)
+        phi = spc.flux_from_srgb(srgb, source.flux_scale)
+        return sensors.sensor_input(sensors.sensor_frames(bits, self.pattern, phi, source.params, rng), self.pattern)
 
     def __call__(self) -> tuple[Tensor, Tensor]:
         """(B, 3, crop, crop) binary input and RGB target (from other samples when unpaired)."""
@@ -122,8 +133,7 @@ class OnlineSampler:
         for source in self.sources:
             for linear in source.views:
                 srgb = spc.linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
-                bits = spc.simulate_frames(srgb, source.flux_scale, source.params, rng)
-                yield chw(bits.mean(0, dtype=np.float32)), chw(srgb)
+                yield chw(self.input(srgb, source, rng)), chw(srgb)
 
     def describe(self) -> dict:
         """For train.json: the mode, the samples drawn (all distinct), the scenes and their views."""

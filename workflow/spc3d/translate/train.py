@@ -189,6 +189,7 @@ class TrainingData:
     scene_dirs: tuple = ()  # results/scenes/{scene} of the training scenes (online; validation views)
     spc_dirs: tuple = ()  # their results/spc/{scene}{rep} (online: exposure and physics; validation input)
     augment: AugmentSettings = AugmentSettings()  # the online samples' augmentation ranges (the augment block)
+    sensor: dict | None = None  # the sensor the inputs are recorded by ({"cfa", "white"}); None: the simulator's RGB
 
     def __post_init__(self):
         data_mode(self.mode)
@@ -209,9 +210,15 @@ class TrainingData:
 
 
 def training_data(
-    mode: str = "fixed", augment_dirs=(), scene_dirs=(), spc_dirs=(), augment: dict | None = None
+    mode: str = "fixed",
+    augment_dirs=(),
+    scene_dirs=(),
+    spc_dirs=(),
+    augment: dict | None = None,
+    sensor: dict | None = None,
 ) -> TrainingData:
-    """TrainingData from the rule's values (``augment``: the config's augment block, ``count`` ignored)."""
+    """TrainingData from the rule's values (``augment``: the config's augment block, ``count``
+    ignored; ``sensor``: a capture's sensor, :func:`spc3d.capture_import.capture_sensor`)."""
     ranges = {k: v for k, v in (augment or {}).items() if k != "count"}
     return TrainingData(
         mode,
@@ -219,6 +226,7 @@ def training_data(
         tuple(map(str, scene_dirs)),
         tuple(map(str, spc_dirs)),
         build_config(AugmentSettings, ranges, "augment"),
+        sensor,
     )
 
 
@@ -226,8 +234,8 @@ def make_sampler(data: TrainingData, s: TrainSettings, frames: int, seed: int, p
     """The fixed pairs' :class:`PairSampler` or an :class:`OnlineSampler` of the training scenes."""
     if data.mode == "online":
         sources = load_sources(list(data.scene_dirs), list(data.spc_dirs), frames)
-        return OnlineSampler(sources, s.batch_size, s.crop, seed, data.augment, paired=paired)
-    binary, rgb = load_pairs(list(data.augment_dirs), frames)
+        return OnlineSampler(sources, s.batch_size, s.crop, seed, data.augment, paired=paired, sensor=data.sensor)
+    binary, rgb = load_pairs(list(data.augment_dirs), frames, data.sensor)
     return PairSampler(binary, rgb, s.batch_size, s.crop, seed, paired=paired)
 
 
@@ -241,7 +249,7 @@ def make_validator(data: TrainingData, validation: dict | None, frames: int, ite
             f"stage1.validation.every = {v.every} needs the training scenes' folders and SPC folders "
             "(their held-out views); set stage1.validation.every: 0 to train without validation"
         )
-    return Validator(load_views(list(data.scene_dirs), list(data.spc_dirs), frames), v, iterations)
+    return Validator(load_views(list(data.scene_dirs), list(data.spc_dirs), frames, data.sensor), v, iterations)
 
 
 @dataclass
@@ -295,6 +303,7 @@ def setup_training(
         "pretrained": pretrained,
         "data": data.mode,
         "augment": dataclasses.asdict(data.augment) if data.mode == "online" else None,
+        "sensor": data.sensor,
         "validation": dataclasses.asdict(validator.s) if validator else None,
     }
     inputs = input_digests or data.digests()

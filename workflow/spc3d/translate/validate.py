@@ -26,11 +26,12 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from .. import io, llff
+from .. import io, llff, spc
 from ..cameras import split_views
+from ..inputs import read_spc_record
 from ..metrics import psnr
 from ..training import build_config
-from .data import binary_input, chw
+from .data import binary_input, chw, sensor_pattern
 
 
 @dataclass(frozen=True)
@@ -60,21 +61,27 @@ class ValidationView:
 
 
 def load_views(
-    scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike], frames: int
+    scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike], frames: int, sensor: dict | None = None
 ) -> list[ValidationView]:
-    """The held-out views of the training scenes with their stored binary input."""
-    views = []
+    """The held-out views of the training scenes with their stored binary input (as ``sensor``
+    records it, :func:`.data.binary_input`: its W / mono pixels drawn from the view at the scene's
+    exposure, seeded by the view)."""
+    views, pattern = [], sensor_pattern(sensor)
     for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
         names = llff.read_scene(scene_dir, with_images=False).names
+        record = read_spc_record(spc_dir)
         for i in split_views(len(names))[1]:
             name = names[i]
-            views.append(
-                ValidationView(
-                    f"{scene_dir.name}/{name}",
-                    chw(binary_input(spc_dir / "frames" / f"{name}.npz", frames)),
-                    chw(io.read_rgb(scene_dir / "images" / f"{name}.png")),
-                )
-            )
+            rgb = io.read_rgb(scene_dir / "images" / f"{name}.png")
+            drawn = {}
+            if pattern is not None:
+                drawn = {
+                    "phi": spc.flux_from_srgb(rgb, record["flux_scale"]),
+                    "params": spc.SPCParams(**record["params"]),
+                    "rng": spc.view_rng(record.get("seed") or 0, f"{scene_dir.name}/sensor-validation", int(i)),
+                }
+            binary = binary_input(spc_dir / "frames" / f"{name}.npz", frames, pattern, **drawn)
+            views.append(ValidationView(f"{scene_dir.name}/{name}", chw(binary), chw(rgb)))
     return views
 
 
