@@ -79,11 +79,8 @@ def simulated_capture(tmp_path, frames):
     params = dataclasses.replace(spc.SPCParams(), frames=frames)
     simulate_scene(scene, tmp_path / "truth" / "spc", params, seed=0)
     capture = tmp_path / "captures" / "dark"
-    export_simulated(tmp_path / "truth" / "spc", capture, "RGGB", "npy", scene_dir=scene)
-    os.remove(capture / "poses_bounds.npy")
-    for f in (capture / "images").iterdir():
-        f.unlink()
-    (capture / "images").rmdir()
+    export_simulated(tmp_path / "truth" / "spc", capture, "RGGB", "npy")  # no scene_dir: no images, no poses
+    assert not (capture / "images").exists() and not (capture / "poses_bounds.npy").exists()
     return capture, scene
 
 
@@ -114,6 +111,8 @@ def test_capture_without_poses_or_reference_runs_on_photon_poses(tmp_path, lpips
     for row in ("mle-k64+3dgs", "bernoulli+3dgs"):
         m = io.read_json(res / "eval" / "dark" / row / "metrics.json")
         assert m["reference"] is False and m["mean"] is None and len(m["renders"]) == 3
+        heldout = m["no_reference"]  # how well the renders explain the held-out views' 64 frames
+        assert heldout["frames"] == 64 and heldout["views"] == 3 and 0 <= heldout["excess_nll"] < heldout["nll"]
         assert all(os.path.isfile(tmp_path / r) or os.path.isfile(r) for r in m["renders"])
     assert not (res / "eval" / "dark" / "gt+3dgs").exists()  # the oracle needs reference views
     assert not (res / "figures" / "qualitative_dark.png").exists()

@@ -27,7 +27,7 @@ EVAL_SCENES = list(config["scenes"]["eval"])
 ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
 # Captured SPAD scenes (config `captures`): their translators are trained for their sensor (one
 # model folder per sensor: results/models-rggb/...), and one without reference views is not scored.
-SENSORS = {"-" + s["sensor_tag"]: s["sensor"] for s in SCENE_SPECS.values() if s["kind"] == "capture"}
+SENSORS = {f"-{s['sensor_tag']}": s["sensor"] for s in SCENE_SPECS.values() if s["kind"] == "capture"}
 NO_REFERENCE = [name for name, s in SCENE_SPECS.items() if s["kind"] == "capture" and not s["reference"]]
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
@@ -53,7 +53,7 @@ wildcard_constraints:
     method="|".join(STAGE1_METHODS),
     rep="(-seed[0-9]+)?",
     K="[0-9]+",
-    sensor="(" + "|".join(SENSORS) + ")?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
+    sensor=f"({'|'.join(SENSORS)})?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
 
 
 def get_final_output():
@@ -123,6 +123,11 @@ def get_reconstruct_inputs(wildcards):
     return inputs
 
 
+def get_eval_frames(wildcards):
+    """A scene without reference views is scored on its held-out frames (spc3d.heldout); others need none."""
+    return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE else []
+
+
 def get_model_settings(wildcards):
     """The config's settings of the stage-2 model (overrides of its dataclass defaults)."""
     return dict(config["stage2"][wildcards.model])
@@ -149,7 +154,7 @@ def get_scene_source(wildcards):
 def scene_sensor(scene):
     """"" for a simulated scene (the simulator's RGB sensor), "-<tag>" for a capture's sensor."""
     spec = SCENE_SPECS[scene]
-    return "-" + spec["sensor_tag"] if spec["kind"] == "capture" else ""
+    return f"-{spec['sensor_tag']}" if spec["kind"] == "capture" else ""
 
 
 def get_spc_settings(wildcards):

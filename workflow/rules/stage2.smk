@@ -39,11 +39,13 @@ rule reconstruct:
 
 
 rule evaluate:
-    """PSNR / SSIM / LPIPS (alex, vgg) of the held-out renders against the ground truth."""
+    """PSNR / SSIM / LPIPS (alex, vgg) of the held-out renders against the ground truth; on a capture
+    without reference views, how well the renders explain the held-out views' photons instead."""
     input:
         recon="results/recon/{scene}/{source}+{model}{poses}{rep}",
         scene="results/scenes/{scene}",
         lpips=rules.lpips_weights.output,
+        spc=get_eval_frames,
     output:
         "results/eval/{scene}/{source}+{model}{poses}{rep}/metrics.json",
     log:

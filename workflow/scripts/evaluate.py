@@ -11,4 +11,5 @@ with logged(snakemake.log[0]):
         snakemake.input.scene,
         snakemake.output[0],
         lpips_dir=Path(snakemake.input.lpips[0]).parent,
+        spc_dir=snakemake.input.spc or None,
     )

@@ -281,13 +281,15 @@ def export_simulated(
     scene_dir: str | os.PathLike | None = None,
     white: str = "sum",
     seed: int = 0,
+    poses: bool = True,
 ) -> dict:
     """Write a simulated scene's SPC folder (``results/spc/{scene}``) as a captured scene.
 
     Pixels that see one channel keep that channel's simulated bits (the simulated route's exact
     measurement). Pixels that see several (W, mono) are drawn afresh from the scene's flux
     (``scene_dir`` images x the simulation's flux scale; seeded by ``seed``, scene and view). With
-    ``scene_dir``, its images and poses_bounds.npy are copied as the reference views and poses.
+    ``scene_dir``, its images and (unless ``poses`` is False) poses_bounds.npy are copied as the
+    reference views and poses.
     Returns the sensor.json record.
     """
     spc_dir, out_dir = Path(spc_dir), Path(out_dir)
@@ -314,7 +316,7 @@ def export_simulated(
         record = sensor_record(params, pattern, w, h, fmt, bitorder, source=source)
         io.write_json(tmp / SENSOR_FILE, record)
         if scene_dir is not None:
-            _copy_reference(Path(scene_dir), tmp, names)
+            _copy_reference(Path(scene_dir), tmp, names, poses)
     return record
 
 
@@ -343,12 +345,12 @@ def _export_view(
     return sensors.sensor_frames(frames, pattern, phi, params, rng)
 
 
-def _copy_reference(scene_dir: Path, out: Path, names: list[str]) -> None:
+def _copy_reference(scene_dir: Path, out: Path, names: list[str], poses: bool = True) -> None:
     files = {p.stem: p for p in io.list_images(scene_dir / "images")}
     for view in names:
         if view not in files:
             raise FileNotFoundError(f"{scene_dir}/images: no image for simulated view {view}")
         (out / "images").mkdir(exist_ok=True)
         shutil.copyfile(files[view], out / "images" / files[view].name)
-    if (scene_dir / "poses_bounds.npy").is_file():
+    if poses and (scene_dir / "poses_bounds.npy").is_file():
         shutil.copyfile(scene_dir / "poses_bounds.npy", out / "poses_bounds.npy")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io, llff, metrics
+from . import io, llff, metrics, spc
 
 METRICS = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
 CONVENTIONS = {
@@ -50,8 +50,10 @@ def evaluate(
     scene_dir: str | os.PathLike,
     out_json: str | os.PathLike,
     lpips_dir: str | os.PathLike | None = None,
+    spc_dir: str | os.PathLike | None = None,
 ) -> dict:
-    """Write ``out_json`` for the renders in ``recon_dir/renders`` of the scene in ``scene_dir``."""
+    """Write ``out_json`` for the renders in ``recon_dir/renders`` of the scene in ``scene_dir``
+    (``spc_dir``: its frames, for the no-reference score of a scene without reference views)."""
     recon_dir = Path(recon_dir)
     train = io.read_json(recon_dir / "train.json")
     if train.get("status"):  # not reconstructed (e.g. COLMAP posed too few views): no scores, the reason
@@ -59,7 +61,7 @@ def evaluate(
         io.write_json(out_json, record)
         return record
     if not llff.has_reference(scene_dir):
-        return write_unscored(recon_dir, scene_dir, out_json, train)
+        return write_unscored(recon_dir, scene_dir, out_json, train, spc_dir)
     scene = llff.read_scene(scene_dir)
     index = {n: i for i, n in enumerate(scene.names)}
     per_view = []
@@ -99,17 +101,38 @@ def row_record(scene_dir: str | os.PathLike, train: dict) -> dict:
     return {"scene": Path(scene_dir).name, "combination": combination_name(train), **row}
 
 
-def write_unscored(recon_dir: Path, scene_dir: str | os.PathLike, out_json: str | os.PathLike, train: dict) -> dict:
+def write_unscored(
+    recon_dir: Path, scene_dir: str | os.PathLike, out_json: str | os.PathLike, train: dict, spc_dir=None
+) -> dict:
     """metrics.json of a row on a scene without reference views (a capture without images/): no
-    scores (mean null), the renders listed, and the held-out views' photons as a no-reference
-    statistic (:func:`heldout_photons`)."""
+    image scores (mean null), the renders listed and, with the scene's SPC folder, how well they
+    explain the held-out views' photons (:mod:`spc3d.heldout`, a no-reference score)."""
+    views = train["test_views"]
     record = {
         **row_record(scene_dir, train),
         "reference": False,
         "mean": None,
-        "status": "no reference views: renders only, not scored",
-        "renders": [str(recon_dir / "renders" / f"{n}.png") for n in train["test_views"]],
+        "status": "no reference views: renders only, not scored against images",
+        "renders": [str(recon_dir / "renders" / f"{n}.png") for n in views],
+        "no_reference": None if spc_dir is None else heldout_score(recon_dir, spc_dir, views),
         "conventions": CONVENTIONS,
     }
     io.write_json(out_json, record)
     return record
+
+
+def heldout_score(recon_dir: Path, spc_dir: str | os.PathLike, views: list[str]) -> dict:
+    """:func:`spc3d.heldout.heldout_photon_score` of a row's renders against all frames of the held-out views."""
+    from .capture_import import spc_sensor
+    from .heldout import heldout_photon_score
+    from .inputs import params_from_record, read_spc_record
+
+    params = params_from_record(read_spc_record(spc_dir))
+    sensor = spc_sensor(spc_dir)
+    fractions = [
+        spc.unpack_frames(*io.load_frames(Path(spc_dir) / "frames" / f"{n}.npz")).mean(0, dtype=np.float64)
+        for n in views
+    ]
+    renders = [io.read_rgb(recon_dir / "renders" / f"{n}.png") for n in views]
+    pattern, valid = (None, None) if sensor is None else sensor
+    return heldout_photon_score(renders, fractions, params.frames, params, pattern, valid)

@@ -1,7 +1,7 @@
 """Captured SPAD scenes from the command line: export a simulated scene as a capture, inspect a capture.
 
     python workflow/tools/capture.py export results/spc/courtyard captures/courtyard-rggb \\
-        --cfa RGGB --format npy.gz --scene results/scenes/courtyard
+        --cfa RGGB --format npy.gz --scene results/scenes/courtyard [--no-poses]
     python workflow/tools/capture.py inspect captures/courtyard-rggb inspect/courtyard-rggb
 
 ``export`` writes the folder layout of :mod:`spc3d.captures` (sensor.json, frames/, and with
@@ -32,6 +32,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     ex.add_argument("--bitorder", default="big", choices=photon_cubes.BITORDERS)
     ex.add_argument("--scene", type=Path, help="the scene folder: reference views and poses are copied")
     ex.add_argument("--seed", type=int, default=0, help="seed of the fresh draws of W / mono pixels")
+    ex.add_argument("--no-poses", action="store_true", help="leave poses_bounds.npy out (COLMAP poses the views)")
     ins = sub.add_parser("inspect", help="hot pixels, detection rates and MLE previews of a capture")
     ins.add_argument("folder", type=Path)
     ins.add_argument("out_dir", type=Path)
@@ -51,7 +52,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "export":
             rec = captures.export_simulated(
-                args.spc_dir, args.out_dir, args.cfa, args.format, args.bitorder, args.scene, seed=args.seed
+                args.spc_dir,
+                args.out_dir,
+                args.cfa,
+                args.format,
+                args.bitorder,
+                args.scene,
+                seed=args.seed,
+                poses=not args.no_poses,
             )
             print(
                 f"{args.out_dir}: {rec['frames']} frames of {rec['width']}x{rec['height']}, "
