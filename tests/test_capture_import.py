@@ -514,3 +514,25 @@ def test_bad_intrinsics_are_named(tmp_path, bad):
 def test_non_numeric_intrinsics_are_named(tmp_path, bad):
     with pytest.raises(ValueError, match=r"sensor.json: intrinsics="):
         first_intrinsics(fake_sensor({"intrinsics": bad}), tmp_path / "sensor.json")
+
+
+def test_config_sensor_settings_replace_sensor_json(sim, tmp_path):
+    """captures.<name> as {path, q, dark_count_rate, hot_pixels}: the import uses and records them."""
+    cap = copy_capture(sim, tmp_path)
+    known = np.zeros((H, W), bool)
+    known[5, 7] = True
+    hot_pixels.write_hot_pixel_map(tmp_path / "known_hot.png", known)  # outside the capture folder
+    overrides = {"q": 0.3, "dark_count_rate": 250.0, "hot_pixels": str(tmp_path / "known_hot.png")}
+    rec = import_capture_frames(cap, sim / "cap_scene", tmp_path / "spc", overrides)
+    assert rec["params"]["q"] == 0.3 and rec["params"]["dark_count_rate"] == 250.0
+    assert rec["sensor_from_config"]["q"] == 0.3
+    assert rec["sensor_json_values"]["q"] == io.read_json(cap / "sensor.json")["q"]
+    assert rec["hot_pixels"]["from_sensor_json"] and not spc_sensor(tmp_path / "spc")[1][5, 7]
+    with pytest.raises(ValueError, match=r"sensor settings \['cfa'\].*the config may set"):
+        captures.read_sensor(cap, {"cfa": "mono"})
+    cfg = base_config() | {
+        "captures": {"mycap": {"path": str(cap), "q": 0.3}},
+        "scenes": {"train": [], "eval": ["mycap"]},
+    }
+    spec = scene_specs(cfg, sorted(LAYOUTS), REPO)["mycap"]
+    assert spec["path"] == str(cap) and spec["overrides"] == {"q": 0.3}

@@ -111,10 +111,15 @@ def test_capture_without_poses_or_reference_runs_on_photon_poses(tmp_path, lpips
     for row in ("mle-k64+3dgs", "bernoulli+3dgs"):
         m = io.read_json(res / "eval" / "dark" / row / "metrics.json")
         assert m["reference"] is False and m["mean"] is None and len(m["renders"]) == 3
+        assert m["poses"].startswith("COLMAP on every view's 64-frame MLE (the capture has no poses)")
         heldout = m["no_reference"]  # how well the renders explain the held-out views' 64 frames
         assert heldout["frames"] == 64 and heldout["views"] == 3 and 0 <= heldout["excess_nll"] < heldout["nll"]
         assert all(os.path.isfile(tmp_path / r) or os.path.isfile(r) for r in m["renders"])
     assert not (res / "eval" / "dark" / "gt+3dgs").exists()  # the oracle needs reference views
     assert not (res / "figures" / "qualitative_dark.png").exists()
+    table = pd.read_csv(res / "tables" / "no_reference.csv").set_index("combination")
+    assert sorted(table.index) == ["bernoulli+3dgs", "mle-k64+3dgs"] and (table["excess NLL↓"] >= 0).all()
+    two = pd.read_csv(res / "tables" / "two_stage.csv")
+    assert (two["runs"] == 0).all()  # unscored rows stay out of the image tables
     spc_rec = read_spc_record(res / "spc" / "dark")
     assert params_from_record(spc_rec).frames == 64

@@ -66,7 +66,8 @@ def get_final_output():
 
 
 def get_table_outputs():
-    return expand("results/tables/{table}.{ext}", table=["single_stage", "two_stage", "stage1", "estimated_poses"],
+    return expand("results/tables/{table}.{ext}",
+                  table=["single_stage", "two_stage", "stage1", "estimated_poses", "no_reference"],
                   ext=["csv", "md", "tex", "html"]) + expand("results/tables/findings.{ext}", ext=["md", "json", "html"])
 
 
@@ -129,8 +130,12 @@ def get_eval_frames(wildcards):
 
 
 def get_model_settings(wildcards):
-    """The config's settings of the stage-2 model (overrides of its dataclass defaults)."""
-    return dict(config["stage2"][wildcards.model])
+    """The config's settings of the stage-2 model (overrides of its dataclass defaults); a 3DGS row
+    refines its cameras per stage2.refine_poses (by default: the rows on estimated poses)."""
+    settings, refine = dict(config["stage2"][wildcards.model]), config["stage2"]["refine_poses"]
+    if wildcards.model == "3dgs" and "pose_refine" not in settings:
+        settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(wildcards.poses))
+    return settings
 
 
 def get_checkpoint_path(wildcards):
@@ -148,7 +153,8 @@ def get_scene_source(wildcards):
     spec = SCENE_SPECS[wildcards.scene]
     if spec["kind"] == "llff":
         return llff_input_files(spec["path"], spec["factor"])
-    return folder_files(spec["path"]) if spec["kind"] in ("colmap", "capture") else []
+    hot = [spec["overrides"]["hot_pixels"]] if spec.get("overrides", {}).get("hot_pixels") else []
+    return folder_files(spec["path"]) + hot if spec["kind"] in ("colmap", "capture") else []
 
 
 def scene_sensor(scene):
@@ -160,7 +166,9 @@ def scene_sensor(scene):
 def get_spc_settings(wildcards):
     """A simulated scene's physics and seed; a capture's folder (its frames are read, one measurement for every seed)."""
     spec = SCENE_SPECS[wildcards.scene]
-    return {"capture": spec["path"]} if spec["kind"] == "capture" else spc_settings(config["spc"], get_seed(wildcards))
+    if spec["kind"] == "capture":
+        return {"capture": spec["path"], "overrides": spec["overrides"]}
+    return spc_settings(config["spc"], get_seed(wildcards))
 
 
 def get_augment_count(wildcards):

@@ -7,7 +7,7 @@ with logged(snakemake.log[0]):
     if "capture" in s:
         from spc3d.capture_import import import_capture_frames
 
-        import_capture_frames(s["capture"], snakemake.input[0], snakemake.output[0])
+        import_capture_frames(s["capture"], snakemake.input[0], snakemake.output[0], s.get("overrides"))
     else:
         from spc3d.inputs import simulate_scene
         from spc3d.spc import SPCParams

@@ -56,12 +56,18 @@ HOT_FILE = "hot_pixels.png"
 
 
 def import_capture_scene(
-    folder: str | os.PathLike, out_dir: str | os.PathLike, max_features: int = 4096, seed: int = 0, num_threads: int = 1
+    folder: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    max_features: int = 4096,
+    seed: int = 0,
+    num_threads: int = 1,
+    overrides: dict | None = None,
 ) -> dict:
-    """Write the canonical scene folder of capture ``folder`` into ``out_dir``; return scene.json's record."""
+    """Write the canonical scene folder of capture ``folder`` into ``out_dir``; return scene.json's
+    record. ``overrides``: the config's sensor settings (:func:`spc3d.captures.read_sensor`)."""
     t0 = time.perf_counter()
     folder = Path(folder)
-    names, cubes, sensor = read_capture(folder)
+    names, cubes, sensor = read_capture(folder, overrides=overrides)
     refs = reference_images(folder, names)
     if refs is not None and refs.shape[1:3] != (sensor.height, sensor.width):
         raise ValueError(
@@ -173,12 +179,15 @@ def hot_map(counts: list[np.ndarray], sensor) -> np.ndarray:
 # the SPC folder
 
 
-def import_capture_frames(folder: str | os.PathLike, scene_dir: str | os.PathLike, out_dir: str | os.PathLike) -> dict:
-    """Write the SPC folder of capture ``folder`` for the views of ``scene_dir``; return spc.json's record."""
+def import_capture_frames(
+    folder: str | os.PathLike, scene_dir: str | os.PathLike, out_dir: str | os.PathLike, overrides: dict | None = None
+) -> dict:
+    """Write the SPC folder of capture ``folder`` for the views of ``scene_dir``; return spc.json's
+    record. ``overrides``: the config's sensor settings (:func:`spc3d.captures.read_sensor`)."""
     t0 = time.perf_counter()
     folder = Path(folder)
     views = llff.read_scene(scene_dir, with_images=False).names
-    names, cubes, sensor = read_capture(folder)
+    names, cubes, sensor = read_capture(folder, overrides=overrides)
     index = {n: i for i, n in enumerate(names)}
     cubes = [cubes[index[v]] for v in views]
     params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
@@ -200,6 +209,8 @@ def import_capture_frames(folder: str | os.PathLike, scene_dir: str | os.PathLik
             "capture": str(folder),
             "params": asdict(params),
             "sensor": {"cfa": pattern.to_json(), "white": pattern.white, "name": pattern.name},
+            "sensor_from_config": {k: sensor.record[k] for k in (overrides or {})},
+            "sensor_json_values": sensor.record.get("overridden"),
             "flux_scale": None,
             "flux_scale_calibrated": False,
             "target_detection": None,
@@ -234,11 +245,11 @@ def spc_sensor(spc_dir: str | os.PathLike) -> tuple[sensors.CFAPattern, np.ndarr
     return pattern, ~read_hot_pixel_map(spc_dir / HOT_FILE)
 
 
-def capture_sensor(folder: str | os.PathLike) -> tuple[str, dict]:
+def capture_sensor(folder: str | os.PathLike, overrides: dict | None = None) -> tuple[str, dict]:
     """(tag, spec) of a capture folder's sensor, read at parse time: the tag names its translators'
     folder (``rggb``, ``mono``, ``rgbwmean``, ``custom<hash>``: one training per sensor, whatever
     the captures), the spec ``{"cfa": ..., "white": ...}`` rebuilds the pattern (sensors.cfa_pattern)."""
-    pattern = read_sensor(folder).cfa
+    pattern = read_sensor(folder, overrides).cfa
     return sensor_tag(pattern), {"cfa": pattern.to_json(), "white": pattern.white}
 
 

@@ -105,11 +105,21 @@ def sensor_record(
     return rec
 
 
-def read_sensor(folder: str | os.PathLike) -> CaptureSensor:
-    """Read and check ``{folder}/sensor.json``; errors name the file and the key."""
+OVERRIDABLE = ("q", "exposure_s", "dark_count_rate", "tau_d", "hot_pixels")  # sensor settings the config may set
+
+
+def read_sensor(folder: str | os.PathLike, overrides: dict | None = None) -> CaptureSensor:
+    """Read and check ``{folder}/sensor.json``; errors name the file and the key. ``overrides``
+    (the config's per-capture sensor settings, :data:`OVERRIDABLE`) replace its values and are
+    recorded (``record["overridden"]``); a relative ``hot_pixels`` is taken from the folder."""
     folder = Path(folder)
     path = folder / SENSOR_FILE
     rec = io.read_json(path)
+    if overrides:
+        unknown = sorted(set(overrides) - set(OVERRIDABLE))
+        if unknown:
+            raise ValueError(f"sensor settings {unknown} for {folder}: the config may set {list(OVERRIDABLE)}")
+        rec = {**rec, **overrides, "overridden": {k: rec.get(k) for k in overrides}}
     missing = [k for k in REQUIRED_KEYS if k not in rec]
     if missing:
         raise ValueError(f"{path}: missing keys {missing}; a capture's sensor.json needs {list(REQUIRED_KEYS)}")
@@ -173,15 +183,15 @@ def capture_views(folder: str | os.PathLike, fmt: str) -> list[str]:
 
 
 def read_capture(
-    folder: str | os.PathLike, max_frames: int | None = None
+    folder: str | os.PathLike, max_frames: int | None = None, overrides: dict | None = None
 ) -> tuple[list[str], list[np.ndarray], CaptureSensor]:
     """(view names, photon cubes bool (K, H, W) per view, sensor) of a capture folder.
 
     Every cube must be ``height`` x ``width`` and hold at least ``frames`` (sensor.json) frames;
-    the first ``frames`` (or ``max_frames``, if fewer) are returned.
+    the first ``frames`` (or ``max_frames``, if fewer) are returned. ``overrides``: see :func:`read_sensor`.
     """
     folder = Path(folder)
-    sensor = read_sensor(folder)
+    sensor = read_sensor(folder, overrides)
     k = sensor.params.frames if max_frames is None else min(max_frames, sensor.params.frames)
     names = capture_views(folder, sensor.format)
     cubes = []

@@ -23,7 +23,15 @@ from .workflow import ConfigError
 
 # Config keys that hold file or folder paths ("*" = every key at that level). A relative path is
 # taken from the repository root (where config.yaml and the presets live), whatever --directory is.
-PATH_KEYS = ("llff_scenes.*", "captures.*", "tradeoff.table", "metrics.lpips_source", "stage1.*.checkpoint")
+PATH_KEYS = (
+    "llff_scenes.*",
+    "captures.*",
+    "captures.*.path",
+    "captures.*.hot_pixels",
+    "tradeoff.table",
+    "metrics.lpips_source",
+    "stage1.*.checkpoint",
+)
 MAX_ERRORS = 5  # schema errors listed at once (the first ones are what a user fixes first)
 
 

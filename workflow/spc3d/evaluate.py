@@ -96,8 +96,18 @@ ROW_KEYS = (
 
 
 def row_record(scene_dir: str | os.PathLike, train: dict) -> dict:
-    """What a row consumed and how it was trained (train.json), for its metrics.json."""
+    """What a row consumed and how it was trained (train.json), for its metrics.json. On a capture
+    whose poses COLMAP estimated from all its frames (it had none), every row says so; K stays the
+    row's own budget, since every row of that scene shares those poses (as LLFF scenes share theirs)."""
     row = {k: train.get(k) for k in ROW_KEYS}
+    meta_path = Path(scene_dir) / "scene.json"
+    scene_poses = io.read_json(meta_path).get("poses") if meta_path.exists() else None
+    if not isinstance(row["poses"], dict) and isinstance(scene_poses, dict) and scene_poses.get("frames"):
+        k = scene_poses["frames"]
+        row["poses"] = (
+            f"COLMAP on every view's {k}-frame MLE (the capture has no poses): "
+            f"{scene_poses['registered']}/{scene_poses['total']} views"
+        )
     return {"scene": Path(scene_dir).name, "combination": combination_name(train), **row}
 
 

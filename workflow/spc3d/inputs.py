@@ -8,7 +8,7 @@ as the workflow builds it from the config:
      "supersample": 3, "seed": 0}
     {"kind": "llff", "path": "../shared/data/llff/fern", "factor": 8, "width": 128}
     {"kind": "colmap", "path": "data/garden", "width": 128, "factor": 1, "undistort": False}
-    {"kind": "capture", "path": "data/my_spad_scene", "max_features": 4096, "seed": 0}
+    {"kind": "capture", "path": "data/my_spad_scene", "max_features": 4096, "seed": 0, "overrides": {"q": 0.3}}
 
 All end as the same LLFF-layout folder at the working resolution (see :mod:`spc3d.llff`), so every
 later step reads one format whatever the origin of the scene. ``factor`` (default 1) and
@@ -66,7 +66,8 @@ def prepare_scene(spec: dict, out_dir: str | os.PathLike) -> None:
     elif kind == "capture":
         from .capture_import import import_capture_scene
 
-        import_capture_scene(spec["path"], out_dir, spec.get("max_features", 4096), spec.get("seed", 0))
+        keys = {"max_features": spec.get("max_features", 4096), "seed": spec.get("seed", 0)}
+        import_capture_scene(spec["path"], out_dir, **keys, overrides=spec.get("overrides"))
     else:
         raise ValueError(f"scene spec kind must be 'builtin', 'llff', 'colmap' or 'capture', got {kind!r} in {spec}")
 

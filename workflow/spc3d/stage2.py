@@ -142,6 +142,8 @@ def reconstruct(
         "final_train_psnr": result["final"].get("psnr"),
         "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()},
     }
+    if getattr(trainer, "poses", None) is not None:
+        record["pose_corrections"] = trainer.poses.magnitude()
     render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
     return record | meta | {"render_s": render_s}
 
@@ -179,10 +181,14 @@ def write_renders(trainer, scene_dir, out_dir, record: dict) -> float:
     """Render every held-out view into ``out_dir/renders`` and write ``train.json``, atomically."""
     scene = llff.read_scene(scene_dir, with_images=False)
     _, test = split_views(len(scene.names))
+    cams = scene.cameras.subset(test)
+    if hasattr(trainer, "heldout_cameras"):  # a model that refines its cameras renders in its own world
+        index = {n: i for i, n in enumerate(scene.names)}
+        cams = trainer.heldout_cameras(scene.cameras.subset([index[n] for n in trainer.views.names]), cams)
     t0 = time.perf_counter()
     with io.atomic_path(out_dir, is_dir=True) as tmp:
-        for i in test:
-            image = trainer.render(scene.cameras, int(i)).detach().cpu().numpy()
+        for j, i in enumerate(test):
+            image = trainer.render(cams, j).detach().cpu().numpy()
             io.write_image(tmp / "renders" / f"{scene.names[i]}.png", np.clip(image, 0.0, 1.0))
         render_s = time.perf_counter() - t0
         io.write_json(tmp / "train.json", record | {"render_s": render_s, "test_views": [scene.names[i] for i in test]})

@@ -89,6 +89,8 @@ def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
     rows = []
     for path in metrics_files:
         rec = io.read_json(path)
+        if rec.get("reference") is False:  # a capture without reference views: no_reference_table
+            continue
         init = rec.get("init")
         rows.append(
             {
@@ -105,7 +107,10 @@ def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
 
 
 def poses_text(poses) -> str:
-    """How a row was posed: "ground truth", or COLMAP's source, views posed and errors."""
+    """How a row was posed: "ground truth", the scene's own estimate (a capture without poses: a
+    string), or COLMAP's source, views posed and errors."""
+    if isinstance(poses, str):
+        return poses
     if not isinstance(poses, dict):
         return "ground truth"
     text = f"COLMAP on {poses['source']}: {poses['registered']}/{poses['total']} training views"
@@ -254,15 +259,6 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protoco
     io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
 
 
-def write_empty_table(stem: str | os.PathLike, caption: str) -> None:
-    """The four files of a table without rows, each saying why (``caption``)."""
-    stem = Path(stem)
-    io.write_text(stem.with_suffix(".csv"), "combination\n")
-    io.write_text(stem.with_suffix(".md"), f"# {caption}\n")
-    io.write_text(stem.with_suffix(".tex"), f"% {caption}\n")
-    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table="", protocol=""))
-
-
 def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
     """Paper Table 2 layout (+ this project's rows) from the given metrics files."""
     df = table(summarise(collect(metrics_files)), SINGLE_STAGE, nerf_variant)
@@ -338,6 +334,59 @@ def estimated_poses_table(metrics_files: list[str], stem: str, labels: dict[str,
     return df
 
 
+NO_REFERENCE_PROTOCOL = (
+    "Scenes without reference views (captures without images/) cannot be scored against images. Each row is "
+    "scored instead by how well its renders explain the held-out views' binary frames, which no row trained on: "
+    "the Bernoulli NLL of those frames at the single gain that fits them best, minus the frames' own entropy "
+    "(nats per bit; 0 = as well as any image can; spc3d.heldout). Lower is better; ranks (bold best, italic "
+    "second) only among rows of one scene and equal K."
+)
+
+
+def no_reference_table(metrics_files: list[str], stem: str) -> pd.DataFrame:
+    """Rows on scenes without reference views, scored by the held-out views' photons (``no_reference``)."""
+    rows = []
+    for path in metrics_files:
+        rec = io.read_json(path)
+        score = rec.get("no_reference") if rec.get("reference") is False else None
+        if score:
+            rows.append(
+                {
+                    "scene": rec["scene"],
+                    "combination": rec["combination"],
+                    "K": rec.get("frames"),
+                    "poses": poses_text(rec.get("poses")),
+                    "seed": rec.get("seed"),
+                    "excess NLL↓": score["excess_nll"],
+                    "NLL": score["nll"],
+                    "floor": score["floor_nll"],
+                    "held-out frames": score["frames"],
+                    "views": score["views"],
+                }
+            )
+    if not rows:
+        write_text_table(stem, "No row on a scene without reference views (a capture without images/)")
+        return pd.DataFrame(rows)
+    df = pd.DataFrame(rows).sort_values(["scene", "K", "excess NLL↓"], kind="stable").reset_index(drop=True)
+    shown = df.astype(object)
+    for _, group in df.groupby(["scene", "K"], dropna=False):
+        order = group["excess NLL↓"].rank(method="min")
+        for i, r in order.items():
+            text = f"{df.at[i, 'excess NLL↓']:.4f}"
+            shown.at[i, "excess NLL↓"] = f"**{text}**" if r == 1 else f"*{text}*" if r == 2 else text
+    for col in ("NLL", "floor"):
+        shown[col] = [f"{v:.4f}" for v in df[col]]
+    stem, protocol = Path(stem), NO_REFERENCE_PROTOCOL
+    caption = "Scenes without reference views: rows scored by the held-out views' photons"
+    plain = shown.map(lambda v: v.strip("*") if isinstance(v, str) else v)
+    io.write_text(stem.with_suffix(".csv"), df.to_csv(index=False, float_format="%.6g"))
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n{shown.to_markdown(index=False)}\n\n{protocol}\n")
+    io.write_text(stem.with_suffix(".tex"), plain.to_latex(index=False, caption=f"{caption}. {protocol}"))
+    html = HTML_PAGE.format(caption=caption, table=plain.to_html(index=False), protocol=protocol)
+    io.write_text(stem.with_suffix(".html"), html)
+    return df
+
+
 def write_text_table(stem: str | os.PathLike, text: str) -> None:
     """A table's four files holding one sentence (a table with no rows)."""
     stem = Path(stem)
@@ -354,8 +403,8 @@ def write_all_tables(
     nerf_variant: str,
     labels: dict[str, str] = LABELS,
 ) -> None:
-    """single_stage.*, two_stage.*, estimated_poses.*, stage1.* and the findings (findings.md / .json /
-    .html) in ``folder``."""
+    """single_stage.*, two_stage.*, estimated_poses.*, stage1.*, no_reference.* and the findings
+    (findings.md / .json / .html) in ``folder``."""
     from .findings import write_findings
 
     folder = Path(folder)
@@ -365,5 +414,6 @@ def write_all_tables(
     if stage1_files:
         stage1_table(stage1_files, folder / "stage1", labels)
     else:  # every evaluation scene is a capture without reference views: nothing to score before 3D
-        write_empty_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
+        write_text_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
+    no_reference_table(metrics_files, folder / "no_reference")
     write_findings(metrics_files, folder / "findings", nerf_variant)

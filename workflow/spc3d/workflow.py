@@ -95,7 +95,7 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
     for role in ("train", "eval"):
         for name in config["scenes"][role]:
             if name in captures:
-                specs[name] = capture_spec(name, Path(base_dir) / captures[name], role, config)
+                specs[name] = capture_spec(name, captures[name], role, config, base_dir)
             elif name in llff_scenes:
                 specs[name] = real_scene_spec(name, Path(base_dir) / llff_scenes[name], res)
             elif name in builtin_layouts:
@@ -135,11 +135,14 @@ def real_scene_spec(name: str, path: Path, res: dict) -> dict:
     return {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
 
 
-def capture_spec(name: str, path: Path, role: str, config: dict) -> dict:
-    """The spec of a captured SPAD scene (:mod:`spc3d.captures`), its sensor.json checked now."""
+def capture_spec(name: str, entry: str | dict, role: str, config: dict, base_dir: str | Path = ".") -> dict:
+    """The spec of a captured SPAD scene (:mod:`spc3d.captures`), its sensor.json checked now.
+    ``entry``: the folder, or {"path": folder, and sensor settings that replace sensor.json's}."""
     from .capture_import import capture_sensor
 
     where = f"captures.{name}"
+    entry = {"path": entry} if isinstance(entry, str) else dict(entry)
+    path, overrides = Path(base_dir) / entry.pop("path"), entry
     if role != "eval":
         raise ConfigError(
             f"scenes.train lists capture {name!r}: translators train on simulated scenes (RGB truth and "
@@ -148,12 +151,13 @@ def capture_spec(name: str, path: Path, role: str, config: dict) -> dict:
     if not (path / "sensor.json").is_file():
         raise ConfigError(f"{where}: {path} is not a capture folder (no sensor.json; see spc3d.captures)")
     try:
-        tag, sensor = capture_sensor(path)
+        tag, sensor = capture_sensor(path, overrides)
     except (ValueError, FileNotFoundError) as e:
         raise ConfigError(f"{where}: {e}") from None
     return {
         "kind": "capture",
         "path": str(path),
+        "overrides": overrides,
         "sensor_tag": tag,
         "sensor": sensor,
         "reference": (path / "images").is_dir(),

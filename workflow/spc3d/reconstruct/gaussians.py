@@ -23,6 +23,7 @@ from torch import Tensor, nn
 
 from ..cameras import Cameras
 from ..training import require_positive
+from .pose_refine import quat_mul
 from .splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
 from .splat.project import SH_C0
 
@@ -55,6 +56,9 @@ class GaussianConfig:
     max_screen_size: float = 20.0  # px; prune larger Gaussians after the first opacity reset
     max_gaussians: int = 200_000  # hard cap on capacity
     init_points: int = 5000  # random initialisation only
+    pose_refine: bool = False  # learn a correction of every training camera (spc3d.reconstruct.pose_refine)
+    pose_lr: float = 5e-4  # Adam lr of the corrections (radians; translation in scene extents)
+    pose_from: int = 300  # iteration from which the corrections move (the Gaussians fit roughly first)
     backend: str = "native"  # rasterizer back-end
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour behind the last Gaussian (render space)
 
@@ -97,14 +101,20 @@ class GaussianModel(nn.Module):
     def opacities(self) -> Tensor:
         return torch.sigmoid(self.opacity_logits)
 
-    def render(self, cams: Cameras, i: int, background: Tensor, backend: str = "native") -> dict:
-        """Render view ``i``: image (H, W, 3), alpha (H, W), and the projection (for densification)."""
+    def render(self, cams: Cameras, i: int, background: Tensor, backend: str = "native", motion=None) -> dict:
+        """Render view ``i``: image (H, W, 3), alpha (H, W), and the projection (for densification).
+        ``motion`` (:class:`.pose_refine.SceneMotion`): render the scene moved by it (a camera
+        correction, with its gradient); the SH colour is seen from the direction it had before."""
         K, w2c = cams.intrinsics[i], torch.as_tensor(cams.w2c[i], dtype=torch.float32)
+        means, quats = self.means, self.quats
+        if motion is not None:
+            means, quats = means @ motion.R.T + motion.t, quat_mul(motion.q, quats)
         project = project_gaussians_native if backend == "native" else project_gaussians  # same math
-        proj = project(self.means, self.scales, self.quats, w2c, *map(float, K), cams.height, cams.width)
+        proj = project(means, self.scales, quats, w2c, *map(float, K), cams.height, cams.width)
         centre = torch.as_tensor(cams.centers[i], dtype=torch.float32)
         sh = torch.cat([self.sh_dc, self.sh_rest], 1)
-        rgb = eval_sh(self.active_degree, sh, self.means - centre)
+        dirs = means - centre if motion is None else (means - centre) @ motion.R  # R^T: back to the model's frame
+        rgb = eval_sh(self.active_degree, sh, dirs)
         image, alpha = rasterize(
             proj.means2d,
             proj.conics,

@@ -26,6 +26,7 @@ from ..cameras import Cameras
 from .densify import DensityControl
 from .splat.project import CameraError
 from .gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
+from .pose_refine import PoseCorrections, heldout_cameras
 from ..metrics import psnr
 from .train import Views
 
@@ -70,13 +71,16 @@ class SplatTrainer:
         self.rng = np.random.default_rng(seed)
         self.losses: list[float] = []
         self.degree_loss = math.inf  # mean loss of the interval before the last degree decision
+        self.poses = PoseCorrections(views.cameras, self.extent) if cfg.pose_refine else None
+        self.pose_opt = torch.optim.Adam(self.poses.parameters(), lr=cfg.pose_lr) if self.poses else None
 
     def step(self, it: int) -> dict:
         for group in self.opt.param_groups:
             if group["name"] == "means":
                 group["lr"] = means_lr(it, self.cfg, self.extent)
         i = int(self.rng.integers(len(self.views.cameras)))
-        out = self._render(self.views.cameras, i)
+        refine = self.poses is not None and it >= self.cfg.pose_from
+        out = self._render(self.views.cameras, i, self.poses.motion(i) if refine else None)
         out["proj"].means2d.retain_grad()
         loss = self.objective.loss(out["image"], self.views.targets[i])
         value = loss.item()
@@ -93,11 +97,15 @@ class SplatTrainer:
                 "Gaussians has finite parameters any more"
             )
         self.opt.zero_grad(set_to_none=True)
+        if refine:
+            self.pose_opt.zero_grad(set_to_none=True)
         loss.backward()
         self.control.observe(
             out["proj"].means2d, out["proj"].radii, self.views.cameras.height, self.views.cameras.width
         )
         self.opt.step()
+        if refine:
+            self.pose_opt.step()
         self.control.step(it, self.model, self.opt)
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
         if it % self.cfg.sh_interval == 0:
@@ -113,10 +121,11 @@ class SplatTrainer:
             self.model.active_degree += 1
         self.degree_loss = recent
 
-    def _render(self, cams: Cameras, i: int) -> dict:
-        """``model.render`` of view i; a camera the projection rejects is named by its index."""
+    def _render(self, cams: Cameras, i: int, motion=None) -> dict:
+        """``model.render`` of view i (moved by ``motion``: a camera correction); a camera the
+        projection rejects is named by its index."""
         try:
-            return self.model.render(cams, i, self.background, self.cfg.backend)
+            return self.model.render(cams, i, self.background, self.cfg.backend, motion)
         except CameraError as e:
             msg = str(e).removeprefix("camera: ")
             raise CameraError(f"camera {i} (of {len(cams)}): {msg}") from None
@@ -137,6 +146,13 @@ class SplatTrainer:
     def capacity(self) -> dict:
         return self.model.capacity()
 
+    def heldout_cameras(self, reference_train: Cameras, reference_test: Cameras) -> Cameras:
+        """Where to render the held-out views: their reference cameras, or with refined training
+        cameras, those mapped into the refined world (:func:`.pose_refine.heldout_cameras`)."""
+        if self.poses is None:
+            return reference_test
+        return heldout_cameras(self.poses.refined(self.views.cameras), reference_train, reference_test)
+
     def state(self) -> dict:
         return {
             "params": {n: getattr(self.model, n).detach().clone() for n in PARAM_NAMES},
@@ -147,6 +163,7 @@ class SplatTrainer:
             "rng": self.rng.bit_generator.state,
             "losses": self.losses,
             "degree_loss": self.degree_loss,
+            "poses": None if self.poses is None else (self.poses.delta.detach().clone(), self.pose_opt.state_dict()),
         }
 
     def load(self, state: dict) -> None:
@@ -159,3 +176,8 @@ class SplatTrainer:
         self.control.generator.set_state(state["split_rng"])
         self.rng.bit_generator.state = state["rng"]
         self.losses, self.degree_loss = state["losses"], state["degree_loss"]
+        if self.poses is not None:
+            delta, opt = state["poses"]
+            with torch.no_grad():
+                self.poses.delta.copy_(delta)
+            self.pose_opt.load_state_dict(opt)
