@@ -109,7 +109,7 @@ def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
 def poses_text(poses) -> str:
     """How a row was posed: "ground truth", the scene's own estimate (a capture without poses: a
     string), or COLMAP's source, views posed and errors."""
-    if isinstance(poses, str):
+    if isinstance(poses, str) and not poses.startswith("ground truth"):  # a capture posed by COLMAP
         return poses
     if not isinstance(poses, dict):
         return "ground truth"
