@@ -54,6 +54,16 @@ def binary_input(
     return sensors.sensor_input(sensors.sensor_frames(bits, pattern, phi, params, rng), pattern)
 
 
+def sensor_draws(srgb: np.ndarray, flux_scale: float, params: dict, seed: int, stream: str, index: int) -> dict:
+    """The ``phi``, ``params`` and ``rng`` with which :func:`binary_input` draws a sensor's W / mono
+    pixels from a training view (``srgb`` at the scene's exposure; seeded per stream and view)."""
+    return {
+        "phi": spc.flux_from_srgb(srgb, flux_scale),
+        "params": spc.SPCParams(**params),
+        "rng": spc.view_rng(seed, stream, index),
+    }
+
+
 def sensor_pattern(sensor: dict | None) -> CFAPattern | None:
     """The pattern of a translator's ``sensor`` setting ({"cfa": ..., "white": ...}; None: the simulator's RGB)."""
     return None if sensor is None else sensors.cfa_pattern(sensor["cfa"], sensor.get("white", "sum"))
@@ -80,11 +90,8 @@ def load_pairs(
             r = io.read_rgb(folder / "rgb" / f"{name}.png")
             drawn = {}
             if record is not None:
-                drawn = {
-                    "phi": spc.flux_from_srgb(r, record["flux_scale"]),
-                    "params": spc.SPCParams(**record["spc_params"]),
-                    "rng": spc.view_rng(record["seed"], f"{record['scene']}/sensor", i),
-                }
+                stream = f"{record['scene']}/sensor"
+                drawn = sensor_draws(r, record["flux_scale"], record["spc_params"], record["seed"], stream, i)
             b = binary_input(folder / "frames" / f"{name}.npz", frames, pattern, **drawn)
             if b.shape != r.shape:
                 raise ValueError(

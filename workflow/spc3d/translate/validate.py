@@ -26,12 +26,12 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from .. import io, llff, spc
+from .. import io, llff
 from ..cameras import split_views
 from ..inputs import read_spc_record
 from ..metrics import psnr
 from ..training import build_config
-from .data import binary_input, chw, sensor_pattern
+from .data import binary_input, chw, sensor_draws, sensor_pattern
 
 
 @dataclass(frozen=True)
@@ -75,11 +75,8 @@ def load_views(
             rgb = io.read_rgb(scene_dir / "images" / f"{name}.png")
             drawn = {}
             if pattern is not None:
-                drawn = {
-                    "phi": spc.flux_from_srgb(rgb, record["flux_scale"]),
-                    "params": spc.SPCParams(**record["params"]),
-                    "rng": spc.view_rng(record.get("seed") or 0, f"{scene_dir.name}/sensor-validation", int(i)),
-                }
+                stream, seed = f"{scene_dir.name}/sensor-validation", record.get("seed") or 0
+                drawn = sensor_draws(rgb, record["flux_scale"], record["params"], seed, stream, int(i))
             binary = binary_input(spc_dir / "frames" / f"{name}.npz", frames, pattern, **drawn)
             views.append(ValidationView(f"{scene_dir.name}/{name}", chw(binary), chw(rgb)))
     return views
