@@ -40,9 +40,9 @@ import numpy as np
 
 from . import io, llff, sensors, spc
 from .cameras import Cameras
-from .captures import read_capture, read_sensor, reference_images
+from .captures import capture_hot_pixels, capture_views, read_capture, read_sensor, reference_images
 from .exposure import PREVIEW_LEVEL, display_srgb, metered_gain
-from .hot_pixels import detect_hot_pixels, read_hot_pixel_map, write_hot_pixel_map
+from .hot_pixels import read_hot_pixel_map, write_hot_pixel_map
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,8 @@ def import_capture_scene(
     record. ``overrides``: the config's sensor settings (:func:`spc3d.captures.read_sensor`)."""
     t0 = time.perf_counter()
     folder = Path(folder)
-    names, cubes, sensor = read_capture(folder, overrides=overrides)
+    sensor = read_sensor(folder, overrides)
+    names = capture_views(folder, sensor.format)
     refs = reference_images(folder, names)
     if refs is not None and refs.shape[1:3] != (sensor.height, sensor.width):
         raise ValueError(
@@ -76,7 +77,8 @@ def import_capture_scene(
         )
     if (folder / "poses_bounds.npy").is_file():
         cams, poses = given_cameras(folder, len(names), sensor.height, sensor.width), {"source": "poses_bounds.npy"}
-    else:
+    else:  # the frames are read only here: given poses need just the view names
+        names, cubes, sensor = read_capture(folder, overrides=overrides)
         cams, keep, poses = photon_cameras(names, cubes, sensor, folder, max_features, seed, num_threads)
         names, refs = [names[i] for i in keep], None if refs is None else refs[keep]
     record = {
@@ -150,13 +152,13 @@ def photon_cameras(
             f"capture {folder}: COLMAP posed {len(idx)} of {len(names)} views from their {k}-frame MLE images "
             f"(needs {MIN_POSED}); give poses_bounds.npy, sensor.json intrinsics, or more frames per view"
         )
-    cams = Cameras(cams.w2c, cams.intrinsics, h, w, filled_bounds(cams.bounds))
+    cams, posed = Cameras(cams.w2c, cams.intrinsics, h, w, filled_bounds(cams.bounds)), set(idx.tolist())
     record = {
         "source": f"COLMAP on every view's MLE image of its {k} frames (no poses_bounds.npy)",
         "frames": k,
         "registered": int(len(idx)),
         "total": len(names),
-        "left_out": [n for i, n in enumerate(names) if i not in set(idx.tolist())],
+        "left_out": [n for i, n in enumerate(names) if i not in posed],
         "intrinsics": "refined from a focal guess of 1.2 x the larger side" if guess else "sensor.json, fixed",
         "focal_px": float(cams.intrinsics[0, 0]),
     }
@@ -166,13 +168,8 @@ def photon_cameras(
 def mle_previews(cubes: list[np.ndarray], sensor) -> np.ndarray:
     """(N, H, W, 3) demosaiced MLE flux of every view's frames, hot pixels (detected, and sensor.json's) filled."""
     counts = [c.sum(0, dtype=np.int64) for c in cubes]
-    hot = hot_map(counts, sensor)
+    hot, _ = capture_hot_pixels(counts, sensor)
     return np.stack([sensors.mle_rgb(c, sensor.params.frames, sensor.params, sensor.cfa, hot) for c in counts])
-
-
-def hot_map(counts: list[np.ndarray], sensor) -> np.ndarray:
-    hot, _ = detect_hot_pixels(sum(counts), sensor.params.frames * len(counts), sensor.cfa)
-    return hot if sensor.hot_pixels is None else hot | sensor.hot_pixels
 
 
 # --------------------------------------------------------------------------------------------
@@ -193,9 +190,7 @@ def import_capture_frames(
     params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
     counts = [c.sum(0, dtype=np.int64) for c in cubes]
     total = sum(counts)
-    hot, hot_record = detect_hot_pixels(total, k * len(cubes), pattern)
-    if sensor.hot_pixels is not None:
-        hot |= sensor.hot_pixels
+    hot, hot_record = capture_hot_pixels(counts, sensor)
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for view, cube, s in zip(views, cubes, counts):
             io.save_frames(tmp / "frames" / f"{view}.npz", *spc.pack_frames(cube))

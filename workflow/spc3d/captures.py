@@ -221,6 +221,15 @@ def reference_images(folder: str | os.PathLike, names: list[str]) -> np.ndarray 
     return np.stack([io.read_rgb(files[n]) for n in names])
 
 
+def capture_hot_pixels(
+    counts: list[np.ndarray], sensor: CaptureSensor, threshold: float = 6.0
+) -> tuple[np.ndarray, dict]:
+    """(hot (H, W) bool, detection record): detected from the ones ``counts`` of every view
+    (:func:`spc3d.hot_pixels.detect_hot_pixels`), united with the sensor's own map."""
+    hot, record = detect_hot_pixels(sum(counts), sensor.params.frames * len(counts), sensor.cfa, threshold)
+    return (hot if sensor.hot_pixels is None else hot | sensor.hot_pixels), record
+
+
 # --------------------------------------------------------------------------------------------
 # a first look at a capture: hot pixels, detection rates, MLE previews
 
@@ -251,9 +260,7 @@ def inspect_capture(
     params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
     counts = [cube.sum(0, dtype=np.int64) for cube in cubes]
     total, total_frames = sum(counts), k * len(cubes)
-    hot, hot_record = detect_hot_pixels(total, total_frames, pattern, threshold)
-    if sensor.hot_pixels is not None:
-        hot |= sensor.hot_pixels
+    hot, hot_record = capture_hot_pixels(counts, sensor, threshold)
     flux = [sensors.mle_rgb(c, k, params, pattern, hot) for c in counts]
     gain = metered_gain(np.stack(flux), level)
     labels, classes = sensors.class_map(pattern, sensor.height, sensor.width)
