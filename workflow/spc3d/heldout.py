@@ -22,22 +22,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import torch
 from scipy.optimize import minimize_scalar
 
+
 from . import spc
-from .sensors import cfa_mask
+from .sensors import bernoulli_nll_terms, cfa_mask
 
 DEFINITION = (
     "Bernoulli NLL of the held-out views' binary frames under the renders at the best single gain, "
     "minus that of the per-pixel MLE rates (nats per bit; 0 = explains the photons as well as any image can)"
 )
 SEARCH = math.log(1e4)  # the gain is searched within x/÷ 1e4 of the moment estimate
-
-
-def _bits_nll(lam_t: np.ndarray, fraction: np.ndarray) -> np.ndarray:
-    """Per-measurement NLL of firing fraction ``fraction`` at λT (clamped > 0: log p finite)."""
-    lam_t = np.maximum(lam_t, 1e-12)
-    return -(fraction * np.log(-np.expm1(-lam_t)) - (1.0 - fraction) * lam_t)
 
 
 def _entropy(fraction: np.ndarray) -> np.ndarray:
@@ -64,12 +60,8 @@ def heldout_photon_score(
     mixes, targets = [], []
     for img, frac in zip(renders, fractions):
         linear = spc.srgb_to_linear(np.clip(img, 0.0, 1.0)).astype(np.float64)
-        if pattern is None:
-            mix, keep = linear, np.ones(frac.shape, bool)
-        else:
-            mix, keep = (linear * cfa_mask(pattern, *frac.shape, np.float64)).sum(-1), np.ones(frac.shape, bool)
-            if valid is not None:
-                keep = valid
+        mix = linear if pattern is None else (linear * cfa_mask(pattern, *frac.shape, np.float64)).sum(-1)
+        keep = valid if pattern is not None and valid is not None else np.ones(frac.shape, bool)
         if mix.shape != frac.shape:
             raise ValueError(f"render {img.shape} does not match the held-out frames {frac.shape}")
         mixes.append(mix[keep])
@@ -79,8 +71,11 @@ def heldout_photon_score(
     rate = -math.log1p(-min(float(target.mean()), 1 - 1e-6)) / t  # detections/s of the mean pixel
     g0 = max(rate - dcr, 1e-9) / (q * max(float(mix.mean()), 1e-9))
 
-    def nll(log_g: float) -> float:
-        return float(_bits_nll((q * math.exp(log_g) * mix + dcr) * t, target).mean())
+    mix_t, target_t = torch.from_numpy(mix), torch.from_numpy(target)
+
+    def nll(log_g: float) -> float:  # the stage-2 likelihood's terms; λT > 0 as its objective clamps it
+        lam_t = ((q * math.exp(log_g) * mix_t + dcr) * t).clamp_min(1e-12)
+        return float(bernoulli_nll_terms(lam_t, target_t).mean())
 
     best = minimize_scalar(nll, bounds=(math.log(g0) - SEARCH, math.log(g0) + SEARCH), method="bounded")
     floor = float(_entropy(target).mean())
