@@ -228,3 +228,47 @@ def test_a_request_the_cluster_cannot_satisfy_stops_before_any_submission(
     assert _jobs(cluster, run_id) == {}
     assert not (tmp_path / "w" / ".snakemake" / "slurm_logs").exists()
     assert not (tmp_path / "w" / "results" / "scenes").exists()
+
+
+def _alive_in_bash(script: str, folder: Path) -> subprocess.CompletedProcess:
+    """Run `script` in bash under the script's own `set -euo pipefail`, with its `alive` defined."""
+    source = f"set -euo pipefail\nsource <(sed -n '/^alive()/,/^}}/p' {SCRIPT})\n"
+    env = {**os.environ, "DIR": str(folder)}
+    return subprocess.run(["bash", "-c", source + script], env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_alive_reads_pid_files(tmp_path):
+    """`alive` answers "not alive" for a missing, empty or stale pid file or another program's pid,
+    and gives the pid of a live process of that name."""
+    (tmp_path / "empty.pid").write_text("")
+    (tmp_path / "stale.pid").write_text("999999999\n")
+    run = _alive_in_bash(
+        'for f in missing empty stale; do alive $DIR/$f.pid munged >/dev/null || echo "$f: not alive"; done\n'
+        "sleep 30 & echo $! > $DIR/sleep.pid\n"
+        "[[ $(alive $DIR/sleep.pid sleep) == $! ]] && echo 'sleep: alive'\n"
+        "alive $DIR/sleep.pid munged >/dev/null || echo 'sleep as munged: not alive'\n"
+        "kill $!\n",
+        tmp_path,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines() == [
+        "missing: not alive",
+        "empty: not alive",
+        "stale: not alive",
+        "sleep: alive",
+        "sleep as munged: not alive",
+    ]
+
+
+def test_alive_survives_a_pid_file_deleted_while_it_reads(tmp_path):
+    """`slurm_local.sh stop` races the daemons, which delete their pid files as they exit. A pid file
+    created and deleted in a tight loop while `alive` asks 3,000 times must never end the script (a
+    failed `$(<file)` did, inside `||`, and failed CI after its tests had passed)."""
+    run = _alive_in_bash(
+        "( while true; do echo 999999999 > $DIR/flip.pid; rm -f $DIR/flip.pid; done ) & flipper=$!\n"
+        "trap 'kill $flipper' EXIT\n"
+        "for i in $(seq 3000); do alive $DIR/flip.pid munged >/dev/null || true; done\n"
+        "echo survived\n",
+        tmp_path,
+    )
+    assert (run.returncode, run.stdout) == (0, "survived\n"), run.stderr

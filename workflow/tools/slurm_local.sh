@@ -49,8 +49,10 @@ need() {
 # pid from a pid file if that process is alive and is `name` (a zombie or a reused pid is not).
 alive() {
     local pidfile=$1 name=$2 pid state
-    [[ -s $pidfile ]] || return 1
-    pid=$(<"$pidfile")
+    # The daemon removes its pid file as it exits, so the file can vanish between any two lines here;
+    # read it with `cat`: a failed `$(<file)` ends a `set -e` script even inside `||` (bash 5.2).
+    pid=$(cat "$pidfile" 2>/dev/null) || return 1
+    [[ $pid =~ ^[0-9]+$ ]] || return 1
     [[ -r /proc/$pid/stat ]] || return 1
     state=$(awk '{print $3}' "/proc/$pid/stat" 2>/dev/null) || return 1
     [[ $state != Z && $(cat "/proc/$pid/comm" 2>/dev/null) == "$name"* ]] || return 1
