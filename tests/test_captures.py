@@ -619,3 +619,24 @@ def test_capture_tool_errors_name_the_file(simulated, tmp_path):
     assert proc.returncode == 1 and "level=0.0: the linear grey level" in proc.stderr
     proc = capture_tool("export", simulated / "spc", tmp_path / "w", "--cfa", "RGBW")
     assert proc.returncode == 1 and "give scene_dir" in proc.stderr and not (tmp_path / "w").exists()
+
+
+def test_data_summary_figure_of_a_capture_without_reference_views(tmp_path):
+    """The data summary's panels for a capture: no reference image (the figure says so instead of
+    showing a black frame) and the MLE at a metered gain (there is no flux_scale to be exact with)."""
+    from spc3d.summary import figure_panels, write_figure
+
+    scene, spc_dir = tmp_path / "scene", tmp_path / "spc"
+    rng = np.random.default_rng(0)
+    for kind in ("binary", "average"):
+        io.write_image(spc_dir / kind / "v0.png", rng.random((6, 8, 3)).astype(np.float32))
+    io.write_image(spc_dir / "mle" / "v0.exr", rng.random((6, 8, 3)).astype(np.float32) * 500.0)
+    io.write_json(spc_dir / "spc.json", {"flux_scale": None})
+    (scene / "images").mkdir(parents=True)
+
+    view, panels, exact = figure_panels(scene, spc_dir)
+    assert (view, panels[0], exact) == ("v0", None, False)
+    assert all(p.shape == (6, 8, 3) and np.isfinite(p).all() for p in panels[1:])
+    assert 0.05 < panels[3].mean() < 0.95  # metered: neither black nor blown out
+    write_figure([(scene, spc_dir)], tmp_path / "summary.png", K=4)
+    assert io.read_rgb(tmp_path / "summary.png").std() > 0

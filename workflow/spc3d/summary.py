@@ -64,31 +64,39 @@ def write_tables(df: pd.DataFrame, csv_path: str | os.PathLike, md_path: str | o
     io.write_text(md_path, "# Data summary\n\n" + df.to_markdown(floatfmt=".4g", missingval="–") + "\n")
 
 
-def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray]]:
-    """(view name, [rgb, binary, average, MLE at the exact gain]) of the scene's first view (a test view)."""
+def figure_panels(scene_dir: Path, spc_dir: Path) -> tuple[str, list[np.ndarray | None], bool]:
+    """(view name, [rgb, binary, average, MLE], exact gain) of the scene's first view (a test view).
+    rgb is None for a capture without reference views; a capture's MLE is shown at a metered gain."""
     view = sorted(p.stem for p in (spc_dir / "binary").glob("*.png"))[0]
     flux = io.read_image(spc_dir / "mle" / f"{view}.exr")
     scale = read_spc_record(spc_dir)["flux_scale"]  # None for a capture: average metering instead
     mle = display_srgb(flux, scale if scale is not None else metered_gain(flux, PREVIEW_LEVEL))
     reference = scene_dir / "images" / f"{view}.png"
-    rgb = io.read_rgb(reference) if reference.is_file() else np.zeros_like(mle)  # a capture without reference views
-    return view, [rgb] + [io.read_rgb(spc_dir / k / f"{view}.png") for k in ("binary", "average")] + [mle]
+    rgb = io.read_rgb(reference) if reference.is_file() else None
+    panels = [rgb] + [io.read_rgb(spc_dir / k / f"{view}.png") for k in ("binary", "average")] + [mle]
+    return view, panels, scale is not None
 
 
 def write_figure(scenes: list[tuple[Path, Path]], path: str | os.PathLike, K: int) -> None:
     """Grid figure: a row per scene, columns RGB | binary | K-frame average | MLE."""
     plt = pyplot()
 
-    titles = ["RGB (ground truth)", "one binary frame", f"{K}-frame average", f"MLE flux ({K} frames, exact gain)"]
+    titles = ["RGB (ground truth)", "one binary frame", f"{K}-frame average", f"MLE flux ({K} frames)"]
     fig, axes = plt.subplots(len(scenes), 4, figsize=(12, 2.4 * len(scenes) + 0.4), squeeze=False)
     for r, (scene_dir, spc_dir) in enumerate(scenes):
-        view, panels = figure_panels(scene_dir, spc_dir)
+        view, panels, exact = figure_panels(scene_dir, spc_dir)
         for c, img in enumerate(panels):
             ax = axes[r, c]
-            ax.imshow(img, interpolation="nearest")
             ax.set_xticks([]), ax.set_yticks([])
             if r == 0:
                 ax.set_title(titles[c], fontsize=10)
+            if img is None:  # a capture without reference views: say so rather than show a black frame
+                ax.imshow(np.full_like(panels[1], 0.9))
+                ax.text(0.5, 0.5, "no reference views\n(a capture)", ha="center", va="center", transform=ax.transAxes)
+                continue
+            ax.imshow(img, interpolation="nearest")
+        gain = "exact gain (simulator)" if exact else "metered gain (capture)"
+        axes[r, 3].text(0.02, 0.03, gain, color="w", fontsize=7, transform=axes[r, 3].transAxes)
         axes[r, 0].set_ylabel(f"{scene_dir.name}\n{view}", fontsize=10)
     fig.tight_layout()
     save_png(fig, path, dpi=110)
