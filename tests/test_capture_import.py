@@ -267,7 +267,7 @@ def test_imported_scene_keeps_the_given_poses_and_reference_views(sim):
     truth = llff.read_scene(sim / "scene")
     got = llff.read_scene(sim / "cap_scene")
     assert got.names == truth.names and got.meta["reference"] is True
-    assert got.meta["source"] == "capture" and got.meta["sensor"] == "RGGB"
+    assert got.meta["source"] == "capture" and got.meta["sensor"] == "RGGB" and got.meta["colour"] is True
     assert got.meta["poses"] == {"source": "poses_bounds.npy"}
     assert (got.cameras.height, got.cameras.width) == (H, W)
     np.testing.assert_allclose(got.cameras.w2c, truth.cameras.w2c, atol=1e-9)

@@ -640,3 +640,47 @@ def test_data_summary_figure_of_a_capture_without_reference_views(tmp_path):
     assert 0.05 < panels[3].mean() < 0.95  # metered: neither black nor blown out
     write_figure([(scene, spc_dir)], tmp_path / "summary.png", K=4)
     assert io.read_rgb(tmp_path / "summary.png").std() > 0
+
+
+def test_luminance_and_colourless_sensors():
+    gray = np.random.default_rng(0).random((4, 5, 1)).repeat(3, axis=-1).astype(np.float32)
+    np.testing.assert_allclose(sensors.luminance_srgb(gray), gray, atol=1e-6)  # weights sum to 1
+    green = np.zeros((1, 1, 3), np.float32)
+    green[..., 1] = 1.0
+    np.testing.assert_allclose(sensors.luminance_srgb(green)[0, 0], spc.linear_to_srgb(np.full(3, 0.7152)), atol=1e-6)
+    assert not sensors.cfa_pattern("mono").colour and not sensors.cfa_pattern([[[255, 255, 255]] * 2]).colour
+    assert all(sensors.cfa_pattern(name).colour for name in (*BAYER, "RGBW"))
+
+
+def test_a_colourless_capture_is_scored_on_luminance(tmp_path, lpips_cache):
+    """A mono capture's rows are scored on the luminance of render and reference: a render with the
+    reference's luminance and none of its colour is perfect there, and the tables say so."""
+    from spc3d import llff, tables
+    from spc3d.evaluate import LUMINANCE_NOTE, evaluate
+
+    scene_dir = tmp_path / "scene"
+    write_builtin_scene("courtyard", scene_dir, height=48, width=64, views=8, supersample=1)
+    scene = llff.read_scene(scene_dir)
+    test = scene.names[:2]
+    for name in test:
+        io.write_image(
+            tmp_path / "recon" / "renders" / f"{name}.png",
+            sensors.luminance_srgb(scene.images[scene.names.index(name)]),
+        )
+    io.write_json(
+        tmp_path / "recon" / "train.json", {"source": "mle-k4", "model": "3dgs", "frames": 4, "test_views": test}
+    )
+
+    rgb = evaluate(tmp_path / "recon", scene_dir, tmp_path / "rgb.json", lpips_cache)
+    assert rgb["scored_on"] == "RGB" and np.isfinite(rgb["mean"]["psnr"])
+    meta = io.read_json(scene_dir / "scene.json")
+    io.write_json(scene_dir / "scene.json", {**meta, "sensor": "mono", "colour": False})
+    mono = evaluate(tmp_path / "recon", scene_dir, tmp_path / "mono.json", lpips_cache)
+    assert mono["scored_on"] == LUMINANCE_NOTE and mono["mean"]["ssim"] > 0.999
+    assert mono["mean"]["psnr"] > 50 > rgb["mean"]["psnr"] + 20  # equal up to the render's 8-bit rounding
+    assert mono["mean"]["lpips_alex"] < 0.01 < rgb["mean"]["lpips_alex"]
+
+    tables.two_stage_table([tmp_path / "mono.json"], tmp_path / "two_stage", "nerf")
+    assert "Scene scene: captured by a colourless sensor" in (tmp_path / "two_stage.md").read_text()
+    tables.two_stage_table([tmp_path / "rgb.json"], tmp_path / "two_stage_rgb", "nerf")
+    assert "colourless" not in (tmp_path / "two_stage_rgb.md").read_text()

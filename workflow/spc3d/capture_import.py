@@ -85,6 +85,7 @@ def import_capture_scene(
         "source": "capture",
         "path": str(folder),
         "sensor": sensor.cfa.name,
+        "colour": sensor.cfa.colour,  # False (mono, all-W): rows are scored by luminance (spc3d.evaluate)
         "poses": poses,
         "settings": {"max_features": max_features},
         "seed": seed,

@@ -2,8 +2,10 @@
 
 Per held-out view and averaged: PSNR (dB; identical images give inf), SSIM (Gaussian window 11,
 sigma 1.5, Wang et al.: see :mod:`spc3d.metrics`), LPIPS with the AlexNet and the VGG backbone
-(named in every key). The record also carries what the reconstruction wrote in ``train.json``:
-model, source, seed, resolved settings, iterations, training and rendering time, capacity.
+(named in every key). On a scene captured by a colourless sensor (mono) both images are first
+reduced to their luminance (``scored_on`` says which). The record also carries what the
+reconstruction wrote in ``train.json``: model, source, seed, resolved settings, iterations, training
+and rendering time, capacity.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io, llff, metrics, spc
+from . import io, llff, metrics, sensors, spc
 
 METRICS = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
 CONVENTIONS = {
@@ -23,8 +25,27 @@ CONVENTIONS = {
 }
 
 
-def score_view(pred: np.ndarray, gt: np.ndarray, lpips_dir: str | os.PathLike | None = None) -> dict[str, float]:
-    """All metrics of one (H, W, 3) sRGB render against its ground truth."""
+LUMINANCE_NOTE = "luminance (Rec. 709 Y of linear light, as gray sRGB): a colourless sensor records no colour"
+
+
+def scored_on(colour: bool) -> str:
+    return "RGB" if colour else LUMINANCE_NOTE
+
+
+def scene_has_colour(scene_dir: str | os.PathLike) -> bool:
+    """False for a capture by a colourless sensor (scene.json ``"colour": false``: mono, all-W): its
+    rows are scored on the luminance of render and reference, since no row can know colour there."""
+    meta = Path(scene_dir) / "scene.json"
+    return not meta.exists() or io.read_json(meta).get("colour", True) is not False
+
+
+def score_view(
+    pred: np.ndarray, gt: np.ndarray, lpips_dir: str | os.PathLike | None = None, colour: bool = True
+) -> dict[str, float]:
+    """All metrics of one (H, W, 3) sRGB render against its ground truth; ``colour`` False (a scene
+    of a colourless sensor): of their luminance (:func:`spc3d.sensors.luminance_srgb`)."""
+    if not colour:
+        pred, gt = sensors.luminance_srgb(pred), sensors.luminance_srgb(gt)
     return {
         "psnr": metrics.psnr(pred, gt),
         "ssim": metrics.ssim(pred, gt),
@@ -64,14 +85,16 @@ def evaluate(
         return write_unscored(recon_dir, scene_dir, out_json, train, spc_dir)
     scene = llff.read_scene(scene_dir)
     index = {n: i for i, n in enumerate(scene.names)}
+    colour = scene_has_colour(scene_dir)
     per_view = []
     for name in train["test_views"]:
         pred = io.read_rgb(recon_dir / "renders" / f"{name}.png")
-        per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir)})
+        per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir, colour)})
     record = {
         **row_record(scene_dir, train),
         "mean": mean_scores(per_view),
         "per_view": per_view,
+        "scored_on": scored_on(colour),
         "conventions": CONVENTIONS,
     }
     io.write_json(out_json, record)

@@ -79,11 +79,25 @@ class CFAPattern:
         rank = np.argsort(order)
         return rank[labels.reshape(self.period)], [names[i] for i in order]
 
+    @property
+    def colour(self) -> bool:
+        """Whether the sensor tells colours apart: False when every pixel sees the same weights
+        (``mono``, an all-W tile), whose scenes are scored by luminance (:func:`luminance_srgb`)."""
+        return len(np.unique(self.tile.reshape(-1, 3), axis=0)) > 1
+
     def to_json(self) -> str | list:
         """The name (named patterns, mono) or the tile as nested 0/255 RGB pixels."""
         if self.name != "custom":
             return self.name
         return np.where(self.tile > 0, 255, 0).astype(int).tolist()
+
+
+def luminance_srgb(img: np.ndarray) -> np.ndarray:
+    """(H, W, 3) sRGB in [0, 1] -> its Rec. 709 luminance (of linear light) as gray sRGB (H, W, 3)
+    float32: what a colourless sensor can know of an image, so renders and references of its scenes
+    are compared on it."""
+    y = spc.srgb_to_linear(img) @ np.asarray(LUMINANCE)
+    return np.repeat(spc.linear_to_srgb(y)[..., None], 3, axis=-1).astype(np.float32)
 
 
 def cfa_pattern(spec: str | os.PathLike | np.ndarray | list | CFAPattern, white: str = "sum") -> CFAPattern:

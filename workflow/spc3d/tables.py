@@ -259,17 +259,30 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protoco
     io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
 
 
+def scoring_note(files: list[str | os.PathLike]) -> str:
+    """The caption's sentence naming the scenes scored on luminance (captured by a colourless sensor:
+    ``scored_on`` in their records, :func:`spc3d.evaluate.scene_has_colour`); "" when there are none."""
+    scenes = sorted({r["scene"] for r in map(io.read_json, files) if r.get("scored_on", "RGB") != "RGB"})
+    if not scenes:
+        return ""
+    return (
+        f" Scene{'s' if len(scenes) > 1 else ''} {', '.join(scenes)}: captured by a colourless sensor, so every "
+        "row there is scored on luminance (render and reference reduced to Rec. 709 Y)."
+    )
+
+
 def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
     """Paper Table 2 layout (+ this project's rows) from the given metrics files."""
     df = table(summarise(collect(metrics_files)), SINGLE_STAGE, nerf_variant)
-    write_table(df, stem, "Single-stage vs two-stage (paper Table 2 layout)")
+    write_table(df, stem, "Single-stage vs two-stage (paper Table 2 layout)", PROTOCOL + scoring_note(metrics_files))
     return df
 
 
 def two_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
     """Paper Table 1 layout (+ this project's rows) from the given metrics files."""
     df = table(summarise(collect(metrics_files)), TWO_STAGE, nerf_variant)
-    write_table(df, stem, "Two-stage: stage-1 translator + stage-2 reconstructor (paper Table 1 layout)")
+    caption = "Two-stage: stage-1 translator + stage-2 reconstructor (paper Table 1 layout)"
+    write_table(df, stem, caption, PROTOCOL + scoring_note(metrics_files))
     return df
 
 
@@ -302,7 +315,8 @@ def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> 
     ]
     df = table(summary.rename(index=lambda c: f"{c}+image"), spec, "image")
     df["combination"] = [c.removesuffix("+image") for c in df["combination"]]
-    write_table(df, stem, "Stage 1 alone: translated held-out views vs ground truth, before 3D")
+    caption = "Stage 1 alone: translated held-out views vs ground truth, before 3D"
+    write_table(df, stem, caption, PROTOCOL + scoring_note(stage1_files))
     return df
 
 
@@ -330,7 +344,8 @@ def estimated_poses_table(metrics_files: list[str], stem: str, labels: dict[str,
     if df.empty:
         write_text_table(stem, "No row with estimated poses: add e.g. 'bernoulli+3dgs@mle-k16' to stage2.combinations")
         return df
-    write_table(df, stem, "Poses from the photons: rows on COLMAP poses beside ground-truth poses", POSES_PROTOCOL)
+    caption = "Poses from the photons: rows on COLMAP poses beside ground-truth poses"
+    write_table(df, stem, caption, POSES_PROTOCOL + scoring_note(metrics_files))
     return df
 
 

@@ -37,7 +37,7 @@ from torch import Tensor
 
 from .. import io, llff
 from ..cameras import split_views
-from ..evaluate import mean_scores, score_view
+from ..evaluate import mean_scores, scene_has_colour, score_view, scored_on
 from .data import binary_input
 from .model_io import load_translator
 
@@ -154,6 +154,7 @@ def score_images(
     test = [scene.names[i] for i in split_views(len(scene.names))[1]]
     per_view = score_folder(Path(image_dir), scene_dir, test, source, lpips_dir)
     record = {
+        "scored_on": scored_on(scene_has_colour(scene_dir)),
         "scene": scene_dir.name,
         "source": source,
         "stage": 1,
@@ -175,12 +176,12 @@ def score_folder(
     image_dir: Path, scene_dir: Path, names: list[str], source: str, lpips_dir: str | os.PathLike | None
 ) -> dict[str, dict]:
     """Scores of ``image_dir/{name}.png`` against the scene's ground truth, per view name."""
-    per_view = {}
+    per_view, colour = {}, scene_has_colour(scene_dir)
     for name in names:
         pred_path = image_dir / f"{name}.png"
         if not pred_path.is_file():
             raise FileNotFoundError(f"{pred_path} is missing: source {source!r} has no image for view {name}")
         per_view[name] = score_view(
-            io.read_rgb(pred_path), io.read_rgb(scene_dir / "images" / f"{name}.png"), lpips_dir
+            io.read_rgb(pred_path), io.read_rgb(scene_dir / "images" / f"{name}.png"), lpips_dir, colour
         )
     return per_view
