@@ -1,14 +1,14 @@
 """Does 3DGS camera refinement recover from pose noise? Training scenes only (never the evaluation one).
 
     python benchmarks/pose_refinement.py [--scenes tabletop orchard gallery] [--noise 0 0.5 1]
-                                         [--lr 5e-4] [--start 300] [--iterations 1200] [--jobs 2]
+        [--lr 5e-4] [--lr-final 5e-6] [--start 300] [--iterations 1200] [--seeds 0] [--refined-only] [--jobs 2]
 
 Each built-in scene is rendered at 128 x 96 (24 views); its training cameras are perturbed by a
 random rotation of ``noise`` degrees RMS and a shift of 2 % of the camera spread per degree (a
 seeded draw per view), and 3DGS is fitted to the ground-truth images on those cameras, with and
 without :mod:`spc3d.reconstruct.pose_refine`. Printed per scene and noise: held-out PSNR (rendered
 after the re-alignment the workflow uses), the median rotation error of the training cameras
-before and after refinement, and the wall time. This is how ``pose_lr`` and ``pose_from`` were
+before and after refinement, and the wall time. This is how ``pose_lr``, ``pose_lr_final`` and ``pose_from`` were
 chosen (stage2.3dgs); at zero noise it shows what refinement costs on exact poses, which is why
 stage2.refine_poses refines only the rows on estimated poses by default.
 """
@@ -28,6 +28,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
 from spc3d.alignment import pose_error  # noqa: E402
 from spc3d.cameras import Cameras, split_views  # noqa: E402
+from spc3d.reconstruct.gaussians import GaussianConfig  # noqa: E402
+
+DEFAULTS = GaussianConfig()  # the refinement settings the workflow uses unless stage2.3dgs overrides them
 
 # The default config's stage2.3dgs block (config.yaml), but the iterations.
 SETTINGS = {
@@ -53,7 +56,7 @@ def perturbed(cams: Cameras, noise_deg: float, seed: int = 0) -> Cameras:
 
 
 def point(args: tuple) -> dict:
-    scene_name, noise, refine, lr, start, iterations = args
+    scene_name, noise, refine, lr, lr_final, start, iterations, seed = args
     import torch
 
     from spc3d import llff
@@ -68,10 +71,11 @@ def point(args: tuple) -> dict:
         scene = llff.read_scene(Path(tmp) / scene_name)
     train, test = split_views(len(scene.names))
     ref = scene.cameras.subset(train)
-    noisy = perturbed(ref, noise)
+    noisy = perturbed(ref, noise, seed)
     views = Views(torch.as_tensor(scene.images[train]), noisy, [scene.names[i] for i in train])
-    settings = {**SETTINGS, "iterations": iterations, "pose_refine": refine, "pose_lr": lr, "pose_from": start}
-    trainer, n, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0, None)
+    settings = {**SETTINGS, "iterations": iterations, "pose_refine": refine, "pose_lr": lr, "pose_lr_final": lr_final}
+    settings["pose_from"] = start
+    trainer, n, _ = RECONSTRUCTORS["3dgs"](views, None, settings, seed, None)
     t0 = time.perf_counter()
     for it in range(1, n + 1):
         trainer.step(it)
@@ -83,6 +87,7 @@ def point(args: tuple) -> dict:
         "scene": scene_name,
         "noise": noise,
         "refine": refine,
+        "seed": seed,
         "psnr": float(np.mean(scores)),
         "rot_before": err[0],
         "rot_after": err[1],
@@ -94,24 +99,46 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=["tabletop", "orchard", "gallery"])
     ap.add_argument("--noise", nargs="+", type=float, default=[0.0, 0.5, 1.0])
-    ap.add_argument("--lr", type=float, default=5e-4)
-    ap.add_argument("--start", type=int, default=300)
+    ap.add_argument("--lr", type=float, default=DEFAULTS.pose_lr)
+    ap.add_argument("--lr-final", type=float, default=DEFAULTS.pose_lr_final, help="lr at the last iteration")
+    ap.add_argument("--start", type=int, default=DEFAULTS.pose_from)
+    ap.add_argument("--refined-only", action="store_true", help="skip the runs without refinement")
     ap.add_argument("--iterations", type=int, default=1200)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="noise draw and training seed; means over them")
     a = ap.parse_args()
-    jobs = [(s, n, r, a.lr, a.start, a.iterations) for s in a.scenes for n in a.noise for r in (False, True)]
+    modes = (True,) if a.refined_only else (False, True)
+    jobs = [
+        (s, n, r, a.lr, a.lr_final, a.start, a.iterations, seed)
+        for s in a.scenes
+        for n in a.noise
+        for r in modes
+        for seed in a.seeds
+    ]
     with ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(point, jobs))
-    print(f"pose_lr {a.lr}, pose_from {a.start}, {a.iterations} iterations, 128 x 96, ground-truth images")
+    print(
+        f"pose_lr {a.lr} -> {a.lr_final}, pose_from {a.start}, {a.iterations} iterations, 128 x 96, "
+        f"ground-truth images; mean over seeds {a.seeds} (± std over seeds when several)"
+    )
     print("| scene | noise (deg) | PSNR fixed | PSNR refined | rotation error before -> after (deg) | s (refined) |")
     print("|---|---|---|---|---|---|")
     for s in a.scenes:
         for n in a.noise:
-            off, on = (next(r for r in rows if (r["scene"], r["noise"], r["refine"]) == (s, n, f)) for f in (0, 1))
+            off, on = ([r for r in rows if (r["scene"], r["noise"], r["refine"]) == (s, n, f)] for f in (False, True))
+            rot = [f"{np.mean([r[k] for r in on]):.3f}" for k in ("rot_before", "rot_after")]
             print(
-                f"| {s} | {n:g} | {off['psnr']:.2f} | {on['psnr']:.2f} | "
-                f"{on['rot_before']:.3f} -> {on['rot_after']:.3f} | {on['wall_s']:.0f} |"
+                f"| {s} | {n:g} | {spread(off, 'psnr')} | {spread(on, 'psnr')} | {rot[0]} -> {rot[1]} | "
+                f"{np.mean([r['wall_s'] for r in on]):.0f} |"
             )
+
+
+def spread(rows: list[dict], key: str) -> str:
+    """Mean (± std, ddof 1, over seeds when several) of ``key``; "–" when not run."""
+    if not rows:
+        return "–"
+    v = [r[key] for r in rows]
+    return f"{np.mean(v):.2f}" + (f" ± {np.std(v, ddof=1):.2f}" if len(v) > 1 else "")
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from spc3d.cameras import split_views, transform_cameras
 from spc3d.reconstruct.gaussians import GaussianConfig, GaussianModel, random_points
 from spc3d.reconstruct.objectives import RGBObjective
 from spc3d.reconstruct.pose_refine import PoseCorrections, axis_angle_matrix, axis_angle_quat, heldout_cameras, quat_mul
-from spc3d.reconstruct.splatting import SplatTrainer
+from spc3d.reconstruct.splatting import SplatTrainer, pose_lr
 from spc3d.reconstruct.train import Views
 from spc3d.scenes import render_scene
 
@@ -140,3 +140,15 @@ def test_trainer_refines_resumes_and_records(scene):
     assert len(cams) == len(test) and np.isfinite(cams.w2c).all()
     plain = SplatTrainer(views, RGBObjective(), dataclasses.replace(cfg, pose_refine=False), seed=0)
     assert plain.poses is None and plain.heldout_cameras(views.cameras, scene.cameras.subset(test)) is not None
+
+
+def test_pose_lr_decays_from_pose_from_to_the_last_iteration():
+    cfg = GaussianConfig(iterations=1000, pose_from=200, pose_lr=1e-3, pose_lr_final=1e-5)
+    lrs = [pose_lr(it, cfg) for it in range(cfg.pose_from, cfg.iterations + 1)]
+    assert (
+        lrs[0] == pytest.approx(1e-3) and lrs[-1] == pytest.approx(1e-5) and pose_lr(5000, cfg) == pytest.approx(1e-5)
+    )
+    assert pose_lr(600, cfg) == pytest.approx(1e-4)  # half way, in log space
+    assert all(a > b for a, b in zip(lrs, lrs[1:]))
+    constant = GaussianConfig(pose_lr=5e-4, pose_lr_final=5e-4)
+    assert {pose_lr(it, constant) for it in (0, 300, 10_000, constant.iterations)} == {5e-4}  # exactly

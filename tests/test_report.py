@@ -1,9 +1,11 @@
 """The HTML report: `snakemake --report` on a smoke run is one self-contained page with the tables,
-figures, captions and run times, and (where Chromium is installed) it renders in a real browser."""
+figures, captions and run times, and (where Chromium is installed) it renders in a real browser.
+.ci/run installs Chromium and sets SPC3D_REQUIRE_BROWSER=1, which turns a missing browser into a failure."""
 
 import base64
 import importlib.util
 import json
+import os
 import re
 import warnings
 
@@ -36,6 +38,18 @@ def embedded_json(html: str, name: str) -> dict:
     return json.loads(match.group(1))
 
 
+def browser_missing(tool) -> str | None:
+    """Why the screenshot tool finds no browser (None when it finds one); a failure instead where
+    SPC3D_REQUIRE_BROWSER=1 says one must be there."""
+    try:
+        tool.find_browser()
+    except tool.BrowserMissing as exc:
+        if os.environ.get("SPC3D_REQUIRE_BROWSER") == "1":
+            pytest.fail(f"{exc} (SPC3D_REQUIRE_BROWSER=1)")
+        return str(exc)
+    return None
+
+
 def test_screenshot_tool_names_the_missing_browser(monkeypatch, tmp_path):
     tool = load_tool()
     monkeypatch.delenv("CHROMIUM", raising=False)
@@ -50,10 +64,8 @@ def test_screenshot_tool_names_the_missing_browser(monkeypatch, tmp_path):
 def test_screenshot_tool_names_what_a_page_never_finished(tmp_path):
     """A page that is not a Snakemake report never mounts the report's app: a clear error, no PNG."""
     tool = load_tool()
-    try:
-        tool.find_browser()
-    except tool.BrowserMissing as exc:
-        pytest.skip(str(exc))
+    if why := browser_missing(tool):
+        pytest.skip(why)
     page = tmp_path / "plain.html"
     page.write_text("<html><body><p>not a report</p></body></html>")
     png = tmp_path / "plain.png"
@@ -116,10 +128,8 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     assert {"train_translator", "reconstruct", "evaluate"} <= {r["rule"] for r in runtimes}
 
     tool = load_tool()
-    try:
-        tool.find_browser()
-    except tool.BrowserMissing as exc:  # the report is checked; only the browser part is left out
-        warnings.warn(f"report not rendered in a browser: {exc}", stacklevel=2)
+    if why := browser_missing(tool):  # the report is checked; only the browser part is left out
+        warnings.warn(f"report not rendered in a browser: {why}", stacklevel=2)
         return
     for name, show in (
         ("landing", None),

@@ -57,7 +57,8 @@ class GaussianConfig:
     max_gaussians: int = 200_000  # hard cap on capacity
     init_points: int = 5000  # random initialisation only
     pose_refine: bool = False  # learn a correction of every training camera (spc3d.reconstruct.pose_refine)
-    pose_lr: float = 5e-4  # Adam lr of the corrections (radians; translation in scene extents)
+    pose_lr: float = 5e-4  # Adam lr of the corrections (radians; translation in scene extents), at pose_from
+    pose_lr_final: float = 5e-6  # their lr at the last iteration (exponential decay: they settle, not drift)
     pose_from: int = 300  # iteration from which the corrections move (the Gaussians fit roughly first)
     backend: str = "native"  # rasterizer back-end
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour behind the last Gaussian (render space)

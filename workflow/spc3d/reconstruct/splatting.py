@@ -44,10 +44,22 @@ def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> 
     return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
 
 
+def log_linear(it: int, start: int, end: int, first: float, last: float) -> float:
+    """Exponential (log-linear) decay from ``first`` at iteration ``start`` to ``last`` at ``end``."""
+    if first == last:  # a constant lr, exactly (exp(log(x)) need not round back to x)
+        return first
+    t = min(max((it - start) / max(end - start, 1), 0.0), 1.0)
+    return math.exp((1 - t) * math.log(first) + t * math.log(last))
+
+
 def means_lr(it: int, cfg: GaussianConfig, extent: float) -> float:
-    """Exponential (log-linear) decay from lr_means to lr_means_final over the run, times extent."""
-    t = min(max(it / max(cfg.iterations, 1), 0.0), 1.0)
-    return extent * math.exp((1 - t) * math.log(cfg.lr_means) + t * math.log(cfg.lr_means_final))
+    """Exponential decay from lr_means to lr_means_final over the run, times extent."""
+    return extent * log_linear(it, 0, cfg.iterations, cfg.lr_means, cfg.lr_means_final)
+
+
+def pose_lr(it: int, cfg: GaussianConfig) -> float:
+    """The camera corrections' lr: exponential decay from pose_lr (at pose_from) to pose_lr_final."""
+    return log_linear(it, cfg.pose_from, cfg.iterations, cfg.pose_lr, cfg.pose_lr_final)
 
 
 class SplatTrainer:
@@ -105,6 +117,8 @@ class SplatTrainer:
         )
         self.opt.step()
         if refine:
+            for group in self.pose_opt.param_groups:
+                group["lr"] = pose_lr(it, self.cfg)
             self.pose_opt.step()
         self.control.step(it, self.model, self.opt)
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
