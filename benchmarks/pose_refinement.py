@@ -1,7 +1,8 @@
 """Does 3DGS camera refinement recover from pose noise? Training scenes only (never the evaluation one).
 
     python benchmarks/pose_refinement.py [--scenes tabletop orchard gallery] [--noise 0 0.5 1]
-        [--lr 5e-4] [--lr-final 5e-6] [--start 300] [--iterations 1200] [--seeds 0] [--refined-only] [--jobs 2]
+        [--lr 5e-4] [--lr-final 5e-6] [--start 300] [--iterations 1200] [--seeds 0] [--refined-only]
+        [--jobs 2] [--out runs.json]
 
 Each built-in scene is rendered at 128 x 96 (24 views); its training cameras are perturbed by a
 random rotation of ``noise`` degrees RMS and a shift of 2 % of the camera spread per degree (a
@@ -26,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
+from spc3d import io  # noqa: E402
 from spc3d.alignment import pose_error  # noqa: E402
 from spc3d.cameras import Cameras, split_views  # noqa: E402
 from spc3d.reconstruct.gaussians import GaussianConfig  # noqa: E402
@@ -105,6 +107,7 @@ def main() -> None:
     ap.add_argument("--refined-only", action="store_true", help="skip the runs without refinement")
     ap.add_argument("--iterations", type=int, default=1200)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out", type=Path, help="also write every run (one JSON record each) to this file")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="noise draw and training seed; means over them")
     a = ap.parse_args()
     modes = (True,) if a.refined_only else (False, True)
@@ -117,6 +120,8 @@ def main() -> None:
     ]
     with ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(point, jobs))
+    if a.out:  # every run, for paired comparisons between settings (same scene, noise and seed)
+        io.write_json(a.out, {"settings": vars(a), "runs": rows})
     print(
         f"pose_lr {a.lr} -> {a.lr_final}, pose_from {a.start}, {a.iterations} iterations, 128 x 96, "
         f"ground-truth images; mean over seeds {a.seeds} (± std over seeds when several)"
