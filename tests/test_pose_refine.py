@@ -12,7 +12,14 @@ from scipy.spatial.transform import Rotation
 from spc3d.cameras import split_views, transform_cameras
 from spc3d.reconstruct.gaussians import GaussianConfig, GaussianModel, random_points
 from spc3d.reconstruct.objectives import RGBObjective
-from spc3d.reconstruct.pose_refine import PoseCorrections, axis_angle_matrix, axis_angle_quat, heldout_cameras, quat_mul
+from spc3d.reconstruct.pose_refine import (
+    PoseCorrections,
+    RowAdam,
+    axis_angle_matrix,
+    axis_angle_quat,
+    heldout_cameras,
+    quat_mul,
+)
 from spc3d.reconstruct.splatting import SplatTrainer, pose_lr
 from spc3d.reconstruct.train import Views
 from spc3d.scenes import render_scene
@@ -152,3 +159,28 @@ def test_pose_lr_decays_from_pose_from_to_the_last_iteration():
     assert all(a > b for a, b in zip(lrs, lrs[1:]))
     constant = GaussianConfig(pose_lr=5e-4, pose_lr_final=5e-4)
     assert {pose_lr(it, constant) for it in (0, 300, 10_000, constant.iterations)} == {5e-4}  # exactly
+
+
+def test_row_adam_is_adam_on_the_visited_row_and_leaves_the_others():
+    """Visiting one row is torch's Adam on that row; the rows not visited keep their values and moments."""
+    torch.manual_seed(0)
+    grads = torch.randn(12, 6)
+    ours = torch.nn.Parameter(torch.zeros(3, 6))
+    theirs = torch.nn.Parameter(torch.zeros(6))
+    row_adam, adam = RowAdam(ours), torch.optim.Adam([theirs], lr=1e-3)
+    for step, g in enumerate(grads):
+        lr = 1e-3 * 0.9**step  # a changing lr, as the decay sets it
+        for group in adam.param_groups:
+            group["lr"] = lr
+        ours.grad = torch.zeros(3, 6)
+        ours.grad[1] = g
+        theirs.grad = g.clone()
+        row_adam.step(1, lr)
+        adam.step()
+    torch.testing.assert_close(ours.detach()[1], theirs.detach(), rtol=1e-5, atol=1e-8)
+    assert not ours.detach()[[0, 2]].any() and row_adam.t.tolist() == [0, len(grads), 0]
+    resumed = RowAdam(torch.nn.Parameter(ours.detach().clone()))
+    resumed.load_state_dict(row_adam.state_dict())
+    assert all(torch.equal(a, b) for a, b in zip(resumed.state_dict().values(), row_adam.state_dict().values()))
+    with pytest.raises(ValueError, match="before per-view Adam"):
+        resumed.load_state_dict({"state": {}, "param_groups": []})  # torch's Adam state, an old checkpoint

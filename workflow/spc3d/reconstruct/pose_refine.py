@@ -132,6 +132,45 @@ class PoseCorrections(nn.Module):
         }
 
 
+class RowAdam:
+    """Adam on the rows of an (N, D) parameter that steps only the row given (the view just rendered).
+
+    Each training step renders one view, so only its correction has a gradient. ``torch.optim.Adam``
+    on the whole tensor would still move every other row on the momentum of its last visit (zero
+    gradients decay m faster than sqrt(v)), about ten steps of motion per visit; here a row's moments
+    and step count advance only when it is visited, as in lazy (sparse) Adam."""
+
+    def __init__(self, param: nn.Parameter, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        self.param, self.betas, self.eps = param, betas, eps
+        self.m, self.v = torch.zeros_like(param), torch.zeros_like(param)
+        self.t = torch.zeros(len(param), dtype=torch.int64)
+
+    def zero_grad(self) -> None:
+        self.param.grad = None
+
+    @torch.no_grad()
+    def step(self, i: int, lr: float) -> None:
+        b1, b2 = self.betas
+        g = self.param.grad[i]
+        self.t[i] += 1
+        self.m[i] = b1 * self.m[i] + (1 - b1) * g
+        self.v[i] = b2 * self.v[i] + (1 - b2) * g * g
+        t = int(self.t[i])
+        m_hat, v_hat = self.m[i] / (1 - b1**t), self.v[i] / (1 - b2**t)
+        self.param[i] -= lr * m_hat / (v_hat.sqrt() + self.eps)
+
+    def state_dict(self) -> dict:
+        return {"m": self.m.clone(), "v": self.v.clone(), "t": self.t.clone()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if set(state) != {"m", "v", "t"}:
+            raise ValueError(
+                f"camera-correction optimizer state has keys {sorted(state)}, expected m, v, t: a checkpoint "
+                "written before per-view Adam (delete it to retrain this row)"
+            )
+        self.m, self.v, self.t = state["m"].clone(), state["v"].clone(), state["t"].clone()
+
+
 def heldout_cameras(refined_train: Cameras, reference_train: Cameras, reference_test: Cameras) -> Cameras:
     """The held-out views' reference cameras in the refined model's world: mapped by the inverse of
     the similarity that aligns the refined training cameras with their reference ones."""

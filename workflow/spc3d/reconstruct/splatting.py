@@ -26,7 +26,7 @@ from ..cameras import Cameras
 from .densify import DensityControl
 from .splat.project import CameraError
 from .gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
-from .pose_refine import PoseCorrections, heldout_cameras
+from .pose_refine import PoseCorrections, RowAdam, heldout_cameras
 from ..metrics import psnr
 from .train import Views
 
@@ -84,7 +84,7 @@ class SplatTrainer:
         self.losses: list[float] = []
         self.degree_loss = math.inf  # mean loss of the interval before the last degree decision
         self.poses = PoseCorrections(views.cameras, self.extent) if cfg.pose_refine else None
-        self.pose_opt = torch.optim.Adam(self.poses.parameters(), lr=cfg.pose_lr) if self.poses else None
+        self.pose_opt = RowAdam(self.poses.delta) if self.poses else None
 
     def step(self, it: int) -> dict:
         for group in self.opt.param_groups:
@@ -110,16 +110,14 @@ class SplatTrainer:
             )
         self.opt.zero_grad(set_to_none=True)
         if refine:
-            self.pose_opt.zero_grad(set_to_none=True)
+            self.pose_opt.zero_grad()
         loss.backward()
         self.control.observe(
             out["proj"].means2d, out["proj"].radii, self.views.cameras.height, self.views.cameras.width
         )
         self.opt.step()
         if refine:
-            for group in self.pose_opt.param_groups:
-                group["lr"] = pose_lr(it, self.cfg)
-            self.pose_opt.step()
+            self.pose_opt.step(i, pose_lr(it, self.cfg))
         self.control.step(it, self.model, self.opt)
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
         if it % self.cfg.sh_interval == 0:
