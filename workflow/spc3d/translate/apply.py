@@ -152,9 +152,10 @@ def score_images(
     scene_dir = Path(scene_dir)
     scene = llff.read_scene(scene_dir, with_images=False)
     test = [scene.names[i] for i in split_views(len(scene.names))[1]]
-    per_view = score_folder(Path(image_dir), scene_dir, test, source, lpips_dir)
+    colour = scene_has_colour(scene_dir)
+    per_view = score_folder(Path(image_dir), scene_dir, test, source, lpips_dir, colour)
     record = {
-        "scored_on": scored_on(scene_has_colour(scene_dir)),
+        "scored_on": scored_on(colour),
         "scene": scene_dir.name,
         "source": source,
         "stage": 1,
@@ -165,7 +166,7 @@ def score_images(
     }
     prior_dir = Path(image_dir).parent / "prior"
     if Path(image_dir).name == "images" and prior_dir.is_dir():
-        prior_views = score_folder(prior_dir, scene_dir, test, f"{source} (prior)", lpips_dir)
+        prior_views = score_folder(prior_dir, scene_dir, test, f"{source} (prior)", lpips_dir, colour)
         settings = io.read_json(prior_dir.parent / "translate.json").get("prior") or {}
         record["prior"] = {**settings, "views": prior_views, "mean": mean_scores(list(prior_views.values()))}
     io.write_json(out_json, record)
@@ -173,10 +174,16 @@ def score_images(
 
 
 def score_folder(
-    image_dir: Path, scene_dir: Path, names: list[str], source: str, lpips_dir: str | os.PathLike | None
+    image_dir: Path,
+    scene_dir: Path,
+    names: list[str],
+    source: str,
+    lpips_dir: str | os.PathLike | None,
+    colour: bool = True,
 ) -> dict[str, dict]:
-    """Scores of ``image_dir/{name}.png`` against the scene's ground truth, per view name."""
-    per_view, colour = {}, scene_has_colour(scene_dir)
+    """Scores of ``image_dir/{name}.png`` against the scene's ground truth, per view name (``colour``
+    False: of their luminance, :func:`spc3d.evaluate.score_view`)."""
+    per_view = {}
     for name in names:
         pred_path = image_dir / f"{name}.png"
         if not pred_path.is_file():
