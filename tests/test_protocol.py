@@ -1,12 +1,11 @@
 """The evaluation protocol: no row but the oracle reads the evaluation scene's ground truth, the
-physics rows' display gain is metered from their own frames, and claims carry bootstrap intervals."""
+physics rows' display gain is metered from their own frames."""
 
 import numpy as np
 import pytest
 
 from spc3d import exposure, io, spc
 from spc3d.augment import AugmentSettings, augment_scene
-from spc3d.findings import Comparison, bootstrap, evaluate_claims, per_view, verdict, write_findings
 from spc3d.scenes import write_builtin_scene
 from spc3d.inputs import simulate_scene
 from spc3d.stage2 import reconstruct
@@ -92,79 +91,3 @@ def test_replacing_the_ground_truth_changes_no_non_oracle_image_or_render(tmp_pa
         io.read_rgb(root / "gt" / "renders" / "image000.png"),
         io.read_rgb(root / "a" / "none" / "renders" / "image000.png"),
     )
-
-
-# --- claims with intervals ----------------------------------------------------------------------------
-
-
-def test_bootstrap_interval_on_known_answers():
-    const = np.full(20, 1.5)
-    assert bootstrap(const) == pytest.approx((1.5, 1.5, 1.5))
-    rng = np.random.default_rng(3)
-    for n, trials in ((40, 200), (5, 400)):  # large and small samples: the interval keeps its coverage
-        hits, widths = 0, []
-        for trial in range(trials):
-            x = rng.normal(0.7, 1.0, n)
-            mean, lo, hi = bootstrap(x, n_boot=2000, seed=trial)
-            hits += lo <= 0.7 <= hi
-            widths.append(hi - lo)
-        assert 0.9 <= hits / trials <= 0.99, (n, hits / trials)  # ~95 % of intervals cover the true mean
-        t = {40: 2.023, 5: 2.776}[n]  # Student t quantiles: the normal-theory width
-        assert np.mean(widths) == pytest.approx(2 * t / np.sqrt(n), rel=0.2), n
-    with pytest.raises(ValueError, match="finite paired differences"):
-        bootstrap(np.array([1.0, np.inf]))
-
-
-def test_verdicts_follow_the_interval():
-    assert Comparison("a", "b", 10, 1.0, 0.2, 1.8).verdict == "HOLDS"
-    assert Comparison("a", "b", 10, -1.0, -1.8, -0.2).verdict == "DOES NOT HOLD"
-    assert Comparison("a", "b", 10, 0.3, -0.2, 0.8).verdict == "INCONCLUSIVE"
-    assert Comparison("a", "b", 2, 1.0, 0.5, 1.5).verdict == "INCONCLUSIVE"  # too few units
-    holds, unclear = Comparison("a", "b", 9, 1, 0.5, 2), Comparison("a", "c", 9, 0.1, -0.2, 0.4)
-    assert verdict([holds, holds]) == "HOLDS" and verdict([holds, unclear]) == "INCONCLUSIVE"
-    assert verdict([holds, Comparison("a", "d", 9, -1, -2, -0.5)]) == "DOES NOT HOLD" and verdict([]) == "INCONCLUSIVE"
-
-
-def _metrics(path, combo, K, psnrs, seed=0):
-    io.write_json(
-        path,
-        {
-            "scene": "s",
-            "combination": combo,
-            "seed": seed,
-            "frames": K,
-            "per_view": [{"view": f"v{i}", "psnr": p} for i, p in enumerate(psnrs)],
-            "mean": {"psnr": float(np.mean(psnrs))},
-        },
-    )
-    return str(path)
-
-
-def test_findings_pair_views_and_compare_equal_budgets_only(tmp_path):
-    base = np.array([20.0, 21.0, 19.5, 22.0, 20.5, 21.5])
-    files = [
-        _metrics(tmp_path / "1.json", "pix2pixhd+nerf-grid", 1, base + 2.0),
-        _metrics(tmp_path / "2.json", "pix2pixhd+3dgs", 1, base + 1.0),
-        _metrics(tmp_path / "3.json", "restormer+nerf-grid", 1, base + [0.5, -0.5, 0.4, -0.6, 0.3, 0.1]),
-        _metrics(tmp_path / "4.json", "none+nerf-grid", 1, base - 3.0),
-        _metrics(tmp_path / "5.json", "bernoulli+3dgs", 1, base + 0.1),
-        _metrics(tmp_path / "6.json", "mle+3dgs", 1, base),
-        _metrics(tmp_path / "7.json", "mle-k16+3dgs", 16, base + 9.0),  # more photons: never compared
-        _metrics(tmp_path / "8.json", "gt+3dgs", None, base + 10.0),
-    ]
-    results = {r["claim"]: r for r in evaluate_claims(per_view(files), "nerf-grid")}
-    best = results["Pix2PixHD + NeRF [nerf-grid] is the best two-stage combination"]
-    assert best["verdict"] == "HOLDS" and best["n"] == 6
-    assert best["closest"]["worse"] == "pix2pixhd+3dgs" and best["closest"]["mean"] == pytest.approx(1.0)
-    assert (
-        results["Two-stage beats single-stage with NeRF [nerf-grid] (Pix2PixHD + NeRF vs NeRF on binary)"]["verdict"]
-        == "HOLDS"
-    )
-    spad = results["The SPAD likelihood on binary frames (3DGS) beats the best two-stage row at equal K"]
-    assert spad["verdict"] == "DOES NOT HOLD" and "mle-k16+3dgs" not in str(spad)
-    assert results["The SPAD likelihood beats the MLE image at equal K (both + 3DGS)"]["verdict"] == "HOLDS"
-    assert results["Two-stage beats single-stage with 3DGS (Pix2PixHD + 3DGS vs 3DGS on binary)"]["closest"] is None
-    write_findings(files, tmp_path / "findings", "nerf-grid")
-    md = (tmp_path / "findings.md").read_text()
-    assert "**HOLDS**" in md and "[+1.00, +1.00]" in md and "| 6 |" in md
-    assert io.read_json(tmp_path / "findings.json")["claims"][0]["verdict"] == "HOLDS"
