@@ -35,7 +35,8 @@ def test_calibrated_scene_products(scene_dir, tmp_path):
     gt = io.read_rgb(scene_dir / "images" / f"{name}.png")
     mle = spc.mle_srgb(S, 32, rec["flux_scale"], params)
     assert psnr(mle, gt) > psnr(frames[0].astype(float), gt) + 5
-    assert sorted(p.name for p in (tmp_path / "spc").iterdir()) == ["average", "binary", "frames", "mle", "spc.json"]
+    folders = ["average", "binary", "capture", "frames", "mle", "spc.json"]
+    assert sorted(p.name for p in (tmp_path / "spc").iterdir()) == folders
     assert rec["mean_mle_psnr_exact_gain_db"] > 20
 
 

@@ -1,9 +1,13 @@
-"""Adapter: rule calibrate_display -> spc3d.exposure.calibrate_display."""
+"""Adapter: rule calibrate_display -> spc3d.exposure.calibrate_display (params: frames K, capture)."""
 
 from spc3d.exposure import calibrate_display
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
     calibrate_display(
-        list(snakemake.input.scenes), list(snakemake.input.spc), int(snakemake.wildcards.K), snakemake.output[0]
+        list(snakemake.input.scenes),
+        list(snakemake.input.spc),
+        int(snakemake.params.frames),
+        snakemake.output[0],
+        capture=bool(snakemake.params.capture),
     )

@@ -19,4 +19,5 @@ with logged(snakemake.log[0]):
             s["flux_scale"],
             s["target_detection"],
             s["seed"],
+            capture_factor=s.get("capture_factor", 1),
         )

@@ -1,7 +1,13 @@
-"""Adapter: rule write_display -> spc3d.exposure.write_display."""
+"""Adapter: rule write_display -> spc3d.exposure.write_display (params: frames K, capture)."""
 
 from spc3d.exposure import write_display
 from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
-    write_display(snakemake.input.spc, snakemake.input.calibration, int(snakemake.wildcards.K), snakemake.output[0])
+    write_display(
+        snakemake.input.spc,
+        snakemake.input.calibration,
+        int(snakemake.params.frames),
+        snakemake.output[0],
+        capture=bool(snakemake.params.capture),
+    )

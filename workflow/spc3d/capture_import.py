@@ -17,10 +17,12 @@ folder every combination reads, as a simulated scene has them.
 
     frames/{view}.npz    the capture's K frames, bool (K, H, W): one bit per pixel (the mosaic)
     binary/{view}.png    frame 0 demosaiced (the sensor's one-frame image: source ``none``)
+    capture/{view}.png   the same, 16-bit: a capture has no higher resolution (``capture_factor`` 1)
     average/{view}.png   the demosaiced K-frame mean (hot pixels filled from their neighbours)
     mle/{view}.exr       the demosaiced MLE flux of the K frames (spc3d.sensors.mle_rgb)
-    hot_pixels.png       hot pixels detected from all views' counts, with sensor.json's map
-    spc.json             the sensor (q, T, dcr, CFA), hot-pixel report, detection rates;
+    hot_pixels.png       hot pixels detected from the training views' counts, with sensor.json's map
+    spc.json             the sensor (q, T, dcr, CFA), hot-pixel report, detection rates, the
+                         scored views (``held_out_views``: they set no hot pixel);
                          ``flux_scale`` null: a capture's exposure is unknown, as for any camera
 
 Stage 1 and stage 2 read the sensor back with :func:`spc_sensor`: a folder without it holds the
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from . import io, llff, sensors, spc
-from .cameras import Cameras
+from .cameras import Cameras, split_views
 from .captures import capture_hot_pixels, capture_views, read_capture, read_sensor, reference_images
 from .exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from .hot_pixels import read_hot_pixel_map, write_hot_pixel_map
@@ -191,11 +193,14 @@ def import_capture_frames(
     params, pattern, k = sensor.params, sensor.cfa, sensor.params.frames
     counts = [c.sum(0, dtype=np.int64) for c in cubes]
     total = sum(counts)
-    hot, hot_record = capture_hot_pixels(counts, sensor)
+    train, test = split_views(len(views))
+    hot, hot_record = capture_hot_pixels([counts[i] for i in train], sensor)  # the scored views stay unseen
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for view, cube, s in zip(views, cubes, counts):
             io.save_frames(tmp / "frames" / f"{view}.npz", *spc.pack_frames(cube))
-            io.write_image(tmp / "binary" / f"{view}.png", sensors.sensor_input(cube[:1], pattern, ~hot))
+            binary = sensors.sensor_input(cube[:1], pattern, ~hot)
+            io.write_image(tmp / "binary" / f"{view}.png", binary)
+            io.write_image(tmp / "capture" / f"{view}.png", binary, bits=16)
             average = sensors.demosaic_average(cube, pattern, ~hot)
             io.write_image(tmp / "average" / f"{view}.png", np.clip(average, 0.0, 1.0).astype(np.float32), bits=16)
             io.write_image(tmp / "mle" / f"{view}.exr", sensors.mle_rgb(s, k, params, pattern, hot).astype(np.float32))
@@ -212,6 +217,8 @@ def import_capture_frames(
             "target_detection": None,
             "seed": None,
             "views": len(views),
+            "held_out_views": [views[i] for i in test],
+            "capture_factor": 1,
             "mean_detection_rate": float((total / (k * len(cubes)))[~hot].mean()),
             "mean_saturated_fraction": float(np.mean([(c == k)[~hot].mean() for c in counts])),
             "hot_pixels": {

@@ -22,13 +22,19 @@ physics inversions, one file per view and kind, stems as the scene's images:
 
     frames/{name}.npz    K bit-packed binary frames (K, H, W, 3) — the raw measurement
     binary/{name}.png    frame 0 as an 8-bit 0/255 image (the paper's K = 1 input, source ``none``)
+    capture/{name}.png   one frame at the capture resolution, area-averaged to the working size:
+                         the fraction k/S² of ones among each pixel's S x S sub-pixels, 16-bit
+                         (S = ``capture_factor``; S = 1: frame 0 itself), see :func:`capture_frame`
     average/{name}.png   the K-frame mean S/K, 16-bit (what a user sees by averaging frames)
     mle/{name}.exr       the K-frame maximum-likelihood flux estimate, photons/s (linear)
     spc.json             physics parameters, the (calibrated) flux scale, seed, timing, statistics
 
-The flux scale is the simulated camera's exposure, set from the scene (as an auto-exposing camera
-does); nothing downstream of a non-oracle row reads it: the MLE rows' display gain is metered from
-the frames (:mod:`spc3d.exposure`). ``spc.json``'s ``mean_mle_psnr_exact_gain_db`` (the MLE shown
+The flux scale is the simulated camera's exposure, set from the scene's *training* views (as an
+auto-exposing camera meters what it captures for training; the scored, held-out views of
+:func:`spc3d.cameras.split_views` do not set it). ``spc.json`` names those views
+(``held_out_views``) and counts the views metered (``metered_views``). Nothing downstream of a
+non-oracle row reads the flux scale: the MLE rows' display gain is metered from the frames
+(:mod:`spc3d.exposure`). ``spc.json``'s ``mean_mle_psnr_exact_gain_db`` (the MLE shown
 at that exact gain) is a diagnostic of the simulation for the data summary, not a table row.
 """
 
@@ -44,6 +50,7 @@ import numpy as np
 from tqdm import tqdm
 
 from . import io, llff, spc
+from .cameras import split_views
 from .flux_scale import calibrate_flux_scale
 
 log = logging.getLogger(__name__)
@@ -199,10 +206,57 @@ def simulate_view(
     }
 
 
+MAX_CAPTURE_FACTOR = 255  # k/S² survives 16 bits exactly while S² < 65535: |error| <= S²/(2*65535) < 1/2
+
+
+def check_capture_factor(capture_factor: object) -> int:
+    """``capture_factor`` as an int in [1, :data:`MAX_CAPTURE_FACTOR`], or a ValueError saying why."""
+    if isinstance(capture_factor, bool) or not isinstance(capture_factor, (int, np.integer)):
+        raise ValueError(f"spc.capture_factor={capture_factor!r}: must be an integer (sub-pixels per axis, 1 = none)")
+    if not 1 <= capture_factor <= MAX_CAPTURE_FACTOR:
+        raise ValueError(
+            f"spc.capture_factor={capture_factor!r}: must lie in [1, {MAX_CAPTURE_FACTOR}]; the capture frame "
+            f"stores k/S² in 16 bits, exact (k = round(v S²)) only while S² < 65535"
+        )
+    return int(capture_factor)
+
+
+def capture_frame(
+    srgb: np.ndarray, flux_scale: float, params: spc.SPCParams, capture_factor: int, rng: np.random.Generator
+) -> np.ndarray:
+    """One binary frame at ``capture_factor`` (S) x the working resolution per axis, area-averaged
+    back: (H, W, 3) float32 fractions k/S² of ones among each pixel's S x S sub-pixels.
+
+    The paper's single-stage baselines most plausibly saw full-resolution binary frames that their
+    loaders area-downsampled. The working image is the only image there is, so the S x S sub-pixels
+    of a pixel share its flux (nearest upsampling); each draws its own bit, with the main frames'
+    physics (:func:`spc3d.spc.simulate_frames`, one frame, same flux scale and mode) from ``rng``.
+    Drawn in bands of rows, so memory stays bounded at large S.
+    """
+    S = check_capture_factor(capture_factor)
+    one = dataclasses.replace(params, frames=1)
+    h, w, c = srgb.shape
+    band = max(1, 2**22 // (w * S * S * c))  # working rows per draw: ~4M sub-pixel values
+    out = np.empty((h, w, c), np.float32)
+    for r in range(0, h, band):
+        rows = srgb[r : r + band]
+        fine = np.repeat(np.repeat(rows, S, axis=0), S, axis=1)  # (rows*S, W*S, C)
+        bits = spc.simulate_frames(fine, flux_scale, one, rng)[0]
+        k = bits.reshape(len(rows), S, w, S, c).sum((1, 3), dtype=np.int64)
+        out[r : r + band] = k / (S * S)
+    return out
+
+
+def capture_rng(seed: int, scene: str, view: int) -> np.random.Generator:
+    """The capture frame's stream: fixed by (seed, scene, view), apart from the main frames' own."""
+    return spc.view_rng(seed, f"{scene}/capture", view)
+
+
 def write_view(out: Path, name: str, products: dict[str, np.ndarray]) -> None:
     packed, shape = spc.pack_frames(products["frames"])
     io.save_frames(out / "frames" / f"{name}.npz", packed, shape)
     io.write_image(out / "binary" / f"{name}.png", products["binary"])
+    io.write_image(out / "capture" / f"{name}.png", products["capture"], bits=16)
     io.write_image(out / "average" / f"{name}.png", products["average"], bits=16)
     io.write_image(out / "mle" / f"{name}.exr", products["mle"])
 
@@ -214,17 +268,30 @@ def simulate_scene(
     flux_scale: float | None = None,
     target_detection: float = 0.5,
     seed: int = 0,
+    capture_factor: int = 1,
 ) -> dict:
-    """Simulate every view of a canonical scene folder into ``out_dir`` (atomically); return the record."""
+    """Simulate every view of a canonical scene folder into ``out_dir`` (atomically); return the record.
+
+    A calibrated flux scale (``flux_scale`` None) is metered on the training views only (the
+    held-out views of :func:`spc3d.cameras.split_views` are scored and must not set the exposure).
+    ``capture_factor``: S of the capture frame (:func:`capture_frame`; 1: frame 0).
+    """
     t0 = time.perf_counter()
+    S = check_capture_factor(capture_factor)
     scene = llff.read_scene(scene_dir)
     name = Path(scene_dir).name
-    scale, calibrated = resolve_flux_scale(scene.images, params, flux_scale, target_detection)
+    train, test = split_views(len(scene.names))
+    scale, calibrated = resolve_flux_scale(scene.images[train], params, flux_scale, target_detection)
     log.info("%s: flux_scale %.4g photons/s (%s)", name, scale, "calibrated" if calibrated else "given")
     stats = []
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for i, view in enumerate(tqdm(scene.names, desc=f"spc {name}", unit="view")):
             products = simulate_view(scene.images[i], scale, params, spc.view_rng(seed, name, i))
+            products["capture"] = (
+                products["binary"]
+                if S == 1
+                else capture_frame(scene.images[i], scale, params, S, capture_rng(seed, name, i))
+            )
             write_view(tmp, view, products)
             stats.append(view_stats(scene.images[i], products, scale))
         record = {
@@ -233,6 +300,9 @@ def simulate_scene(
             "flux_scale": scale,
             "flux_scale_calibrated": calibrated,
             "target_detection": target_detection if calibrated else None,
+            "metered_views": len(train) if calibrated else None,
+            "held_out_views": [scene.names[i] for i in test],
+            "capture_factor": S,
             "seed": seed,
             "views": len(scene.names),
             **summarise(stats),
