@@ -4,13 +4,16 @@ Two dense voxel grids over the NDC box [−e, e]² × [−1, 1] (z_ndc = 2t − 
 frustum from the near plane to infinity): a density grid (1 channel, activated by softplus with a
 shift so that the initial per-sample α equals ``alpha_init``) and a feature grid decoded by a small
 MLP with the encoded viewing direction. Grid values live at the R³ vertices, vertex i of an axis at
-lo + i (hi − lo) / (R − 1) (``align_corners=True``), stored flat (R³, C) with x fastest.
+lo + i (hi − lo) / (R − 1) (``align_corners=True``), stored flat (R³, C) with z fastest: vertex
+(ix, iy, iz) is row (ix·R + iy)·R + iz (NDC rays run mostly along z, so a ray's consecutive samples
+read neighbouring rows).
 
-Trilinear interpolation is a weighted sum of 8 gathered rows (``F.embedding_bag`` with per-sample
-weights forward, ``index_add_`` backward): on this 2-core CPU its forward + backward was as fast as
-or faster than ``grid_sample`` (batch 1 or 2: ~0.5–0.7 s for 262k points × 13 channels at 96³, all
-three similar under load), and it lets density and features be gathered for different subsets of
-the samples (empty-space and low-weight skipping).
+On the CPU the deferred model renders with :func:`.volume.march_grid` (numba): per ray it skips
+samples outside the box or in empty cells, stops once the transmittance falls to ``min_trans`` and
+gathers features only where a sample's weight exceeds ``weight_thres``. Elsewhere (CUDA, or
+``native=False``) the same samples go through batched PyTorch: trilinear interpolation as a
+weighted sum of 8 gathered rows (``F.embedding_bag`` with per-sample weights forward, ``index_add_``
+backward), which lets density and features be gathered for different subsets of the samples.
 
 After ``upsample`` the parameters are new tensors: build a new optimizer (DVGO does the same).
 """
@@ -23,10 +26,11 @@ from dataclasses import dataclass
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+from numba import njit
 
 from ..training import require_positive
 from .nerf import positional_encoding
-from .volume import accumulate, composite_weights, stratified_t
+from .volume import accumulate, composite_weights, march_grid, stratified_t
 
 
 @dataclass(frozen=True)
@@ -36,9 +40,12 @@ class GridConfig:
     xy_extent: float = 1.3  # NDC x, y half-width of the box (off-centre views see past ±1)
     n_samples: int = 96  # uniform samples per ray in t ∈ [0, 1] (uniform in disparity)
     alpha_init: float = 1e-2  # initial α of one sample on a ray along the NDC z axis (DVGO fine stage)
-    occupancy_thres: float = 1e-3  # cells whose max α (same reference step) is below are empty; keep it
-    # above weight_thres: density below weight_thres gets no gradient (its samples skip the colour head)
+    occupancy_thres: float = 1e-2  # cells whose max α (same reference step) is below are empty. At
+    # alpha_init, cells that training has not raised above their initial density (never seen, behind
+    # surfaces, or carved out) are skipped: ~45 % fewer cells at 64³, same held-out PSNR
     weight_thres: float = 1e-4  # samples with a smaller compositing weight skip the colour head
+    min_trans: float = 1e-3  # a ray stops once its transmittance is this low (early termination)
+    native: bool = True  # deferred model on the CPU: render with the numba marcher (volume.march_grid)
     deferred: bool = True  # composite features along the ray, then run the colour head once per ray
     # (deferred shading, as SNeRG: S× fewer head evaluations; False = head on every sample as DVGO)
     mlp_width: int = 64  # colour-head hidden units
@@ -46,12 +53,13 @@ class GridConfig:
     freqs_dir: int = 4  # positional-encoding frequencies of the viewing direction
     white_bkgd: bool = False  # composite onto white instead of black
     perturb: bool = True  # jitter samples within their bins during training
-    lr_grid: float = 0.1  # Adam learning rate of both grids (DVGO)
+    lr_grid: float = 1.0  # Adam learning rate of both grids (DVGO: 0.1, tuned for ~20k iterations;
+    # 1.0 fits 300-1200 iterations several dB better, benchmarks/nerf_grid_quality.py)
     lr_mlp: float = 1e-3  # Adam learning rate of the colour head (DVGO)
     lr_decay: float = 0.1  # learning rates are multiplied by this factor over ``n_iters``
     n_iters: int = 3000  # iteration budget (learning-rate decay horizon)
     batch_rays: int = 4096  # rays per training step
-    tv_density: float = 1e-4  # weight of the density-grid total variation in ``tv_loss``
+    tv_density: float = 1e-3  # weight of the density-grid total variation in ``tv_loss``
     tv_features: float = 1e-5  # weight of the feature-grid total variation in ``tv_loss``
     occupancy_every: int = 100  # trainer: call ``update_occupancy`` this often ...
     occupancy_warmup: int = 200  # ... from this iteration on (before it every cell is kept)
@@ -73,13 +81,13 @@ def corner_weights(coords: torch.Tensor, res: int) -> tuple[torch.Tensor, torch.
     i0 = coords.detach().floor().clamp(0, res - 2)  # the last cell owns the upper boundary
     f = coords - i0
     i0 = i0.long()
-    base = (i0[:, 2] * res + i0[:, 1]) * res + i0[:, 0]
-    dz, dy, dx = torch.meshgrid(*(torch.arange(2, device=coords.device),) * 3, indexing="ij")
-    offs = ((dz * res + dy) * res + dx).reshape(8)
+    base = (i0[:, 0] * res + i0[:, 1]) * res + i0[:, 2]
+    dx, dy, dz = torch.meshgrid(*(torch.arange(2, device=coords.device),) * 3, indexing="ij")
+    offs = ((dx * res + dy) * res + dz).reshape(8)
     wx = torch.stack([1 - f[:, 0], f[:, 0]], -1)
     wy = torch.stack([1 - f[:, 1], f[:, 1]], -1)
     wz = torch.stack([1 - f[:, 2], f[:, 2]], -1)
-    w = wz[:, :, None, None] * wy[:, None, :, None] * wx[:, None, None, :]  # (N, 2, 2, 2) z, y, x
+    w = wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]  # (N, 2, 2, 2) x, y, z
     return base[:, None] + offs, w.reshape(-1, 8)
 
 
@@ -119,7 +127,7 @@ def trilinear(grid: torch.Tensor, res: int, coords: torch.Tensor) -> torch.Tenso
 
 class _TotalVariation(torch.autograd.Function):
     """TV = (1/3) Σ_axes mean((g[i+1] − g[i])²) of a grid (R, R, R, C), with its gradient in closed
-    form: each difference d adds 2d/(3N) to the vertex after it and subtracts it from the one before.
+    form (:func:`add_tv_grad`).
 
     Autograd through ``narrow`` / ``pow`` allocated and zero-filled a full-grid tensor per slice and
     per power (12 per step for two grids): at 96³ x 13 channels that was ~40 % of a training step.
@@ -134,13 +142,8 @@ class _TotalVariation(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):
         (g,) = ctx.saved_tensors
-        res = g.shape[0]
         grad = torch.zeros_like(g)
-        for a in range(3):
-            d = g.narrow(a, 1, res - 1) - g.narrow(a, 0, res - 1)
-            d.mul_(grad_out * 2.0 / (3.0 * d.numel()))
-            grad.narrow(a, 1, res - 1).add_(d)
-            grad.narrow(a, 0, res - 1).sub_(d)
+        add_tv_grad(grad.view(-1, g.shape[-1]), g.view(-1, g.shape[-1]), g.shape[0], grad_out)
         return grad
 
 
@@ -149,9 +152,64 @@ def total_variation(grid: torch.Tensor, res: int) -> torch.Tensor:
     return _TotalVariation.apply(grid.view(res, res, res, -1))
 
 
+def add_tv_grad(grad: torch.Tensor, grid: torch.Tensor, res: int, weight) -> None:
+    """grad (R³, C) += weight · d total_variation(grid) / d grid, in place (DVGO's
+    ``total_variation_add_grad``): each difference d along an axis adds 2d/(3N) to the vertex after
+    it and subtracts it from the one before (N: differences per axis, (R − 1) R² C).
+
+    On the CPU a numba kernel (a vertex's gradient is s · Σ_neighbours (g_v − g_n)); elsewhere, or
+    for a 0-dim tensor ``weight`` (autograd's incoming gradient), three PyTorch passes.
+    """
+    g = grid.detach()
+    if g.device.type == "cpu" and not torch.is_tensor(weight) and grad.is_contiguous() and g.is_contiguous():
+        scale = 2.0 * weight / (3.0 * (res - 1) * res * res * g.shape[1])
+        _tv_add_grad(g.numpy(), grad.numpy(), res, grad.numpy().dtype.type(scale))  # scale in the grid's dtype
+        return
+    g4, grad4 = g.view(res, res, res, -1), grad.view(res, res, res, -1)
+    for a in range(3):
+        d = g4.narrow(a, 1, res - 1) - g4.narrow(a, 0, res - 1)
+        d.mul_(weight * 2.0 / (3.0 * d.numel()))
+        grad4.narrow(a, 1, res - 1).add_(d)
+        grad4.narrow(a, 0, res - 1).sub_(d)
+
+
+@njit(cache=True, nogil=True)
+def _tv_add_grad(g, grad, res, scale):
+    """grad[v] += scale · Σ_n (g[v] − g[n]) over the (up to 6) axis neighbours n of every vertex v.
+
+    Line by line (a z line of R·C contiguous values, z fastest), one neighbour direction per pass:
+    each pass is a contiguous, vectorised loop over an L1-resident line of ``grad`` (~7x faster
+    than one loop over vertices with six tests each: 6.5 ms at 64³ x 12 channels).
+    """
+    n_c = g.shape[1]
+    line, sx = res * n_c, res * res * n_c  # elements per z line; stride of x
+    g1, gr = g.reshape(-1), grad.reshape(-1)
+    for ix in range(res):
+        for iy in range(res):
+            a = (ix * res + iy) * line
+            if ix > 0:
+                _add_diff(gr, g1, a, a - sx, line, scale)
+            if ix < res - 1:
+                _add_diff(gr, g1, a, a + sx, line, scale)
+            if iy > 0:
+                _add_diff(gr, g1, a, a - line, line, scale)
+            if iy < res - 1:
+                _add_diff(gr, g1, a, a + line, line, scale)
+            _add_diff(gr, g1, a + n_c, a, line - n_c, scale)  # z − 1
+            _add_diff(gr, g1, a, a + n_c, line - n_c, scale)  # z + 1
+
+
+@njit(inline="always")
+def _add_diff(gr, g1, a, b, n, scale):
+    """gr[a : a + n] += scale · (g1[a : a + n] − g1[b : b + n])."""
+    out, x, y = gr[a : a + n], g1[a : a + n], g1[b : b + n]
+    for j in range(n):
+        out[j] += scale * (x[j] - y[j])
+
+
 def resample(grid: torch.Tensor, res: int, new_res: int) -> torch.Tensor:
     """Trilinear resampling of a flat grid (R³, C) to (R'³, C) (vertex-aligned)."""
-    g = grid.view(res, res, res, -1).permute(3, 0, 1, 2)[None]  # (1, C, Z, Y, X)
+    g = grid.view(res, res, res, -1).permute(3, 0, 1, 2)[None]  # (1, C, X, Y, Z)
     g = F.interpolate(g, size=(new_res,) * 3, mode="trilinear", align_corners=True)
     return g[0].permute(1, 2, 3, 0).reshape(new_res**3, -1).contiguous()
 
@@ -200,7 +258,7 @@ class GridNeRF(nn.Module):
         """Flat cell index (N,) of grid coords (N, 3) inside the box."""
         c = coords.detach().floor().long().clamp(0, self.res - 2)  # upper boundary -> last cell
         n = self.res - 1
-        return (c[:, 2] * n + c[:, 1]) * n + c[:, 0]
+        return (c[:, 0] * n + c[:, 1]) * n + c[:, 2]
 
     def sigma(self, raw: torch.Tensor) -> torch.Tensor:
         """Density activation: softplus(raw + shift)."""
@@ -210,9 +268,34 @@ class GridNeRF(nn.Module):
         self, rays_o: torch.Tensor, rays_d: torch.Tensor, train: bool, viewdirs: torch.Tensor | None = None
     ) -> dict[str, torch.Tensor]:
         """NDC rays (R, 3) -> rgb (R, 3), depth (R,) (NDC t), acc (R,), rgb_coarse (= rgb)."""
-        n_rays, n_s = rays_o.shape[0], self.cfg.n_samples
         vd = viewdirs if viewdirs is not None else rays_d / rays_d.norm(dim=-1, keepdim=True)
-        t, edges = stratified_t(n_rays, n_s, train and self.cfg.perturb, device=rays_o.device)
+        perturb = train and self.cfg.perturb
+        t, edges = stratified_t(rays_o.shape[0], self.cfg.n_samples, perturb, device=rays_o.device, dtype=rays_o.dtype)
+        bg = 1.0 if self.cfg.white_bkgd else 0.0
+        if self.cfg.deferred:
+            if self.cfg.native and rays_o.device.type == "cpu":
+                ray_feat, acc, depth = march_grid(
+                    self.density, self.features, rays_o, rays_d, t, self.occupancy, self.box(), self.res,
+                    self.act_shift, self.cfg.weight_thres, self.cfg.min_trans,
+                )  # fmt: skip
+            else:
+                ray_feat, acc, depth = self._march_torch(rays_o, rays_d, t, edges)
+            colour = self.head(ray_feat / acc.detach().clamp(min=1e-6)[:, None], vd)  # clamp: empty rays have acc 0
+            out = {"rgb": acc[:, None] * colour + (1.0 - acc)[:, None] * bg, "depth": depth, "acc": acc}
+        else:
+            weights, ids, idx, w = self._weights(rays_o, rays_d, t, edges)
+            mids = 0.5 * (edges[:, 1:] + edges[:, :-1])
+            out = accumulate(weights, self._colours(weights, ids, idx, w, vd), mids, edges[:, -1], bg)
+        return {"rgb_coarse": out["rgb"], "rgb": out["rgb"], "depth": out["depth"], "acc": out["acc"]}
+
+    def box(self) -> tuple[float, ...]:
+        """The grid box for :func:`march_grid`: lo (3) and vertex spacing⁻¹ (R − 1) / (hi − lo) (3)."""
+        return tuple(self.lo.tolist()) + tuple(((self.res - 1) / (self.hi - self.lo)).tolist())
+
+    def _weights(self, rays_o, rays_d, t, edges):
+        """Compositing weights (R, S) of the samples t (R, S); the kept samples' flat ids (M,) and their
+        vertex rows / trilinear weights (M, 8)."""
+        n_rays, n_s = t.shape
         coords, inside = self.to_grid((rays_o[:, None] + t[..., None] * rays_d[:, None]).reshape(-1, 3))
         keep = inside.clone()
         keep[inside] = self.occupancy[self.cell_index(coords[inside])]
@@ -221,35 +304,27 @@ class GridNeRF(nn.Module):
         sig = weighted_gather(self.density, idx, w).squeeze(-1)
         sigma = torch.zeros(n_rays * n_s, dtype=sig.dtype, device=sig.device).index_put((ids,), self.sigma(sig))
         deltas = (edges[:, 1:] - edges[:, :-1]) * rays_d.norm(dim=-1, keepdim=True)
-        weights = composite_weights(sigma.view(n_rays, n_s), deltas)
-        mids = 0.5 * (edges[:, 1:] + edges[:, :-1])
-        bg = 1.0 if self.cfg.white_bkgd else 0.0
-        if self.cfg.deferred:
-            out = self._shade_deferred(weights, ids, idx, w, vd, n_s, mids, edges[:, -1], bg)
-        else:
-            out = accumulate(weights, self._colours(weights, ids, idx, w, vd, n_s), mids, edges[:, -1], bg)
-        return {"rgb_coarse": out["rgb"], "rgb": out["rgb"], "depth": out["depth"], "acc": out["acc"]}
+        return composite_weights(sigma.view(n_rays, n_s), deltas, self.cfg.min_trans), ids, idx, w
 
-    def _shade_deferred(self, weights, ids, idx, w, vd, n_s, mids, t_end, bg) -> dict[str, torch.Tensor]:
-        """Weighted mean feature per ray -> colour head -> rgb = acc · colour + (1 − acc) · background."""
+    def _march_torch(self, rays_o, rays_d, t, edges) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Batched PyTorch twin of :func:`march_grid`: composited features (R, C), acc (R,), depth (R,)."""
+        weights, ids, idx, w = self._weights(rays_o, rays_d, t, edges)
         sel = weights.detach().view(-1)[ids] > self.cfg.weight_thres
         ids_c = ids[sel]
         feat = weighted_gather(self.features, idx[sel], w[sel]) * weights.view(-1)[ids_c, None]  # (K, C)
         ray_feat = torch.zeros(weights.shape[0], feat.shape[1], dtype=feat.dtype, device=feat.device).index_add(
-            0, ids_c // n_s, feat
+            0, ids_c // t.shape[1], feat
         )
-        acc = weights.sum(-1)
-        colour = self.head(ray_feat / acc.detach().clamp(min=1e-6)[:, None], vd)  # clamp: empty rays have acc 0
-        rgb = acc[:, None] * colour + (1.0 - acc)[:, None] * bg
-        depth = (weights * mids).sum(-1) + (1.0 - acc) * t_end
-        return {"rgb": rgb, "depth": depth, "acc": acc}
+        acc, mids = weights.sum(-1), 0.5 * (edges[:, 1:] + edges[:, :-1])
+        depth = (weights * mids).sum(-1) + (1.0 - acc) * edges[:, -1]
+        return ray_feat, acc, depth
 
-    def _colours(self, weights, ids, idx, w, vd, n_s) -> torch.Tensor:
+    def _colours(self, weights, ids, idx, w, vd) -> torch.Tensor:
         """rgb (R, S, 3): the colour head on samples with weight > weight_thres, 0 elsewhere."""
         sel = weights.detach().view(-1)[ids] > self.cfg.weight_thres
         ids_c = ids[sel]
         feat = weighted_gather(self.features, idx[sel], w[sel])
-        rgb = self.head(feat, vd[ids_c // n_s])
+        rgb = self.head(feat, vd[ids_c // weights.shape[1]])
         out = torch.zeros(weights.numel(), 3, dtype=rgb.dtype, device=rgb.device).index_put((ids_c,), rgb)
         return out.view(*weights.shape, 3)
 
@@ -283,6 +358,16 @@ class GridNeRF(nn.Module):
             self.features, self.res
         )
 
+    @torch.no_grad()
+    def add_tv_grad(self) -> None:
+        """Add the gradient of ``tv_loss`` to the grids' ``.grad`` (after ``backward``, before the
+        optimizer step): the same update as backpropagating ``tv_loss``, without its temporaries."""
+        for grid, weight in ((self.density, self.cfg.tv_density), (self.features, self.cfg.tv_features)):
+            if weight > 0:
+                if grid.grad is None:
+                    grid.grad = torch.zeros_like(grid)
+                add_tv_grad(grid.grad, grid, self.res, weight)
+
     def capacity(self) -> dict[str, int]:
         """Grid resolution, occupied / total cells, and parameter count."""
         return {
@@ -309,4 +394,7 @@ def make_optimizer(model: GridNeRF, cfg: GridConfig, step: int = 0) -> torch.opt
     ]
     for g in groups:
         g["lr"] = lrs[g["name"]]
-    return torch.optim.Adam(groups, betas=(0.9, 0.99))
+    try:  # one fused kernel per group: ~6x faster than the foreach step on a 96³ x 13 grid (one CPU core)
+        return torch.optim.Adam(groups, betas=(0.9, 0.99), fused=True)
+    except RuntimeError:  # torch < 2.4 has no fused Adam on the CPU
+        return torch.optim.Adam(groups, betas=(0.9, 0.99))

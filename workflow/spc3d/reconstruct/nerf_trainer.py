@@ -3,8 +3,9 @@
 The training cameras are recentred and rescaled as the LLFF NeRF does (:func:`rays.recenter`);
 every training pixel becomes one NDC ray, and each step fits a random batch of rays. Evaluation
 cameras are mapped by the same similarity. The MLP NeRF is supervised on its coarse and fine
-outputs (as the original); the grid adds its total-variation term, grows its resolution on the
-configured schedule and refreshes its occupancy mask (empty-space skipping) periodically.
+outputs (as the original); the grid adds its total-variation gradient in place after the backward
+pass (no full-grid temporaries), grows its resolution on the configured schedule and refreshes its
+occupancy mask (empty-space skipping) periodically.
 
 The model, the rays and the targets live on CUDA when it is available (else the CPU); renders are
 returned on the CPU. A checkpoint holds tensors on the device it was written on.
@@ -66,10 +67,10 @@ class RayTrainer:
         loss = self.objective.loss(out["rgb"], target)
         if self.kind == "nerf" and self.model.fine is not None:
             loss = loss + self.objective.loss(out["rgb_coarse"], target)
-        if self.kind == "nerf-grid":
-            loss = loss + self.model.tv_loss()
         self.opt.zero_grad(set_to_none=True)
         loss.backward()
+        if self.kind == "nerf-grid":
+            self.model.add_tv_grad()  # the total-variation term's gradient, added in place
         self.opt.step()
         rgb = self.objective.name == "rgb"
         return {"loss": loss.item(), "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
