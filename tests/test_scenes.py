@@ -202,6 +202,23 @@ def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
         assert content(name) and content(name) <= pool, (name, sorted(content(name) - pool))
 
 
+def test_three_evaluation_layouts_hold_out_all_training_content():
+    """The statistics step needs three evaluation scenes; none shows a source of a training layout."""
+    from spc3d.scenes import LAYOUT_ROLES, shared_content
+
+    train = sorted(n for n, role in LAYOUT_ROLES.items() if role == "train")
+    evaluate = sorted(n for n, role in LAYOUT_ROLES.items() if role == "eval")
+    assert {"courtyard", "observatory", "harbour"} <= set(evaluate)
+    assert shared_content(train, evaluate) == {}
+
+
+def test_harbour_renders_at_a_tiny_size():
+    s = render_scene("harbour", 12, 16, views=2, supersample=1, seed=0)
+    assert s.images.shape == (2, 12, 16, 3) and s.meta["layout"] == "harbour"
+    assert np.isfinite(s.images).all() and s.images.min() >= 0.0 and s.images.max() <= 1.0
+    assert np.isfinite(s.depths).all() and s.depths.min() > 0
+
+
 def test_the_default_split_shares_no_texture_source():
     """The default config (and the smoke preset) train and evaluate on layouts that share nothing."""
     import yaml

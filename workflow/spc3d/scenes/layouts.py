@@ -5,7 +5,7 @@ so scene depth grows towards -z. Each builder returns a :class:`~.render.Layout`
 content is fixed per layout (the seed only moves the cameras). Colours are linear RGB.
 
 Content is split: ``tabletop``, ``orchard`` and ``gallery`` (the default training scenes) use only
-:data:`~.textures.TRAIN_SOURCES`; ``courtyard`` and ``observatory`` (evaluation) only
+:data:`~.textures.TRAIN_SOURCES`; ``courtyard``, ``observatory`` and ``harbour`` (evaluation) only
 :data:`~.textures.EVAL_SOURCES` (``LAYOUT_ROLES``; a test keeps it so).
 """
 
@@ -209,8 +209,71 @@ def observatory() -> Layout:
     )
 
 
+def harbour() -> Layout:
+    iron = texture("hubble_deep_field", (0.3, 0.3, 0.32), base=(0.05, 0.05, 0.06), gain=2.0)
+    kraft = texture("page", (0.8, 0.6, 0.38), base=(0.2, 0.11, 0.05))
+    prims = [
+        # water 0.5 below the quay, glinting (the deep field's galaxies)
+        ground(-0.5, texture("hubble_deep_field", (0.7, 0.9, 1.0), base=(0.03, 0.1, 0.14), gain=3.0), 3.0, shading=0.3),
+        backdrop(
+            -9.0,
+            texture("colorwheel", (0.8, 0.88, 1.0), base=(0.3, 0.5, 0.85), gain=0.8),
+            (40.0, 40.0),
+            centre_y=1.5,
+            shading=0.0,
+        ),
+        quad((0.0, 0.7, -8.6), 40.0, 2.4, texture("proc:tiles", (0.95, 0.9, 0.85)), tile=(1.6, 1.6), shading=0.4),
+        # the quay: its edge runs into the distance along x = 0.1, water to the right
+        box(
+            (-9.9, -0.5, -3.3),
+            (20.0, 0.5, 10.6),
+            texture("proc:masonry", (0.45, 0.5, 0.42), base=(0.03, 0.04, 0.03)),
+            0.9,
+            top=texture("proc:masonry", (0.7, 0.74, 0.8)),
+        ),
+        box((-2.0, 0.0, -6.3), (1.6, 1.0, 0.9), texture("retina", gain=0.9), 1.8, yaw=12),
+        box((-1.1, 0.0, -2.7), (0.6, 0.45, 0.5), kraft, 0.6, yaw=15),
+        box((-1.05, 0.45, -2.75), (0.38, 0.3, 0.38), kraft, 0.45, yaw=-8),
+        box((-0.2, 0.0, -3.6), (0.16, 0.3, 0.16), iron, 0.3),
+        box(
+            (1.6, -0.75, -5.0),
+            (0.8, 0.5, 1.9),
+            texture("immunohistochemistry", (0.15, 0.3, 0.75), base=(0.9, 0.9, 0.88), gain=2.0),
+            1.0,
+            yaw=8,
+        ),
+        ball(-0.4, -1.9, 0.2, texture("chelsea", (1.0, 0.8, 0.25), gain=1.3), spin=200),
+        ball(
+            -1.5,
+            -4.2,
+            0.26,
+            texture("immunohistochemistry", (0.85, 0.08, 0.05), base=(0.95, 0.92, 0.85), gain=2.0),
+            spin=-70,
+        ),
+        ball(0.9, -2.9, 0.25, texture("colorwheel", (1.0, 0.6, 0.3)), y0=-0.62, spin=100),
+        ball(2.2, -6.8, 0.35, texture("colorwheel", (1.0, 0.6, 0.3)), y0=-0.65, spin=-20),
+    ]
+    prims += framed(texture("coffee"), (-0.5, 0.39, -5.0), 0.7, yaw=-10, border=0.06, frame=(0.12, 0.1, 0.08))
+    return Layout(
+        "harbour",
+        "a granite quayside above sparkling water: a rust-streaked container, a stack of kraft-paper "
+        "crates, an iron bollard, a yellow and a red buoy, a cafe board (coffee), a blue boat "
+        "and two marker buoys afloat, tiled harbour houses under a pastel sky",
+        tuple(prims),
+        Rig((0.5, 1.2, 0.0), (-0.1, 0.35, -4.5), (0.75, 0.5)),
+        Lighting((0.5, 0.8, 0.45), colour=(0.85, 0.8, 0.7), ambient=(0.22, 0.25, 0.32)),
+    )
+
+
 # Which pool of content each layout draws from (spc3d.scenes.textures).
-LAYOUT_ROLES = {"tabletop": "train", "orchard": "train", "gallery": "train", "courtyard": "eval", "observatory": "eval"}
+LAYOUT_ROLES = {
+    "tabletop": "train",
+    "orchard": "train",
+    "gallery": "train",
+    "courtyard": "eval",
+    "observatory": "eval",
+    "harbour": "eval",
+}
 
 LAYOUT_BUILDERS = {
     "tabletop": tabletop,
@@ -218,4 +281,5 @@ LAYOUT_BUILDERS = {
     "gallery": gallery,
     "courtyard": courtyard,
     "observatory": observatory,
+    "harbour": harbour,
 }
