@@ -70,7 +70,7 @@ def test_slurm_profile_dry_run(tmp_path):
     assert proc.returncode == 0, out[-4000:]
     assert "This was a dry-run" in out and "envs/spc3d-gpu.yaml" in out  # the profile's conda_env=gpu
     jobs = job_blocks(out)
-    assert len(jobs["train_translator"]) == 5 and len(jobs["evaluate"]) >= 14
+    assert len(jobs["train_translator"]) == 6 and len(jobs["evaluate"]) >= 14
     for rule in ("train_translator", "reconstruct"):  # GPU jobs: --gpus=1 on the GPU partition, more memory
         for block in jobs[rule]:
             res = resources(block)

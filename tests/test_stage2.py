@@ -178,14 +178,14 @@ def test_single_stage_table_ranks_within_equal_budgets(tmp_path):
     assert row["psnr_mean"] == pytest.approx(19.0) and row["psnr_std"] == pytest.approx(1.0) and row["runs"] == 2
     assert row["K"] == 1 and np.isnan(df.set_index("combination").loc["gt+3dgs", "K"])
     assert list(df["block"]) == sorted(df["block"])  # main, then references (K = 16), then oracle
-    assert df.set_index("combination").loc["mle-k16+3dgs", "block"] == 1
+    assert df.set_index("combination").loc["mle-k16+3dgs", "block"] == 2  # (1: published networks)
     md = (tmp_path / "single_stage.md").read_text()
     assert "**21.00** " in md and "*19.00 ± 1.00*" in md  # n = 1: no spread shown; oracle not ranked
     assert " 30.00 " in md and "**30.00" not in md
     assert "**25.00**" in md  # the K = 16 row is best among K = 16 rows only (it outscores every K = 1 row)
     assert md.count("**0.5500**") == 1 and "(K = 1)" in md and "(K = 16)" in md and "(oracle, no photons)" in md
-    assert "19.42" in md and "NeRF on binary (single stage) [nerf-grid]" in md and "ground truth" in md
-    assert "metered from their own frames" in md and "| random " in md
+    assert "19.42" in md and "NeRF on binary (single stage; frame at S× resolution" in md and "ground truth" in md
+    assert "metered from their own training views' frames" in md and "| random " in md
     assert "\\textbf{21.00}" in (tmp_path / "single_stage.tex").read_text()
     assert (tmp_path / "single_stage.csv").read_text().startswith("approach,combination")
 

@@ -70,12 +70,12 @@ def test_pareto_front_ties_single_point_and_nan():
 # ---- knobs, tables, combinations ---------------------------------------------------------------------
 def test_models_and_widths_match_the_registries():
     """The torch-free vocabulary of spc3d.workflow (used by the rules and the sweeps) names exactly
-    the registered models; every translator has a width knob."""
+    the registered models; every translator with a network has a width knob."""
     from spc3d.reconstruct import RECONSTRUCTORS
     from spc3d.translate import TRANSLATORS
 
     assert tuple(RECONSTRUCTORS) == workflow.STAGE2_MODELS
-    assert set(WIDTH_KEYS) == set(TRANSLATORS)
+    assert set(WIDTH_KEYS) == {m for m, module in TRANSLATORS.items() if module.Translator.trainable}
     for method, key in WIDTH_KEYS.items():
         assert hasattr(TRANSLATORS[method].Config(), key)
 

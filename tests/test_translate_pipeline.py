@@ -328,7 +328,7 @@ def test_two_stage_and_stage1_tables(tmp_path):
     df = tables.stage1_table(s1, tmp_path / "stage1p", LABELS).set_index("combination")
     assert list(df.index) == ["pix2pix", "restormer", "prior"]
     assert df.loc["prior", "runs"] == 2 and df.loc["prior", "psnr_mean"] == pytest.approx(18.5)
-    assert df.loc["pix2pix", "runs"] == 2 and df.loc["prior", "approach"].startswith("physics prior")
+    assert df.loc["pix2pix", "runs"] == 2 and df.loc["prior", "approach"].startswith("Physics prior")
 
 
 def test_qualitative_figure(world, tmp_path):

@@ -57,10 +57,11 @@ def test_dry_run_lists_the_dag(tmp_path):
     }
     assert counts["prepare_scene"] == 4 and counts["simulate_scene"] == 4 and counts["augment_scene"] == 3
     assert counts["colmap_poses"] == 12 and counts["write_summary"] == 1
-    assert counts["reconstruct"] == 18 and counts["evaluate"] == 18 and counts["write_all_tables"] == 1
+    assert counts["reconstruct"] == 25 and counts["evaluate"] == 25 and counts["write_all_tables"] == 1
     assert counts["estimate_poses"] == 1  # three rows posed by COLMAP on the 16-frame MLE images
-    assert counts["train_translator"] == 5 and counts["translate_scene"] == 5 and counts["score_images"] == 8
-    assert counts["calibrate_display"] == 2 and counts["write_display"] == 2  # K = 1 and K = 16
+    # five translators and the untrained prior; scored before 3D with none, none-x1, mle, mle-x1, mle-k16
+    assert counts["train_translator"] == 6 and counts["translate_scene"] == 6 and counts["score_images"] == 11
+    assert counts["calibrate_display"] == 3 and counts["write_display"] == 3  # K = 1, K = 16, the capture frame
     assert counts["qualitative_figure"] == 1 and "tables" not in counts  # `tables` is an explicit target only
 
 
@@ -108,8 +109,15 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     assert (res / "models" / "restormer" / "curve.png").exists() and not (res / "models" / "cyclegan").exists()
     assert len(list((res / "translate" / "courtyard" / "diffusion" / "images").glob("*.png"))) == 9
     s1 = pd.read_csv(res / "tables" / "stage1.csv").set_index("combination")
-    # smoke runs no mle row; "prior": the translators' shared physics prior alone
-    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "none", "prior"}
+    # smoke runs no mle row; "prior": the translators' physics prior alone, a method of its own
+    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "prior", "none", "none-x1"}
+    assert s1.loc["none", "S"] == 4 and s1.loc["none-x1", "S"] == 1  # the capture frame: 4 x 4 px per pixel
+    prior = io.read_json(res / "eval" / "courtyard" / "prior+3dgs" / "metrics.json")
+    assert prior["frames"] == 1 and np.isfinite(prior["mean"]["psnr"])
+    assert io.read_json(res / "eval" / "courtyard" / "none+3dgs" / "metrics.json")["capture_factor"] == 4
+    assert io.read_json(res / "eval" / "courtyard" / "none-x1-mse+3dgs" / "metrics.json")["loss"] == "mse"
+    findings = (res / "tables" / "findings.md").read_text()
+    assert "DESCRIPTIVE ONLY" in findings and "**HOLDS**" not in findings  # one run: no verdict
     two = pd.read_csv(res / "tables" / "two_stage.csv").set_index("combination")
     assert two.loc["pix2pixhd+3dgs", "runs"] == 1 and two.loc["pix2pix+nerf-grid", "runs"] == 0
     assert (res / "figures" / "qualitative_courtyard.png").stat().st_size > 10_000
@@ -155,10 +163,13 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
     assert pose["registered"] >= 18  # real photos register from their RGB views
 
 
-@pytest.mark.parametrize("preset,reconstructs,translators", [("smoke", 8, 3), ("llff-cpu", 18, 5), ("paper", 54, 15)])
+@pytest.mark.parametrize(
+    "preset,reconstructs,translators", [("smoke", 10, 4), ("llff-cpu", 25, 6), ("paper", 75, 18), ("findings", 216, 33)]
+)
 def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
-    """Every preset passes the schema and plans its DAG (the paper preset: 15 combinations x 3 seeds,
-    each seed with its own translators: a repeat redraws everything random)."""
+    """Every preset passes the schema and plans its DAG (the paper preset: 25 combinations x 3 seeds,
+    each seed with its own translators: a repeat redraws everything random; the findings preset: 24
+    combinations x 3 evaluation scenes x 3 seeds, 11 translators per seed)."""
     path = REPO / "workflow" / "presets" / f"{preset}.yaml"
     if "../shared/data/llff" in path.read_text() and not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
         pytest.skip("the preset reads the LLFF scenes of ../shared")

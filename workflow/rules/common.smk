@@ -13,10 +13,10 @@ resolve_paths(config, workflow.basedir)
 
 from spc3d.augment import split_count
 from spc3d.scenes import LAYOUTS
-from spc3d.workflow import (PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budgets, folder_files,
-                            llff_input_files,
-                            parse_combination, resolve_combinations, scene_specs, source_frames, spc_settings,
-                            split_source, stage1_sources, translator_settings, translator_validation)
+from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, folder_files,
+                            llff_input_files, parse_combination, parse_source, reads_capture_frame,
+                            resolve_combinations, scene_specs, source_frames, source_images, spc_settings,
+                            stage1_sources, translator_settings, translator_validation)
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -37,22 +37,21 @@ check_settings(config, STAGE1_USED, sorted({parse_combination(c)[1] for c in COM
 # everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
 SEEDS = [config["seed"] + k for k in range(config["seeds"])]
 REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
-# Frame budgets K of the metered display gain (mle / bernoulli rows), fitted on the training scenes.
-DISPLAY_KS = display_budgets(COMBINATIONS, config["stage2"]["frames"])
-# Sources scored before 3D (score_images): the translators in use and the training-free images.
-STAGE1_SCORED = STAGE1_USED + sorted({parse_combination(c)[0] for c in COMBINATIONS
-                                      if split_source(parse_combination(c)[0])[0] == "mle"}) + ["none"]
+# Sources scored before 3D (score_images): the translators in use and the training-free images
+# (the binary frame always; MLE and binary variants as the rows use them, without their stage-2 loss).
+STAGE1_SCORED = STAGE1_USED + sorted({parse_source(parse_combination(c)[0]).images for c in COMBINATIONS
+                                      if parse_source(parse_combination(c)[0]).base in ("mle", "none")} | {"none"})
 
 
 wildcard_constraints:
     scene="|".join(ALL_SCENES) or "(?!)",
     images="rgb|binary|average",
-    source="[a-z0-9]+(-k[0-9]+)?",
+    source="[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.workflow.SourceName
     poses="(@[a-z0-9]+(-k[0-9]+)?)?",  # "@mle-k16": poses COLMAP estimated from that source's images
     model="|".join(STAGE2_MODELS),
-    method="|".join(STAGE1_METHODS),
+    method=f"({'|'.join(STAGE1_METHODS)})(-pub)?",  # "-pub": the published network (prior_sigma: 0)
     rep="(-seed[0-9]+)?",
-    K="[0-9]+",
+    budget="k[0-9]+|capture",  # a metered display: the first K frames, or the capture-resolution frame
     sensor=f"({'|'.join(SENSORS)})?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
 
 
@@ -101,21 +100,42 @@ def get_source_frames(wildcards):
     return source_frames(wildcards.source, config["stage1"]["frames"], config["stage2"]["frames"])
 
 
+def get_capture_factor(wildcards):
+    """S of a source's images (S x S sensor pixels per working pixel): spc.capture_factor for the
+    capture-resolution frame of a simulated scene (a capture has no finer frame), else 1."""
+    simulated = SCENE_SPECS[wildcards.scene]["kind"] != "capture"
+    return config["spc"]["capture_factor"] if simulated and reads_capture_frame(wildcards.source, config["stage2"]["frames"]) else 1
+
+
 def display_folder(wildcards):
-    """The metered MLE images of the row's frame budget (mle / bernoulli rows)."""
-    return f"results/mle/{wildcards.scene}/k{get_source_frames(wildcards)}{wildcards.rep}"
+    """The metered MLE images of the row's frame budget (mle / bernoulli rows); a capture has no
+    finer frame (S = 1), so its capture-frame rows read frame 0's display."""
+    budget = display_budget(wildcards.source, config["stage2"]["frames"])
+    if budget == "capture" and SCENE_SPECS[wildcards.scene]["kind"] == "capture":
+        budget = "k1"
+    return f"results/mle/{wildcards.scene}/{budget}{wildcards.rep}"
+
+
+def get_display_frames(wildcards):
+    """K of a metered display ("k16": 16; "capture": the one capture-resolution frame)."""
+    return 1 if get_display_capture(wildcards) else int(wildcards.budget[1:])
+
+
+def get_display_capture(wildcards):
+    """Whether a metered display is of the capture-resolution frame (spc.capture_factor)."""
+    return wildcards.budget == "capture"
 
 
 def get_reconstruct_inputs(wildcards):
     """The scene, its SPC folder for the SPC-derived sources, the stage-1 images or the metered MLE
     display (mle: its images; bernoulli: its gain), COLMAP's points for a 3DGS init."""
-    base = split_source(wildcards.source)[0]
+    name = parse_source(wildcards.source)
     inputs = {"scene": f"results/scenes/{wildcards.scene}"}
-    if base != "gt":
+    if name.base != "gt":
         inputs["spc"] = f"results/spc/{wildcards.scene}{wildcards.rep}"
-    if base in STAGE1_METHODS:
-        inputs["translated"] = f"results/translate/{wildcards.scene}/{base}{wildcards.rep}"
-    if base in ("mle", "bernoulli"):
+    if name.method:
+        inputs["translated"] = f"results/translate/{wildcards.scene}/{name.method}{wildcards.rep}"
+    if name.base in ("mle", "bernoulli"):
         inputs["display"] = display_folder(wildcards)
     if wildcards.model == "3dgs" and config["stage2"]["init"] == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
@@ -202,6 +222,11 @@ def get_summary_roles():
     return ["train"] * len(TRAIN_SCENES) + ["eval"] * len(EVAL_SCENES)
 
 
+def get_translator_base(wildcards):
+    """The method a model folder trains ("pix2pixhd" for "pix2pixhd-pub", whose settings say prior_sigma: 0)."""
+    return parse_source(wildcards.method).base
+
+
 def get_translator_settings(wildcards):
     """The method's model overrides (its config block without the 'train' block)."""
     return translator_settings(config["stage1"], wildcards.method)[0]
@@ -256,10 +281,9 @@ def get_translator_model(wildcards):
 
 def get_stage1_images(wildcards):
     """The folder holding a source's images of a scene (stage-1 output, metered MLE, binary frame, ground truth)."""
-    base = split_source(wildcards.source)[0]
-    kind = SOURCE_IMAGES[base][0]
+    kind = source_images(wildcards.source, config["stage2"]["frames"])[0]
     if kind == "translated":
-        return f"results/translate/{wildcards.scene}/{base}{wildcards.rep}"
+        return f"results/translate/{wildcards.scene}/{parse_source(wildcards.source).method}{wildcards.rep}"
     if kind == "display":
         return display_folder(wildcards)
     if kind == "scene":
@@ -268,7 +292,7 @@ def get_stage1_images(wildcards):
 
 
 def get_stage1_subdir(wildcards):
-    return SOURCE_IMAGES[split_source(wildcards.source)[0]][1]
+    return source_images(wildcards.source, config["stage2"]["frames"])[1]
 
 
 def get_qualitative_inputs(wildcards):

@@ -39,13 +39,17 @@ rule simulate_scene:
 
 
 rule calibrate_display:
-    """The display level k of the metered MLE (g = mean flux / k), fitted on the training scenes at K frames."""
+    """The display level k of the metered MLE (g = mean flux / k), fitted on the training scenes at one
+    budget: their first K frames ("k{K}") or their capture-resolution frame ("capture")."""
     input:
         unpack(get_display_training),
     output:
-        "results/calibration/display-k{K}{rep}.json",
+        "results/calibration/display-{budget}{rep}.json",
+    params:
+        frames=get_display_frames,
+        capture=get_display_capture,
     log:
-        "logs/calibrate_display/k{K}{rep}.log",
+        "logs/calibrate_display/{budget}{rep}.log",
     threads: 1
     priority: 10
     conda:
@@ -55,14 +59,18 @@ rule calibrate_display:
 
 
 rule write_display:
-    """A scene's MLE images of its first K frames at the metered gain (no ground truth: spc3d.exposure)."""
+    """A scene's MLE images of one budget (first K frames, or the capture-resolution frame) at the
+    gain metered on its training views (no ground truth: spc3d.exposure)."""
     input:
         spc="results/spc/{scene}{rep}",
-        calibration="results/calibration/display-k{K}{rep}.json",
+        calibration="results/calibration/display-{budget}{rep}.json",
     output:
-        directory("results/mle/{scene}/k{K}{rep}"),
+        directory("results/mle/{scene}/{budget}{rep}"),
+    params:
+        frames=get_display_frames,
+        capture=get_display_capture,
     log:
-        "logs/write_display/{scene}/k{K}{rep}.log",
+        "logs/write_display/{scene}/{budget}{rep}.log",
     threads: 1
     priority: 10
     conda:

@@ -18,6 +18,7 @@ rule train_translator:
             labels={"translator": "{method}{sensor}", "figure": "training curve"},
         ),
     params:
+        method=get_translator_base,
         settings=get_translator_settings,
         train=get_translator_train,
         frames=config["stage1"]["frames"],
@@ -72,6 +73,7 @@ rule score_images:
     params:
         subdir=get_stage1_subdir,
         frames=get_source_frames,
+        capture_factor=get_capture_factor,
         seed=get_seed,
     log:
         "logs/score_images/{scene}/{source}{rep}.log",

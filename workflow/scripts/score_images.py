@@ -15,4 +15,5 @@ with logged(snakemake.log[0]):
         lpips_dir=Path(snakemake.input.lpips[0]).parent,
         frames=p.frames,
         seed=p.seed,
+        capture_factor=p.capture_factor,
     )

@@ -11,7 +11,7 @@ with logged(snakemake.log[0]):
         p.data, inputs.get("pairs", []), inputs.get("scenes", []), inputs.get("spc", []), p.augment, p.sensor
     )
     train_translator(
-        snakemake.wildcards.method,
+        p.method,
         data.augment_dirs,
         snakemake.output[0],
         p.settings,

@@ -45,7 +45,7 @@ lpips_net     LPIPS v0.1 networks (AlexNet, VGG16 + linear heads) in plain torch
 evaluate      held-out renders scored against the ground truth (rule ``evaluate``)
 heldout       no-reference score of renders: the held-out views' photons explained (captures without RGB)
 tables        paper-layout tables from ``metrics.json`` files (rule ``write_all_tables``)
-findings      the paper's claims and this project's, decided with paired bootstrap intervals
+findings      the paper's claims and this project's, decided over independent runs (exact sign-flip test)
 figures       the qualitative figure and other plots
 plotting      matplotlib on the Agg back-end and atomic PNG writes, for every figure
 sweeps        the speed-accuracy trade-off and photon-level sweeps

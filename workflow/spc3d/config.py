@@ -161,19 +161,20 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     from .translate.model_io import check_pretrained, model_config
     from .translate.train import data_mode, train_settings
     from .translate.validate import validation_settings
-    from .workflow import translator_settings, translator_validation
+    from .workflow import parse_source, translator_settings, translator_validation
 
     try:
         if methods:
             data_mode(config["stage1"]["data"])
-        for method in methods:
+        for method in methods:  # model folders: "pix2pixhd-pub" is pix2pixhd's network with prior_sigma: 0
+            base = parse_source(method).base
             settings, train = translator_settings(config["stage1"], method)
-            model_config(method, settings)
-            train_settings(train, method, pretrained=settings.get("checkpoint"))
-            validation_settings(translator_validation(config["stage1"], method), f"stage1.{method}.validation")
+            model_config(base, settings)
+            train_settings(train, base, pretrained=settings.get("checkpoint"))
+            validation_settings(translator_validation(config["stage1"], method), f"stage1.{base}.validation")
             if settings.get("checkpoint"):
-                check_file(settings["checkpoint"], f"stage1.{method}.checkpoint", "published weights to start from")
-                check_pretrained(method, settings)
+                check_file(settings["checkpoint"], f"stage1.{base}.checkpoint", "published weights to start from")
+                check_pretrained(base, settings)
         for model in models:
             CONFIGS[model](dict(config["stage2"][model]))
     except (TypeError, ValueError, FileNotFoundError) as e:

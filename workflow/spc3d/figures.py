@@ -16,7 +16,7 @@ import numpy as np
 from . import io, llff, metrics
 from .cameras import split_views
 from .plotting import pyplot, save_png
-from .workflow import split_source
+from .workflow import source_label
 
 
 def pick_view(scene_dir: str | os.PathLike, view: str | None = None) -> str:
@@ -49,8 +49,7 @@ def qualitative_figure(
             continue  # not reconstructed (its train.json says why, e.g. COLMAP posed too few views)
         img = io.read_rgb(Path(folder) / "renders" / f"{view}.png")
         source, model = combo.split("+", 1)
-        base, k = split_source(source)
-        name = f"{(labels or {}).get(base, base)}{f' (K = {k})' if k else ''} + {model}"
+        name = f"{source_label(source, labels or {})} + {model}"
         panels.append((f"{name}\n{metrics.psnr(img, gt):.2f} dB", img))
     panels.append(("ground truth", gt))
     _draw(panels, out_png, f"{Path(scene_dir).name}, held-out view {view}", per_row)

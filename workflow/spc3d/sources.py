@@ -1,10 +1,19 @@
 """Stage-2 image sources: what a reconstructor of a scene is trained on.
 
     gt           ground-truth RGB views (the oracle upper bound)
-    none         the raw binary SPC frame 0 as a 0/1 image (the paper's single-stage baselines)
-    mle[-kK]     the MLE flux of K frames per view at the metered display gain (physics baseline)
+    none         the paper's single-stage input: one binary frame taken at spc.capture_factor x the
+                 working resolution and area-averaged to it, as the reference NeRF / 3DGS loaders
+                 downscale a capture-resolution image (``spc/{scene}/capture``)
+    none-x1      the raw binary frame 0 at the working resolution, a 0/1 image
+    mle[-kK]     the MLE flux of K frames per view at the metered display gain (physics baseline);
+                 at K = 1 of the capture-resolution frame, ``mle-x1`` of frame 0
     bernoulli[-kK]  K binary frames per view themselves, fitted through the SPAD likelihood
-    <method>     a stage-1 translator's output folder, images named like the scene's views
+    <method>     a stage-1 method's output folder (``<method>-pub``: its published network; ``prior``:
+                 the physics prior alone), images named like the scene's views
+
+The suffix ``-mse`` (none, mle) fits the images with MSE instead of the model's own loss: 3DGS's
+0.8 L1 + 0.2 D-SSIM fits the per-pixel *median* of 0/1 targets across views (a binary render),
+MSE their mean (:mod:`spc3d.workflow`, ``SUFFIXES``).
 
 Every source yields targets aligned with the scene's cameras; only training views are returned
 (every 8th view is held out for evaluation, see :func:`spc3d.cameras.split_views`). Only ``gt``
@@ -25,10 +34,10 @@ import torch
 from . import io, llff, spc
 from .cameras import split_views
 from .exposure import read_gain
-from .reconstruct.objectives import BernoulliObjective
+from .reconstruct.objectives import BernoulliObjective, RGBObjective
 from .reconstruct.train import Views
 from .inputs import read_spc_record
-from .workflow import SOURCE_IMAGES, split_source
+from .workflow import SOURCE_IMAGES, parse_source, reads_capture_frame, source_images
 
 FRAME_SOURCES = ("bernoulli",)
 
@@ -38,8 +47,9 @@ class Source:
     """Training targets of one scene from one source, and how they are compared (``objective``)."""
 
     views: Views
-    objective: object | None  # a BernoulliObjective for frame sources; None = the model's RGB loss
+    objective: object | None  # a BernoulliObjective for frame sources, MSE for "-mse"; None = the model's RGB loss
     name: str
+    capture_factor: int = 1  # sensor pixels per working pixel and axis behind each image (the capture frame's S)
 
 
 def load_source(
@@ -57,7 +67,7 @@ def load_source(
     ``display_dir``: the metered MLE folder of that budget (``results/mle/{scene}/k{K}``), whose
     images the mle source trains on and whose gain the bernoulli source's likelihood uses.
     """
-    base, _ = split_source(name)
+    base = parse_source(name).base
     scene = llff.read_scene(scene_dir, with_images=base == "gt")
     train, _ = split_views(len(scene.names))
     names = [scene.names[i] for i in train]
@@ -73,8 +83,18 @@ def load_source(
         targets, objective = sensor_targets(Path(spc_dir), targets, objective)
     else:
         folder = Path(image_dir) if image_dir else _image_folder(name, Path(scene_dir), spc_dir, display_dir, frames)
-        targets, objective = np.stack([_read_view(folder, n, cams) for n in names]), None
-    return Source(Views(torch.as_tensor(targets, dtype=torch.float32), cams, names), objective, name)
+        targets = np.stack([_read_view(folder, n, cams) for n in names])
+        objective = RGBObjective("mse") if parse_source(name).mse else None
+    views = Views(torch.as_tensor(targets, dtype=torch.float32), cams, names)
+    return Source(views, objective, name, capture_factor(name, spc_dir, frames))
+
+
+def capture_factor(name: str, spc_dir, frames: int) -> int:
+    """S of the images a source trains on: the SPC folder's ``capture_factor`` for a row reading
+    the capture-resolution frame (:func:`spc3d.workflow.reads_capture_frame`), else 1."""
+    if not reads_capture_frame(name, frames) or spc_dir is None:
+        return 1
+    return int(read_spc_record(spc_dir).get("capture_factor", 1))
 
 
 def with_estimated_poses(src: Source, poses_dir: str | os.PathLike) -> Source:
@@ -84,23 +104,24 @@ def with_estimated_poses(src: Source, poses_dir: str | os.PathLike) -> Source:
 
     keep, cameras = estimated_views(src.views.names, poses_dir)
     views = Views(src.views.targets[keep], cameras, [src.views.names[i] for i in keep])
-    return Source(views, src.objective, src.name)
+    return Source(views, src.objective, src.name, src.capture_factor)
 
 
 def _image_folder(name: str, scene_dir: Path, spc_dir, display_dir, frames: int) -> Path:
-    """The folder of source ``name``'s images (spc3d.workflow.SOURCE_IMAGES), from the folders given."""
-    kind, sub = SOURCE_IMAGES.get(split_source(name)[0], (None, None))
-    if kind not in ("scene", "spc", "display"):  # a stage-1 method's images come as image_dir
+    """The folder of source ``name``'s images (spc3d.workflow.source_images), from the folders given."""
+    base = parse_source(name).base
+    if SOURCE_IMAGES.get(base, ("translated",))[0] == "translated":  # a stage-1 method's images come as image_dir
         known = sorted(k for k, (where, _) in SOURCE_IMAGES.items() if where != "translated")
         raise ValueError(
             f"unknown image source {name!r}: use one of {known + list(FRAME_SOURCES)} "
             "or give the folder of a stage-1 method's images"
         )
+    kind, sub = source_images(name, frames)
     folders = {"scene": scene_dir, "spc": spc_dir, "display": display_dir}
     if folders[kind] is None:
         what = {
             "spc": "the scene's SPC folder (results/spc/{scene})",
-            "display": f"the metered display folder (results/mle/{{scene}}/k{frames})",
+            "display": "the metered display folder (results/mle/{scene}/<budget>)",
         }[kind]
         raise ValueError(f"source {name!r} needs {what}")
     return Path(folders[kind]) / sub

@@ -58,7 +58,9 @@ def reconstruct(
     """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
 
     ``frames``: binary frames per view the source consumes (its photon budget K, recorded; the
-    bernoulli source fits that many; None for the oracle ``gt``). ``display_dir``: the metered MLE
+    bernoulli source fits that many; None for the oracle ``gt``); ``capture_factor`` in the record
+    is the S of a source reading the capture-resolution frame (S x S sensor pixels per working
+    pixel; 1 otherwise): with K, the row's budget. ``display_dir``: the metered MLE
     folder of that budget (mle and bernoulli sources, :mod:`spc3d.exposure`).
     ``init_setting``: the config's ``stage2.init``, recorded beside what was actually done.
     ``poses_dir``: an ``estimate_poses`` folder (:mod:`spc3d.poses`): train on the training views
@@ -100,9 +102,11 @@ def reconstruct(
         "model": model,
         "source": source,
         "objective": getattr(src.objective, "name", "rgb"),
+        "loss": "mse" if getattr(src.objective, "kind", None) == "mse" else "the model's own",
         "seed": seed,
         "settings": dataclasses.asdict(cfg),
         "frames": frames,
+        "capture_factor": src.capture_factor,
         "poses": poses,
         "train_views": len(src.views.names),
         "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from . import io
-from .workflow import LABELS, split_source
+from .workflow import LABELS, TRAINED_METHODS, as_read, parse_source, source_label
 
 METRICS = {
     "psnr": ("PSNR↑", True),
@@ -33,28 +33,50 @@ METRICS = {
 }
 # What every caption says about the protocol (the rule for the physics rows' display gain included).
 PROTOCOL = (
-    "K = binary frames per view a row consumed; ranks (bold best, italic second) only among rows of "
-    "equal K; oracle rows read the ground truth and are not ranked. No other row reads the evaluation "
-    "scene's ground truth: the MLE and SPAD-likelihood rows display their flux at a gain metered from "
-    "their own frames (mean flux / k, k fitted on the training scenes). Poses: ground truth for every "
-    "row. Mean ± std over n runs (scenes × seeds)."
+    "K = binary frames per view a row consumed, and S x S sensor pixels behind each image pixel where a row read "
+    "the frame taken at S x the resolution (the paper-faithful single stage); ranks (bold best, italic second) "
+    "only among rows of equal budget (K, S); oracle rows read the ground truth and are not ranked. No other row "
+    "reads the evaluation scene's ground truth or its scored views' frames: the MLE and SPAD-likelihood rows "
+    "display their flux at a gain metered from their own training views' frames (mean flux / k, k fitted on the "
+    "training scenes). Poses: ground truth for every row. Mean ± std over n runs (scenes × seeds)."
 )
 
-# Paper Table 2 (single-stage), then the rows this project adds.
+# Paper Table 2 (single-stage), then the variants of its baseline and the rows this project adds.
+# "none" is the paper-faithful single stage (the frame at spc.capture_factor x the resolution, area-
+# averaged); "-x1" is frame 0 at the working resolution, "-mse" fits it with MSE (spc3d.workflow.SUFFIXES).
 SINGLE_STAGE = [
-    ("NeRF on binary (single stage)", "none", "nerf", (19.42, 0.6252, 0.50013), "paper"),
-    ("3DGS on binary (single stage)", "none", "3dgs", (18.643, 0.5103, 0.4855), "paper"),
+    (
+        "NeRF on binary (single stage; frame at S× resolution, area-averaged)",
+        "none",
+        "nerf",
+        (19.42, 0.6252, 0.50013),
+        "paper",
+    ),
+    (
+        "3DGS on binary (single stage; frame at S× resolution, area-averaged)",
+        "none",
+        "3dgs",
+        (18.643, 0.5103, 0.4855),
+        "paper",
+    ),
+    ("NeRF on binary, frame at working resolution", "none-x1", "nerf", None, "variant"),
+    ("3DGS on binary, frame at working resolution, L1 + D-SSIM", "none-x1", "3dgs", None, "variant"),
+    ("3DGS on binary, frame at working resolution, MSE", "none-x1-mse", "3dgs", None, "variant"),
     ("Pix2PixHD + NeRF", "pix2pixhd", "nerf", (22.70, 0.6843, 0.4949), "paper"),
     ("Pix2PixHD + 3DGS", "pix2pixhd", "3dgs", (22.21, 0.6772, 0.4251), "paper"),
     ("3DGS, SPAD likelihood on binary (single stage)", "bernoulli", "3dgs", None, "ours"),
-    ("MLE + 3DGS (physics, no training)", "mle", "3dgs", None, "ours"),
+    ("MLE + 3DGS (frame at S× resolution; physics, no training)", "mle", "3dgs", None, "ours"),
+    ("MLE + 3DGS, frame at working resolution, L1 + D-SSIM", "mle-x1", "3dgs", None, "variant"),
+    ("MLE + 3DGS, frame at working resolution, MSE", "mle-x1-mse", "3dgs", None, "variant"),
     ("Oracle: ground-truth RGB + NeRF", "gt", "nerf", None, "oracle"),
     ("Oracle: ground-truth RGB + 3DGS", "gt", "3dgs", None, "oracle"),
 ]
 
 
 # Paper Table 1 (two-stage); "DiffBIR" rows are our diffusion stand-in (DiffBIR's weights are not
-# reachable offline), labelled so, with the paper's DiffBIR numbers alongside for reference.
+# reachable offline), labelled so, with the paper's DiffBIR numbers alongside for reference. The
+# translators' untrained start (the physics prior alone) follows; published-network rows ("-pub")
+# that ran are appended as their own block (:func:`published_rows`).
 TWO_STAGE = [
     ("Pix2PixHD + NeRF", "pix2pixhd", "nerf", (22.70, 0.6843, 0.4949), "paper"),
     ("Pix2PixHD + 3DGS", "pix2pixhd", "3dgs", (22.21, 0.6772, 0.4251), "paper"),
@@ -64,7 +86,9 @@ TWO_STAGE = [
     ("Restormer + 3DGS", "restormer", "3dgs", (19.2733, 0.4325, 0.6063), "paper"),
     ("Diffusion (DiffBIR stand-in) + NeRF", "diffusion", "nerf", (19.353, 0.6103, 0.5009), "paper"),
     ("Diffusion (DiffBIR stand-in) + 3DGS", "diffusion", "3dgs", (17.195, 0.41825, 0.47815), "paper"),
-    ("MLE + 3DGS (physics, no training)", "mle", "3dgs", None, "ours"),
+    ("Physics prior (blurred MLE, the translators' untrained start) + NeRF", "prior", "nerf", None, "ours"),
+    ("Physics prior (blurred MLE, the translators' untrained start) + 3DGS", "prior", "3dgs", None, "ours"),
+    ("MLE + 3DGS (frame at S× resolution; physics, no training)", "mle", "3dgs", None, "ours"),
     ("Oracle: ground-truth RGB + NeRF", "gt", "nerf", None, "oracle"),
     ("Oracle: ground-truth RGB + 3DGS", "gt", "3dgs", None, "oracle"),
 ]
@@ -95,15 +119,16 @@ def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
         rows.append(
             {
                 "scene": rec["scene"],
-                "combination": rec["combination"],
+                "combination": as_read(rec["combination"], rec.get("frames"), rec.get("capture_factor")),
                 "seed": rec.get("seed"),
                 "K": rec.get("frames"),
+                "S": rec.get("capture_factor") or 1,
                 "init": init.get("used") if isinstance(init, dict) else init,
                 "poses": poses_text(rec.get("poses")),
                 **{k: (rec["mean"] or {}).get(k, np.nan) for k in METRICS},  # None: not reconstructed
             }
         )
-    return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "init", "poses", *METRICS])
+    return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "S", "init", "poses", *METRICS])
 
 
 def poses_text(poses) -> str:
@@ -121,11 +146,13 @@ def poses_text(poses) -> str:
 
 
 def summarise(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean, std (ddof 0) and n per combination over scenes and seeds, with its K and initialisation."""
+    """Mean, std (ddof 0) and n per combination over scenes and seeds, with its budget (K, S) and
+    initialisation."""
     g = df.groupby("combination")
     out = g[list(METRICS)].mean().add_suffix("_mean").join(g[list(METRICS)].std(ddof=0).add_suffix("_std"))
     out = out.join(g.size().rename("runs"))
     out["K"] = g["K"].agg(lambda k: _one(k, "K"))
+    out["S"] = g["S"].agg(lambda v: _one(v, "S")) if "S" in df else 1
     out["init"] = g["init"].agg(
         lambda v: "; ".join(sorted({str(x).split(" (")[0] for x in v if x is not None})) or None
     )
@@ -142,31 +169,37 @@ def _one(values: pd.Series, what: str):
 
 
 def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str) -> list:
-    """Spec rows for physics combinations that ran but are not in ``spec`` (other frame budgets)."""
+    """Spec rows for combinations that ran but are not in ``spec``: physics rows of other forms and
+    frame budgets, and the published networks ("-pub") of the spec's translator rows (their own block)."""
     listed = {f"{src}+{nerf_variant if fam == 'nerf' else fam}" for _, src, fam, *_ in spec}
     rows = []
+    for label, src, family, paper, _ in spec:
+        model = nerf_variant if family == "nerf" else family
+        if src in TRAINED_METHODS and f"{src}-pub+{model}" in summary.index:
+            rows.append((f"{label} — published network (prior_sigma 0)", f"{src}-pub", family, paper, "published"))
     for combo in summary.index:
         source, _, model = combo.partition("+")
-        if combo not in listed and "@" not in combo and split_source(source)[0] in PHYSICS:
-            label = f"{LABELS[split_source(source)[0]]} + {model.upper() if model == '3dgs' else model}"
-            rows.append((label, source, model, None, "ours"))
+        if combo not in listed and "@" not in combo and parse_source(source).base in PHYSICS:
+            rows.append(
+                (f"{source_label(source)} + {model.upper() if model == '3dgs' else model}", source, model, None, "ours")
+            )
     return rows
 
 
 def table(summary: pd.DataFrame, spec: list, nerf_variant: str, in_blocks: bool = True) -> pd.DataFrame:
-    """Numeric table: the spec's rows (and other-budget physics rows) in blocks main | references | oracle;
-    ``in_blocks=False``: the spec's rows alone, in the spec's order."""
+    """Numeric table: the spec's rows (and the rows :func:`extra_rows` adds) in blocks main | published
+    networks | references | oracle; ``in_blocks=False``: the spec's rows alone, in the spec's order."""
     rows = []
     for label, source, family, paper, role in spec + (extra_rows(summary, spec, nerf_variant) if in_blocks else []):
         model = nerf_variant if family == "nerf" else family
         combo = f"{source}+{model}"
         have = combo in summary.index
-        K = summary.loc[combo, "K"] if have else None
         row = {
             "approach": label + (f" [{model}]" if family == "nerf" else ""),
             "combination": combo,
             "role": role,
-            "K": K,
+            "K": summary.loc[combo, "K"] if have else None,
+            "S": int(summary.loc[combo, "S"]) if have and "S" in summary else 1,
             "poses": summary.loc[combo, "poses"] if have and "poses" in summary else "ground truth",
             "init": summary.loc[combo, "init"] if have else None,
             "runs": int(summary.loc[combo, "runs"]) if have else 0,
@@ -179,24 +212,39 @@ def table(summary: pd.DataFrame, spec: list, nerf_variant: str, in_blocks: bool 
     df = pd.DataFrame(rows)
     if df.empty:
         return df
-    df["block"] = [block(r, k, df) for r, k in zip(df["role"], df["K"])]
+    df["block"] = [block(r, k, s, df) for r, k, s in zip(df["role"], df["K"], df["S"])]
     return df.sort_values("block", kind="stable").reset_index(drop=True) if in_blocks else df
 
 
-def block(role: str, K, df: pd.DataFrame) -> int:
-    """0: the main block (the smallest K present), 1: multi-frame references, 2: oracle rows."""
+def bits(K, S) -> float | None:
+    """Binary samples per working pixel and view behind a row (K frames of S x S sensor pixels)."""
+    return None if K is None or pd.isna(K) else float(K) * float(S) ** 2
+
+
+def block(role: str, K, S, df: pd.DataFrame) -> int:
+    """0: the main block (the fewest bits per pixel present), 1: published networks, 2: references
+    of more bits per pixel (more frames, or the S x S capture frame), 3: oracle rows."""
     if role == "oracle":
+        return 3
+    present = [b for b in map(bits, df["K"], df["S"]) if b is not None]
+    mine = bits(K, S)
+    if present and mine is not None and mine > min(present):
         return 2
-    ks = [k for k in df["K"] if k is not None and not pd.isna(k)]
-    return 1 if ks and K is not None and not pd.isna(K) and K > min(ks) else 0
+    return 1 if role == "published" else 0
 
 
 def ranks(df: pd.DataFrame, key: str, higher_better: bool) -> pd.Series:
-    """1 = best, 2 = second among non-oracle rows of the same budget (K, and ground-truth or
+    """1 = best, 2 = second among non-oracle rows of the same budget (K, S, and ground-truth or
     estimated poses) that have a value; 0 otherwise."""
     out = pd.Series(0, index=df.index)
     ranked = df[(df["role"] != "oracle") & df[key].notna()]
-    budget = ranked["K"].astype("Int64").astype(str) + ranked["poses"].eq("ground truth").map({True: "", False: "@"})
+    S = ranked["S"] if "S" in ranked else pd.Series(1, index=ranked.index)
+    budget = (
+        ranked["K"].astype("Int64").astype(str)
+        + "x"
+        + S.astype(str)
+        + ranked["poses"].eq("ground truth").map({True: "", False: "@"})
+    )
     for _, group in ranked.groupby(budget):
         order = group[key].rank(ascending=not higher_better, method="min")
         out[group.index] = order.where(order <= 2, 0).astype(int)
@@ -205,15 +253,16 @@ def ranks(df: pd.DataFrame, key: str, higher_better: bool) -> pd.Series:
 
 def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
     """Display strings: mean ± std (best / second within equal K marked; no ± when n = 1), K, n."""
+    S = df["S"] if "S" in df else [1] * len(df)
     label = [
-        a if n == 0 else f"{a} (oracle, no photons)" if role == "oracle" else f"{a} (K = {k_text(k)})"
-        for a, k, n, role in zip(df["approach"], df["K"], df["runs"], df["role"])
+        a if n == 0 else f"{a} (oracle, no photons)" if role == "oracle" else f"{a} (K = {k_text(k, s)})"
+        for a, k, s, n, role in zip(df["approach"], df["K"], S, df["runs"], df["role"])
     ]
     out = pd.DataFrame(
         {
             "Approach": label,
             "combination": df["combination"],
-            "K": [k_text(k) for k in df["K"]],
+            "K": [k_text(k, s) for k, s in zip(df["K"], S)],
             "poses": df["poses"],
             "n": df["runs"],
         }
@@ -236,8 +285,11 @@ def formatted(df: pd.DataFrame, bold, italic) -> pd.DataFrame:
     return out
 
 
-def k_text(K) -> str:
-    return "–" if K is None or pd.isna(K) else str(int(K))
+def k_text(K, S=1) -> str:
+    """ "16", or "1 at 4×4 px" for a frame of S x S sensor pixels per image pixel; "–" for the oracle."""
+    if K is None or pd.isna(K):
+        return "–"
+    return str(int(K)) + (f" at {int(S)}×{int(S)} px" if S and int(S) > 1 else "")
 
 
 def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protocol: str = PROTOCOL) -> None:
@@ -271,27 +323,54 @@ def scoring_note(files: list[str | os.PathLike]) -> str:
     )
 
 
-def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
-    """Paper Table 2 layout (+ this project's rows) from the given metrics files."""
-    df = table(summarise(collect(metrics_files)), SINGLE_STAGE, nerf_variant)
-    write_table(df, stem, "Single-stage vs two-stage (paper Table 2 layout)", PROTOCOL + scoring_note(metrics_files))
+def reconstructor_note(summary: pd.DataFrame, nerf_variant: str) -> str:
+    """The caption's sentence on what bounds each model's rows: its oracle (ground-truth RGB) score,
+    so a NeRF row far below 3DGS's ceiling is read as the NeRF's budget, not its source's."""
+    oracle = {m: f"gt+{m}" for m in (nerf_variant, "3dgs") if f"gt+{m}" in summary.index}
+    if len(oracle) < 2:
+        return ""
+    psnr = {m: summary.loc[c, "psnr_mean"] for m, c in oracle.items()}
+    gap = psnr["3dgs"] - psnr[nerf_variant]
+    bound = f" NeRF rows are bounded by the reconstructor: {gap:.1f} dB below 3DGS's." if gap > 1.0 else ""
+    return (
+        f" Ceilings on ground-truth RGB: {nerf_variant} {psnr[nerf_variant]:.2f} dB, 3DGS {psnr['3dgs']:.2f} dB "
+        f"PSNR.{bound}"
+    )
+
+
+def paper_table(metrics_files: list[str], stem: str, nerf_variant: str, spec: list, caption: str) -> pd.DataFrame:
+    """A paper-layout table of ``spec`` (+ the rows :func:`extra_rows` adds) from the metrics files."""
+    summary = summarise(collect(metrics_files))
+    df = table(summary, spec, nerf_variant)
+    note = reconstructor_note(summary, nerf_variant) + scoring_note(metrics_files)
+    write_table(df, stem, caption, PROTOCOL + note)
     return df
+
+
+def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
+    """Paper Table 2 layout (+ the single-stage variants and this project's rows)."""
+    caption = "Single-stage vs two-stage (paper Table 2 layout)"
+    return paper_table(metrics_files, stem, nerf_variant, SINGLE_STAGE, caption)
 
 
 def two_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
-    """Paper Table 1 layout (+ this project's rows) from the given metrics files."""
-    df = table(summarise(collect(metrics_files)), TWO_STAGE, nerf_variant)
+    """Paper Table 1 layout (+ the untrained prior, published networks and this project's rows)."""
     caption = "Two-stage: stage-1 translator + stage-2 reconstructor (paper Table 1 layout)"
-    write_table(df, stem, caption, PROTOCOL + scoring_note(metrics_files))
-    return df
+    return paper_table(metrics_files, stem, nerf_variant, TWO_STAGE, caption)
+
+
+def row_label(source: str, labels: dict[str, str]) -> str:
+    """A source's name in a table whose K has a column of its own (``labels`` may name it whole)."""
+    return labels.get(source, source_label(source, labels, frames=False))
 
 
 def stage1_row(rec: dict, combination: str, mean: dict) -> dict:
     """One stage-1 record's scores as a table row named ``combination``."""
     return {
         "scene": rec["scene"],
-        "combination": combination,
+        "combination": as_read(combination, rec.get("frames"), rec.get("capture_factor")),
         "K": rec.get("frames"),
+        "S": rec.get("capture_factor") or 1,
         "init": None,
         **{k: mean[k] for k in METRICS},
     }
@@ -300,17 +379,18 @@ def stage1_row(rec: dict, combination: str, mean: dict) -> dict:
 def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> pd.DataFrame:
     """Stage-1 image quality of the held-out views before 3D, one row per source (best first)."""
     rows, prior_rows, names = [], {}, {}
-    for path in stage1_files:
-        rec = io.read_json(path)
+    records = [io.read_json(path) for path in stage1_files]
+    own_prior = any(rec["source"] == "prior" for rec in records)  # the prior scored as a source of its own
+    for rec in records:
         rows.append(stage1_row(rec, rec["source"], rec["mean"]))
-        if rec.get("prior"):  # the translators' physics prior alone: one row per blur (they share one prior)
+        if rec.get("prior") and not own_prior:  # the translators' physics prior alone: one row per blur
             sigma = rec["prior"].get("sigma")
             name = names.setdefault(sigma, "prior" if not names else f"prior-{sigma:g}px")
             prior_rows.setdefault((name, rec["scene"], rec.get("seed")), stage1_row(rec, name, rec["prior"]["mean"]))
     rows += prior_rows.values()
-    summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", "K", "init", *METRICS]))
+    summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", "K", "S", "init", *METRICS]))
     spec = [
-        (labels.get(split_source(src)[0], src), src, "image", None, "oracle" if src == "gt" else "ours")
+        (row_label(src, labels), src, "image", None, "oracle" if src == "gt" else "ours")
         for src in summary.sort_values("psnr_mean", ascending=False).index
     ]
     df = table(summary.rename(index=lambda c: f"{c}+image"), spec, "image")
@@ -338,7 +418,7 @@ def estimated_poses_table(metrics_files: list[str], stem: str, labels: dict[str,
         twin, _, poses = combo.partition("@")
         for c in ([twin] if twin in summary.index and twin not in {s[1] + "+" + s[2] for s in spec} else []) + [combo]:
             source, _, model = c.partition("+")
-            name = f"{labels.get(split_source(source)[0], source)} + {model.partition('@')[0].upper()}"
+            name = f"{row_label(source, labels)} + {model.partition('@')[0].upper()}"
             spec.append((name, source, model, None, "oracle" if source == "gt" else "ours"))
     df = table(summary, spec, "", in_blocks=False)
     if df.empty:
@@ -431,4 +511,4 @@ def write_all_tables(
     else:  # every evaluation scene is a capture without reference views: nothing to score before 3D
         write_text_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
     no_reference_table(metrics_files, folder / "no_reference")
-    write_findings(metrics_files, folder / "findings", nerf_variant)
+    write_findings(metrics_files, folder / "findings", nerf_variant, stage1_files=stage1_files)

@@ -11,10 +11,12 @@ nothing here knows about Snakemake objects.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 import resource
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 
@@ -206,13 +208,18 @@ def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") 
 
 # Stage-1 methods (keys of spc3d.translate.TRANSLATORS, repeated here so parsing the Snakefile does
 # not import torch; a test keeps the two equal) and the stage-2 sources that need no stage 1.
-STAGE1_METHODS = ("pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion")
+# ``prior`` is the translators' untrained start (the blurred-MLE physics prior alone): a method
+# without training, so that what learning adds is a row of its own.
+STAGE1_METHODS = ("pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion", "prior")
+TRAINED_METHODS = STAGE1_METHODS[:-1]  # the methods with networks to train (and a published form)
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
 # Stage-2 models (keys of spc3d.reconstruct.RECONSTRUCTORS, repeated for the same reason; a test keeps them equal).
 STAGE2_MODELS = ("3dgs", "nerf", "nerf-grid")
 # Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
 # the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
 BUDGET_SOURCES = ("mle", "bernoulli")
+# The single-frame sources that read the capture-resolution frame (spc.capture_factor) at K = 1.
+CAPTURE_SOURCES = ("none", "mle")
 # Where each image source's views are: (input folder kind, subfolder). "scene" is results/scenes/{scene},
 # "spc" results/spc/{scene}, "display" the metered MLE folder of the row's budget, "translated" a
 # stage-1 method's outputs. ``bernoulli`` trains on the frames themselves (no images).
@@ -233,28 +240,119 @@ LABELS = {
     "none": "binary frame (no stage 1)",
     "gt": "ground truth",
     "bernoulli": "SPAD likelihood on binary",
-    "prior": "physics prior: blurred MLE, the translators' start (no training)",
+    "prior": "Physics prior (blurred MLE, no training)",
+}
+# What each source-name suffix means (after an optional "-k<K>", in this order), for labels and errors.
+SUFFIXES = {
+    "-x1": "the frame at the working resolution (not the capture-resolution frame)",
+    "-pub": "the published network (prior_sigma: 0), not a residual over the physics prior",
+    "-mse": "3DGS fitted with MSE instead of 0.8 L1 + 0.2 D-SSIM (the mean of the targets, not their median)",
 }
 
 
+@dataclass(frozen=True)
+class SourceName:
+    """A stage-2 source name taken apart: ``base[-k<K>][-x1][-pub][-mse]``.
+
+    ``k``: its own frame budget (mle, bernoulli); ``x1``: a single-frame source (none, mle) at the
+    working resolution instead of the capture-resolution frame; ``pub``: a translator's published
+    network; ``mse``: an image source fitted with MSE by 3DGS."""
+
+    base: str
+    k: int | None = None
+    x1: bool = False
+    pub: bool = False
+    mse: bool = False
+
+    @property
+    def method(self) -> str | None:
+        """The stage-1 model folder it reads (``pix2pixhd-pub``), None for a source without stage 1."""
+        return self.base + "-pub" * self.pub if self.base in STAGE1_METHODS else None
+
+    @property
+    def images(self) -> str:
+        """The source's image set without the stage-2 loss (``none-x1`` for ``none-x1-mse``): what
+        stage 1 scores."""
+        return str(dataclasses.replace(self, mse=False))
+
+    def __str__(self) -> str:
+        return self.base + (f"-k{self.k}" if self.k else "") + "-x1" * self.x1 + "-pub" * self.pub + "-mse" * self.mse
+
+
+def parse_source(source: str) -> SourceName:
+    """``SourceName`` of ``source`` (suffixes stripped from the end, in the order of :data:`SUFFIXES`);
+    unknown parts stay in ``base``, which :func:`check_source` then rejects."""
+    rest, flags = source, {}
+    for suffix in reversed(SUFFIXES):
+        if rest.endswith(suffix) and len(rest) > len(suffix):
+            rest, flags[suffix[1:]] = rest[: -len(suffix)], True
+    base, sep, k = rest.partition("-k")
+    if not (sep and k.isdigit() and int(k) >= 1):
+        return SourceName(rest, None, **flags)
+    return SourceName(base, int(k), **flags)
+
+
 def split_source(source: str) -> tuple[str, int | None]:
-    """("mle", 16) for "mle-k16"; (source, None) without a frame suffix."""
-    base, sep, k = source.partition("-k")
-    if sep and k.isdigit() and int(k) >= 1:
-        return base, int(k)
-    return source, None
+    """("mle", 16) for "mle-k16"; (base, None) without a frame suffix."""
+    name = parse_source(source)
+    return name.base, name.k
+
+
+def source_label(source: str, labels: dict[str, str] = LABELS, frames: bool = True) -> str:
+    """A source's name for tables and figures: its base's label and what each suffix means (with
+    its own frame budget unless ``frames`` is False: a table states K in a column of its own)."""
+    name = parse_source(source)
+    extras = [f"K = {name.k}" if name.k and frames else None] + [
+        text.split(" (")[0] for suffix, text in SUFFIXES.items() if getattr(name, suffix[1:])
+    ]
+    return labels.get(name.base, name.base) + "".join(f"; {e}" for e in extras if e)
 
 
 def source_frames(source: str, stage1_frames: int, stage2_frames: int) -> int | None:
     """Binary frames per view a source consumes (its photon budget K); None for the oracle ``gt``."""
-    base, k = split_source(source)
-    if base == "gt":
+    name = parse_source(source)
+    if name.base == "gt":
         return None
-    if base == "none":
+    if name.base == "none":
         return 1
-    if base in STAGE1_METHODS:
+    if name.base in STAGE1_METHODS:
         return stage1_frames
-    return k or stage2_frames
+    return name.k or stage2_frames
+
+
+def reads_capture_frame(source: str, stage2_frames: int) -> bool:
+    """Whether a row reads the capture-resolution frame (``spc/{scene}/capture``, spc.capture_factor²
+    bits per working pixel): ``none`` and ``mle`` at K = 1 without ``-x1`` (the paper-faithful
+    single stage: a loader area-downsampling a binary image taken at the camera's resolution)."""
+    name = parse_source(source)
+    return name.base in CAPTURE_SOURCES and not name.x1 and source_frames(source, 1, stage2_frames) == 1
+
+
+def as_read(combination: str, K, S) -> str:
+    """The combination under the name of the frame it read: a capture has no capture-resolution
+    frame, so its ``none`` / ``mle`` runs at K = 1 record S = 1 and are ``-x1`` rows (a record
+    without S keeps its name)."""
+    source, sep, model = combination.partition("+")
+    name = parse_source(source)
+    if K == 1 and S == 1 and name.base in CAPTURE_SOURCES and not name.x1:
+        return str(dataclasses.replace(name, x1=True)) + sep + model
+    return combination
+
+
+def source_images(source: str, stage2_frames: int) -> tuple[str, str]:
+    """(folder kind, subfolder) of an image source's views (:data:`SOURCE_IMAGES`; the capture frame
+    for :func:`reads_capture_frame`)."""
+    kind, sub = SOURCE_IMAGES[parse_source(source).base]
+    if reads_capture_frame(source, stage2_frames) and kind == "spc":
+        return kind, "capture"
+    return kind, sub
+
+
+def display_budget(source: str, stage2_frames: int) -> str:
+    """The metered display a physics source reads: ``k{K}`` (its first K frames) or ``capture``."""
+    if reads_capture_frame(source, stage2_frames):
+        return "capture"
+    return f"k{source_frames(source, 1, stage2_frames)}"
 
 
 def parse_combination(combo: str) -> tuple[str, str, str | None]:
@@ -276,12 +374,39 @@ def combination_frames(combo: str, stage1_frames: int, stage2_frames: int) -> in
 
 
 def check_pose_source(poses: str, combo: str, where: str) -> None:
-    base, k = split_source(poses)
-    if base not in SOURCE_IMAGES or (poses != base and (k is None or base != "mle")):
+    name = parse_source(poses)
+    if (
+        name.base not in SOURCE_IMAGES
+        or name.x1
+        or name.mse
+        or (poses != name.base and (name.k is None or name.base != "mle"))
+    ):
         raise ConfigError(
             f"{where}: {combo!r}: poses from {poses!r}? After '@' name the images COLMAP poses the "
             f"training views from: {sorted(SOURCE_IMAGES)} (mle may take '-k<K>'), e.g. 'bernoulli+3dgs@mle-k16'"
         )
+
+
+def check_source(source: str, combo: str, where: str) -> None:
+    """A stage-2 source name: a known base with only the suffixes that apply to it."""
+    name = parse_source(source)
+    known = f"use one of {list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}"
+    problems = {
+        f"unknown source {name.base!r}; {known}, with the suffixes {list(SUFFIXES)}": name.base
+        not in PLAIN_SOURCES + STAGE1_METHODS,
+        f"only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' (translators use stage1.frames, "
+        "'none' is one frame, 'gt' none)": name.k is not None and name.base not in BUDGET_SOURCES,
+        f"'-x1' ({SUFFIXES['-x1']}) applies to {list(CAPTURE_SOURCES)} at one frame per view only": name.x1
+        and (name.base not in CAPTURE_SOURCES or (name.k or 1) > 1),
+        f"'-pub' ({SUFFIXES['-pub']}) applies to the trained methods {list(TRAINED_METHODS)}": name.pub
+        and name.base not in TRAINED_METHODS,
+        f"'-mse' ({SUFFIXES['-mse']}) applies to {list(CAPTURE_SOURCES)}": name.mse
+        and name.base not in CAPTURE_SOURCES,
+        f"write its suffixes in the order -k<K>, -x1, -pub, -mse ({str(name)!r})": str(name) != source,
+    }
+    for problem, bad in problems.items():
+        if bad:
+            raise ConfigError(f"{where}: {combo!r}: {problem}")
 
 
 def resolve_combinations(combinations: list[str], nerf_variant: str, where: str = "stage2.combinations") -> list[str]:
@@ -296,17 +421,7 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
             )
         if poses is not None:
             check_pose_source(poses, combo, where)
-        base, k = split_source(source)
-        if base not in PLAIN_SOURCES + STAGE1_METHODS or (source != base and k is None):
-            raise ConfigError(
-                f"{where}: {combo!r} has unknown source {source!r}; use one of "
-                f"{list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}"
-            )
-        if k is not None and base not in BUDGET_SOURCES:
-            raise ConfigError(
-                f"{where}: {combo!r}: only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' "
-                f"(translators use stage1.frames, 'none' is one frame, 'gt' none)"
-            )
+        check_source(source, combo, where)
         resolved = f"{source}+{nerf_variant if model == 'nerf' else model}"
         out.append(resolved + (f"@{poses}" if poses else ""))
     return list(dict.fromkeys(out))
@@ -318,16 +433,18 @@ def combination_sources(combinations: list[str]) -> set[str]:
 
 
 def stage1_sources(combinations: list[str]) -> list[str]:
-    """The stage-1 methods the combinations need (in registry order), as sources or pose sources."""
-    used = combination_sources(combinations)
-    return [m for m in STAGE1_METHODS if m in used]
+    """The stage-1 model folders the combinations need (registry order, each method's published
+    form after it), as sources or pose sources."""
+    used = {parse_source(s).method for s in combination_sources(combinations)}
+    return [m for base in STAGE1_METHODS for m in (base, f"{base}-pub") if m in used]
 
 
-def display_budgets(combinations: list[str], stage2_frames: int) -> list[int]:
-    """The frame budgets K whose metered display gain the combinations need (mle / bernoulli rows,
-    and MLE images that pose a row)."""
+def display_budgets(combinations: list[str], stage2_frames: int) -> list[str]:
+    """The metered displays (``k{K}`` or ``capture``, :func:`display_budget`) the combinations need:
+    mle / bernoulli rows, and MLE images that pose a row."""
     used = combination_sources(combinations)
-    return sorted({source_frames(s, 1, stage2_frames) for s in used if split_source(s)[0] in BUDGET_SOURCES})
+    budgets = {display_budget(s, stage2_frames) for s in used if parse_source(s).base in BUDGET_SOURCES}
+    return sorted(budgets, key=lambda b: (b == "capture", int(b[1:]) if b != "capture" else 0))
 
 
 # The spc block's keys that are the camera's physics (spc3d.spc.SPCParams); the others set its exposure.
@@ -336,31 +453,36 @@ SPC_PHYSICS = ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")
 
 def spc_settings(spc: dict, seed: int, frames: int | None = None, detection: float | None = None) -> dict:
     """Arguments of :func:`spc3d.inputs.simulate_scene` from the config's ``spc`` block: the physics,
-    the exposure (a fixed ``flux_scale``, or calibration to ``target_detection``) and the seed.
-    ``frames`` overrides K stored per view; ``detection`` sets a calibration target (whatever
-    ``flux_scale`` says), as a sweep's ``K`` and ``detection`` knobs do."""
+    the exposure (a fixed ``flux_scale``, or calibration to ``target_detection``), the capture
+    frame's resolution factor and the seed. ``frames`` overrides K stored per view; ``detection``
+    sets a calibration target (whatever ``flux_scale`` says), as a sweep's ``K`` and ``detection``
+    knobs do."""
     physics = {k: spc[k] for k in SPC_PHYSICS}
     if frames is not None:
         physics["frames"] = frames
-    if detection is not None:
-        return {"physics": physics, "flux_scale": None, "target_detection": detection, "seed": seed}
+    exposure = (None, detection) if detection is not None else (spc["flux_scale"], spc["target_detection"])
     return {
         "physics": physics,
-        "flux_scale": spc["flux_scale"],
-        "target_detection": spc["target_detection"],
+        "flux_scale": exposure[0],
+        "target_detection": exposure[1],
+        "capture_factor": spc.get("capture_factor", 1),
         "seed": seed,
     }
 
 
 def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:
-    """(model overrides, training settings) of ``method``: its ``train`` block overrides stage1.train
-    (its ``validation`` block is :func:`translator_validation`'s)."""
-    settings = dict(stage1.get(method) or {})
+    """(model overrides, training settings) of ``method`` (a model folder name: ``pix2pixhd-pub`` is
+    pix2pixhd's block with ``prior_sigma: 0``, the published network): its ``train`` block overrides
+    stage1.train (its ``validation`` block is :func:`translator_validation`'s)."""
+    name = parse_source(method)
+    settings = dict(stage1.get(name.base) or {})
     train = {**stage1.get("train", {}), **settings.pop("train", {})}
     settings.pop("validation", None)
+    if name.pub:
+        settings["prior_sigma"] = 0.0
     return settings, train
 
 
 def translator_validation(stage1: dict, method: str) -> dict:
     """stage1.validation, overridden by the method's own ``validation`` block."""
-    return {**stage1.get("validation", {}), **(stage1.get(method) or {}).get("validation", {})}
+    return {**stage1.get("validation", {}), **(stage1.get(parse_source(method).base) or {}).get("validation", {})}

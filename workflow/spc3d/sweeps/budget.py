@@ -22,10 +22,10 @@ import dataclasses
 
 from ..augment import split_count
 from ..training import build_config
-from ..workflow import BUDGET_SOURCES, PLAIN_SOURCES, spc_settings
+from ..workflow import BUDGET_SOURCES, PLAIN_SOURCES, STAGE1_METHODS, spc_settings
 from .knobs import check_setting, split_combination, used_knobs
 
-# The translator's main width (``width`` knob) per stage-1 method.
+# The translator's main width (``width`` knob) per stage-1 method with a network (not ``prior``).
 WIDTH_KEYS = {"pix2pixhd": "ngf", "pix2pix": "ngf", "cyclegan": "ngf", "restormer": "dim", "diffusion": "base_channels"}
 # Stage-2 settings counted in iterations, scaled with the ``iters`` knob.
 ITERATION_FIELD = {"3dgs": "iterations", "nerf": "n_iters", "nerf-grid": "n_iters"}
@@ -103,10 +103,10 @@ def translator_settings(translator: dict, method: str, knobs: dict, scene: dict)
     """The method's model overrides with ``width``, training settings with ``steps`` and a crop that fits."""
     from ..translate.train import TrainSettings
 
-    if method not in WIDTH_KEYS:
-        raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(WIDTH_KEYS)}")
+    if method not in STAGE1_METHODS:
+        raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(STAGE1_METHODS)}")
     settings = dict(translator["settings"])
-    if "width" in knobs:
+    if "width" in knobs and method in WIDTH_KEYS:  # the prior alone has no network to widen
         settings[WIDTH_KEYS[method]] = knobs["width"]
     train = dataclasses.asdict(build_config(TrainSettings, dict(translator["train"]), "stage1.train"))
     if "steps" in knobs:

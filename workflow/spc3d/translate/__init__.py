@@ -5,6 +5,7 @@
     cyclegan    two ResNet generators, LSGAN, cycle + identity losses, image pools (unpaired)
     restormer   MDTA + GDFN transformer denoiser trained with L1 (loads official weights by path)
     diffusion   a compact conditional DDPM/DDIM restorer: the offline stand-in for DiffBIR
+    prior       the physics prior alone (blurred MLE at a fitted gain): the others' untrained start
 
 Each module holds ``Config`` (CPU-budget defaults), ``PAPER`` (the published sizes) and
 ``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks` (the VGG
@@ -17,7 +18,7 @@ Physics baselines without training (``mle``, the raw binary frame ``none``) are 
 
 from __future__ import annotations
 
-from . import cyclegan, diffusion, pix2pix, pix2pixhd, restormer
+from . import blurred_mle, cyclegan, diffusion, pix2pix, pix2pixhd, restormer
 
 TRANSLATORS = {
     "pix2pixhd": pix2pixhd,
@@ -25,4 +26,5 @@ TRANSLATORS = {
     "cyclegan": cyclegan,
     "restormer": restormer,
     "diffusion": diffusion,
+    "prior": blurred_mle,
 }

@@ -81,9 +81,10 @@ def translate_scene(
     pattern, valid = input_sensor(model_dir, spc_dir)
     names = llff.read_scene(scene_dir, with_images=False).names
     times = []
+    residual = model.prior is not None and model.trainable  # the prior alone is the output of ``prior`` itself
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         (Path(tmp) / "images").mkdir(parents=True)
-        if model.prior is not None:
+        if residual:
             (Path(tmp) / "prior").mkdir()
         for name in names:
             x = torch.from_numpy(binary_input(Path(spc_dir) / "frames" / f"{name}.npz", frames, pattern, valid))
@@ -92,7 +93,7 @@ def translate_scene(
             y = self_ensemble(model.translate, x, ensemble)[0]
             times.append(time.perf_counter() - t0)
             io.write_image(Path(tmp) / "images" / f"{name}.png", y.permute(1, 2, 0).cpu().numpy())
-            if model.prior is not None:
+            if residual:
                 with torch.no_grad():
                     base = model.prior(x)[0].clamp(0.0, 1.0)
                 io.write_image(Path(tmp) / "prior" / f"{name}.png", base.permute(1, 2, 0).cpu().numpy())
@@ -141,11 +142,13 @@ def score_images(
     lpips_dir: str | os.PathLike | None = None,
     frames: int | None = None,
     seed: int | None = None,
+    capture_factor: int = 1,
 ) -> dict:
     """PSNR / SSIM / LPIPS of a source's held-out views (before any 3D) against the ground truth.
 
     ``frames``: binary frames per view the source consumed (its photon budget K; None for ground
-    truth), ``seed``: the run's seed; both go into the record, for the tables. A translator's
+    truth), ``capture_factor``: S of an image made from the capture-resolution frame (S x S sensor
+    pixels per working pixel; else 1), ``seed``: the run's seed; all go into the record, for the tables. A translator's
     physics prior alone (``image_dir``'s sibling ``prior/``, when there) is scored too, under
     ``prior`` with its settings from ``translate.json``.
     """
@@ -160,6 +163,7 @@ def score_images(
         "source": source,
         "stage": 1,
         "frames": frames,
+        "capture_factor": capture_factor,
         "seed": seed,
         "views": per_view,
         "mean": mean_scores(list(per_view.values())),

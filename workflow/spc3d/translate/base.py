@@ -24,6 +24,8 @@ K > 1: the average of K frames) to an sRGB image of the same size. Each model fi
         load_pretrained(path)         optional: published weights given by path (Restormer)
         prior: PhysicsPrior | None    the physics prior its output is a residual over (``prior_sigma``
                                       > 0 in its Config; :mod:`.prior`), else None
+        trainable: bool               False for a method without a network (``prior``): training
+                                      fits its prior's gain and takes no step
 
 ``TranslatorBase`` supplies ``translate`` (pad, run, crop back, clamp), ``state`` / ``load`` for
 checkpoints, ``parameter_count``, and the physics prior (``make_prior`` builds it, ``with_prior``
@@ -92,6 +94,7 @@ class TranslatorBase(abc.ABC):
 
     paired: bool = True
     multiple: int = 16
+    trainable: bool = True  # False: nothing to optimise (the prior alone): training fits the prior's gain only
     device: torch.device = torch.device("cpu")
     prior: PhysicsPrior | None = None
 

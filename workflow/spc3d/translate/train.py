@@ -144,7 +144,7 @@ def fit(
     """Run the optimisation to ``s.iterations`` (or an early stop); returns timing, curve, final losses,
     the step it stopped at and why (``patience`` / ``budget``)."""
     trainer = TranslatorTrainer(model, sampler, s, validator)
-    if s.iterations == 0:  # published weights used as they are (setup_training allows nothing else)
+    if s.iterations == 0:  # published weights used as they are, or a method without a network
         if validator:
             validator.update(0, model)  # their score on the held-out views, for the record
         return {
@@ -288,6 +288,8 @@ def setup_training(
     pretrained = settings.get("checkpoint")
     cfg, s = model_config(method, settings), train_settings(train, method, pretrained)
     model = build_translator(method, cfg, default_device(), vgg_weights)
+    if not model.trainable:
+        s = dataclasses.replace(s, iterations=0)  # the prior alone: its gain fit is all there is
     if pretrained:
         model.load_pretrained(pretrained)
     sampler = make_sampler(data, s, frames, seed, model.paired)
