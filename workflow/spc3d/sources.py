@@ -33,6 +33,7 @@ import torch
 
 from . import io, llff, spc
 from .cameras import split_views
+from .exposure import capture_factor as spc_capture_factor
 from .exposure import read_gain
 from .reconstruct.objectives import BernoulliObjective, RGBObjective
 from .reconstruct.train import Views
@@ -94,7 +95,7 @@ def capture_factor(name: str, spc_dir, frames: int) -> int:
     the capture-resolution frame (:func:`spc3d.workflow.reads_capture_frame`), else 1."""
     if not reads_capture_frame(name, frames) or spc_dir is None:
         return 1
-    return int(read_spc_record(spc_dir).get("capture_factor", 1))
+    return spc_capture_factor(spc_dir)
 
 
 def with_estimated_poses(src: Source, poses_dir: str | os.PathLike) -> Source:
