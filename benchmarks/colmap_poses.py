@@ -1,7 +1,7 @@
 """COLMAP pose accuracy and time on the built-in scenes and the real LLFF scenes.
 
 For each scene: prepare the canonical folder (render or import at ``--width``), simulate K SPC
-frames (calibrated to a mean detection of 0.5), then run ``spc3d.colmap.colmap_poses`` on the RGB
+frames (calibrated to a mean detection of 0.5), then run ``spc3d.poses.colmap.colmap_poses`` on the RGB
 views, on one binary frame per view and on the K-frame averages. Prints one row per (scene, input):
 registered views, median rotation error (deg), median centre error (% of camera spread), median
 reprojection error of the sparse points through the reference poses (px) and wall time.
@@ -18,10 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from spc3d.colmap import colmap_poses
-from spc3d.inputs import named_spec, prepare_scene
-from spc3d.inputs import simulate_scene
-from spc3d.spc import SPCParams
+from spc3d.inputs.build import named_spec, prepare_scene, simulate_scene
+from spc3d.physics.spc import SPCParams
+from spc3d.poses.colmap import colmap_poses
 
 LLFF_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "llff"
 INPUTS = {"rgb": ("scene", "images"), "binary": ("spc", "binary"), "average": ("spc", "average")}

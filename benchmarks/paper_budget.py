@@ -25,10 +25,10 @@ import yaml
 sys.path.insert(0, str(Path(__file__).parent))
 from rasterizer import make_scene, train_step  # noqa: E402
 
-from spc3d import lpips_specs  # noqa: E402
+from spc3d.evaluation import lpips_specs  # noqa: E402
+from spc3d.inputs.scenes import render_scene  # noqa: E402
 from spc3d.reconstruct import make_nerf  # noqa: E402
-from spc3d.reconstruct.train import Views  # noqa: E402
-from spc3d.scenes import render_scene  # noqa: E402
+from spc3d.reconstruct.views import Views  # noqa: E402
 from spc3d.translate import TRANSLATORS  # noqa: E402
 from spc3d.translate.model_io import model_config  # noqa: E402
 

@@ -28,8 +28,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
 from spc3d import io  # noqa: E402
-from spc3d.alignment import pose_error  # noqa: E402
 from spc3d.cameras import Cameras, split_views  # noqa: E402
+from spc3d.poses.alignment import pose_error  # noqa: E402
 from spc3d.reconstruct.gaussians import GaussianConfig  # noqa: E402
 
 DEFAULTS = GaussianConfig()  # the refinement settings the workflow uses unless stage2.3dgs overrides them
@@ -62,10 +62,10 @@ def point(args: tuple) -> dict:
     import torch
 
     from spc3d import llff
-    from spc3d.inputs import named_spec, prepare_scene
-    from spc3d.metrics import psnr
+    from spc3d.evaluation.metrics import psnr
+    from spc3d.inputs.build import named_spec, prepare_scene
     from spc3d.reconstruct import RECONSTRUCTORS
-    from spc3d.reconstruct.train import Views
+    from spc3d.reconstruct.views import Views
 
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:

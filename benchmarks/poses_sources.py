@@ -1,9 +1,9 @@
-"""Which image sources can pose a scene: COLMAP on each source's training views (spc3d.poses).
+"""Which image sources can pose a scene: COLMAP on each source's training views (spc3d.poses.estimate).
 
     python benchmarks/poses_sources.py RESULTS_DIR [--scene courtyard]
 
 Reads a finished run's folders (the scene, its binary frames, the metered MLE images of every K
-there, every translator's outputs) and runs :func:`spc3d.poses.estimate_poses` on each into a
+there, every translator's outputs) and runs :func:`spc3d.poses.estimate.estimate_poses` on each into a
 temporary folder, then prints how many training views COLMAP posed and the median rotation and
 centre errors after the similarity alignment, with the time taken.
 """
@@ -18,8 +18,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
-from spc3d.poses import estimate_poses  # noqa: E402
-from spc3d.workflow import STAGE1_METHODS  # noqa: E402
+from spc3d.names import STAGE1_METHODS  # noqa: E402
+from spc3d.poses.estimate import estimate_poses  # noqa: E402
 
 
 def image_sets(results: Path, scene: str) -> dict[str, tuple[Path, int | None]]:

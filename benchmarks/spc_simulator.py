@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from spc3d import spc
-from spc3d.flux_scale import calibrate_flux_scale
+from spc3d.physics import spc
+from spc3d.physics.flux_scale import calibrate_flux_scale
 
 
 def _median_time(fn, repeats: int) -> float:

@@ -20,13 +20,13 @@ import numpy as np
 import torch
 import yaml
 
-from spc3d import llff, metrics
+from spc3d import llff
 from spc3d.cameras import split_views
-from spc3d.inputs import named_spec, prepare_scene
+from spc3d.evaluation import metrics
+from spc3d.inputs.build import named_spec, prepare_scene, simulate_scene
+from spc3d.physics.spc import SPCParams
 from spc3d.reconstruct import RECONSTRUCTORS
-from spc3d.inputs import simulate_scene
-from spc3d.sources import load_source
-from spc3d.spc import SPCParams
+from spc3d.reconstruct.sources import load_source
 
 REPO = Path(__file__).resolve().parents[1]
 LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"

@@ -28,7 +28,7 @@ import time
 import numpy as np
 import torch
 
-from spc3d import lpips_specs
+from spc3d.evaluation import lpips_specs
 from spc3d.translate import TRANSLATORS
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from spc3d import lpips_weights
+from spc3d.evaluation import lpips_weights
 
 REPO = Path(__file__).resolve().parents[1]
 LLFF_ROOT = REPO.parent / "shared" / "data" / "llff"

@@ -1,6 +1,12 @@
-"""The library's layering, read from the source: stage 1 (spc3d.translate) and stage 2
-(spc3d.reconstruct and the modules that drive it) never import each other; both may use the neutral
-modules (training, checkpoints, io, metrics, ...). The workflow vocabulary stays torch-free."""
+"""The library's layering, read from the source.
+
+- Rooms: a module imports only its own room and the rooms below it (:data:`LAYERS`), with no
+  import cycle between modules (lazy imports inside functions count; ``if TYPE_CHECKING`` ones,
+  which never run, do not). At most :data:`MAX_FLAT` modules sit flat in ``workflow/spc3d/``.
+- Stage 1 (spc3d.translate) and stage 2 (spc3d.reconstruct) never import each other; both may use
+  the neutral modules (training, checkpoints, io, evaluation.metrics, ...).
+- The workflow vocabulary stays torch-free.
+"""
 
 import ast
 import subprocess
@@ -13,7 +19,7 @@ from conftest import REPO
 
 PACKAGE = REPO / "workflow" / "spc3d"
 STAGE1 = ("spc3d.translate",)
-STAGE2 = ("spc3d.reconstruct", "spc3d.stage2", "spc3d.sources")
+STAGE2 = ("spc3d.reconstruct", "spc3d.reconstruct.stage2", "spc3d.reconstruct.sources")
 
 
 def module_name(path: Path) -> str:
@@ -21,11 +27,24 @@ def module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def type_checking_nodes(tree: ast.AST) -> set[int]:
+    """ids of the nodes under ``if TYPE_CHECKING:`` (imports for annotations only: never run)."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    return skip
+
+
 def imported_modules(path: Path) -> set[str]:
     """Every module ``path`` imports (relative imports resolved; ``from x import y`` also counts x.y)."""
     package = module_name(path) if path.name == "__init__.py" else module_name(path).rpartition(".")[0]
     found = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    skip = type_checking_nodes(tree)
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -50,8 +69,9 @@ def inside(name: str, prefixes: tuple[str, ...]) -> bool:
 def test_import_resolution_on_known_modules():
     """The resolver itself: relative imports of a subpackage module and of an __init__."""
     assert "spc3d.training" in imported_modules(PACKAGE / "translate" / "train.py")
-    assert "spc3d.translate.pix2pixhd" in imported_modules(PACKAGE / "translate" / "__init__.py")
-    assert "spc3d.reconstruct" in imported_modules(PACKAGE / "stage2.py")
+    assert "spc3d.translate.base" in imported_modules(PACKAGE / "translate" / "pix2pix.py")
+    assert "spc3d.models" in imported_modules(PACKAGE / "translate" / "__init__.py")
+    assert "spc3d.reconstruct" in imported_modules(PACKAGE / "reconstruct" / "stage2.py")
 
 
 @pytest.mark.parametrize("side,other", [(STAGE1, STAGE2), (STAGE2, STAGE1)], ids=["stage1", "stage2"])
@@ -66,10 +86,101 @@ def test_stage1_and_stage2_do_not_import_each_other(side, other):
 
 
 def test_workflow_vocabulary_does_not_import_torch():
-    """Parsing the Snakefile imports spc3d.workflow and spc3d.config: they must stay torch-free."""
+    """Parsing the Snakefile imports spc3d.names and spc3d.config: they must stay torch-free."""
     code = (
-        "import sys; sys.path.insert(0, 'workflow'); import spc3d.workflow, spc3d.config, spc3d.scenes; "
+        "import sys; sys.path.insert(0, 'workflow'); "
+        "import spc3d.models, spc3d.names, spc3d.config, spc3d.inputs.scenes; "
         "print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+# Bottom to top: a module of a layer imports only modules of its own layer or of a lower one.
+LAYERS = (
+    ("models", "names", "io", "cameras", "llff", "colour", "plotting", "runtime"),
+    ("checkpoints", "training"),
+    ("physics",),
+    ("poses",),
+    ("inputs",),
+    ("captures",),
+    ("evaluation",),
+    ("translate", "reconstruct"),  # side by side, never importing each other (test above)
+    ("jobs",),  # job glue: logging, scene specs (the sweeps' scene inputs use them)
+    ("sweeps",),
+    ("config",),
+)
+MAX_FLAT = 15
+
+
+def room(module: str) -> str:
+    return module.split(".")[1] if module.count(".") else ""
+
+
+def rank(module: str) -> int:
+    name = room(module)
+    for level, rooms in enumerate(LAYERS):
+        if name in rooms:
+            return level
+    raise AssertionError(f"{module}: room {name!r} is in no layer of tests/test_architecture.py LAYERS")
+
+
+def package_graph() -> dict[str, set[str]]:
+    """module -> the spc3d modules it imports. Names that are attributes, not modules, are dropped, and
+    so are a module's own enclosing packages (``from spc3d.reconstruct import nerf`` inside
+    ``spc3d.reconstruct.nerf_grid`` imports a sibling; the package is already being imported)."""
+    paths = sorted(PACKAGE.rglob("*.py"))
+    modules = {module_name(p) for p in paths}
+    graph = {}
+    for path in paths:
+        name = module_name(path)
+        enclosing = {".".join(name.split(".")[:k]) for k in range(1, name.count(".") + 1)}
+        graph[name] = {m for m in imported_modules(path) if m in modules} - {name} - enclosing
+    return graph
+
+
+def test_every_room_has_a_layer_and_few_modules_are_flat():
+    flat = sorted(p.name for p in PACKAGE.glob("*.py") if p.name != "__init__.py")
+    assert len(flat) <= MAX_FLAT, f"{len(flat)} modules flat in workflow/spc3d (at most {MAX_FLAT}): {flat}"
+    for module in package_graph():
+        if module != "spc3d":
+            rank(module)
+
+
+def test_no_import_climbs_to_a_higher_room():
+    upward = {
+        module: sorted(m for m in deps if room(m) and rank(m) > rank(module))
+        for module, deps in package_graph().items()
+        if module != "spc3d"
+    }
+    upward = {k: v for k, v in upward.items() if v}
+    assert not upward, f"imports of a higher room (see LAYERS): {upward}"
+
+
+def test_no_import_cycle():
+    graph = package_graph()
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+
+    def visit(module: str, path: list[str]) -> list[str] | None:
+        state[module] = 1
+        for dep in sorted(graph.get(module, ())):
+            if state.get(dep) == 1:
+                return [*path[path.index(dep) :], dep] if dep in path else [*path, dep]
+            if dep not in state and (cycle := visit(dep, [*path, dep])):
+                return cycle
+        state[module] = 2
+        return None
+
+    for module in sorted(graph):
+        if module not in state and (cycle := visit(module, [module])):
+            raise AssertionError(f"import cycle: {' -> '.join(cycle)}")
+
+
+def test_the_graph_checks_see_a_climb_and_a_cycle(tmp_path, monkeypatch):
+    """The checks themselves, on a graph with one upward import and one cycle."""
+    graph = {"spc3d.physics.spc": {"spc3d.evaluation.metrics"}, "spc3d.evaluation.metrics": {"spc3d.physics.spc"}}
+    monkeypatch.setattr(sys.modules[__name__], "package_graph", lambda: graph)
+    with pytest.raises(AssertionError, match="higher room"):
+        test_no_import_climbs_to_a_higher_room()
+    with pytest.raises(AssertionError, match="import cycle"):
+        test_no_import_cycle()

@@ -3,8 +3,10 @@
 import numpy as np
 import pytest
 
-from spc3d import augment, cameras, io, llff, spc
-from spc3d.inputs import simulate_scene
+from spc3d import cameras, io, llff
+from spc3d.inputs import augment
+from spc3d.inputs.build import simulate_scene
+from spc3d.physics import spc
 
 IDENTITY = {"zoom": 1.0, "rotation_deg": 0.0, "shear_deg": 0.0, "flip": False}
 

@@ -19,8 +19,9 @@ import yaml
 
 from spc3d import io
 from spc3d.config import read_yaml, resolve_paths
-from spc3d.scenes import write_builtin_scene
-from spc3d.workflow import ConfigError
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.names import ConfigError
+
 from conftest import REPO, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"

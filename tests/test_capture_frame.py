@@ -1,15 +1,19 @@
-"""The capture-resolution binary frame (spc3d.inputs.capture_frame): one frame simulated at S x the
+"""The capture-resolution binary frame (spc3d.inputs.build.capture_frame): one frame simulated at S x the
 working resolution per axis and area-averaged back, as the paper's single-stage baselines most
 plausibly saw it; its 16-bit storage, its seeding, a capture's S = 1 frame and its MLE display."""
 
 import numpy as np
 import pytest
 
-from spc3d import captures, exposure, io, spc
-from spc3d.capture_import import import_capture_frames, import_capture_scene
-from spc3d.flux_scale import frame_probability
-from spc3d.inputs import MAX_CAPTURE_FACTOR, capture_frame, capture_rng, check_capture_factor, simulate_scene
-from spc3d.scenes import write_builtin_scene
+from spc3d import io
+from spc3d.captures import folders as captures
+from spc3d.captures.importing import import_capture_frames, import_capture_scene
+from spc3d.inputs import exposure
+from spc3d.inputs.build import capture_frame, capture_rng, simulate_scene
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.physics import spc
+from spc3d.physics.flux_scale import frame_probability
+from spc3d.physics.record import MAX_CAPTURE_FACTOR, check_capture_factor
 
 H, W, VIEWS = 12, 16, 3
 

@@ -1,4 +1,4 @@
-"""A captured SPAD scene brought into the workflow (spc3d.capture_import): scenes without reference
+"""A captured SPAD scene brought into the workflow (spc3d.captures.importing): scenes without reference
 views, sensor-recorded frames, the imported SPC folder and the readers of its sensor (translator
 inputs, stage-2 targets, the MLE display), and the config's ``captures``."""
 
@@ -13,23 +13,29 @@ import pytest
 import torch
 import yaml
 
-from spc3d import augment, captures, exposure, hot_pixels, io, llff, photon_cubes, sensors, spc
-from spc3d.capture_import import (
+from spc3d import io, llff
+from spc3d.captures import folders as captures
+from spc3d.captures import photon_cubes
+from spc3d.captures.importing import (
     MIN_POSED,
     capture_sensor,
     first_intrinsics,
     import_capture_frames,
     import_capture_scene,
     sensor_tag,
-    spc_sensor,
 )
-from spc3d.inputs import simulate_scene
+from spc3d.inputs import augment, exposure
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.scenes import LAYOUTS, write_builtin_scene
+from spc3d.jobs import scene_specs
+from spc3d.names import ConfigError
+from spc3d.physics import hot_pixels, sensors, spc
+from spc3d.physics.record import spc_sensor
 from spc3d.reconstruct.objectives import BernoulliObjective
-from spc3d.scenes import LAYOUTS, write_builtin_scene
-from spc3d.sources import bit_fractions, sensor_targets
+from spc3d.reconstruct.sources import bit_fractions, sensor_targets
 from spc3d.translate.apply import input_sensor
 from spc3d.translate.data import binary_input, load_pairs
-from spc3d.workflow import ConfigError, scene_specs
+
 from conftest import REPO
 
 H, W, VIEWS, K = 24, 32, 4, 16

@@ -1,5 +1,5 @@
 """Captured SPAD scenes through the workflow: simulate -> export as photon cubes -> import as a
-capture -> the same rows, scored as the simulated route is (spc3d.capture_import)."""
+capture -> the same rows, scored as the simulated route is (spc3d.captures.importing)."""
 
 import dataclasses
 import os
@@ -9,10 +9,13 @@ import pandas as pd
 import pytest
 import yaml
 
-from spc3d import io, llff, sensors, spc
-from spc3d.alignment import pose_error
-from spc3d.captures import export_simulated
-from spc3d.inputs import params_from_record, prepare_scene, read_spc_record, simulate_scene
+from spc3d import io, llff
+from spc3d.captures.folders import export_simulated
+from spc3d.inputs.build import prepare_scene, simulate_scene
+from spc3d.physics import sensors, spc
+from spc3d.physics.record import params_from_record, read_spc_record
+from spc3d.poses.alignment import pose_error
+
 from conftest import REPO, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"

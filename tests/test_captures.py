@@ -2,6 +2,7 @@
 simulated export read back as a capture."""
 
 import gzip
+import math
 import shutil
 import subprocess
 import sys
@@ -10,11 +11,15 @@ import numpy as np
 import pytest
 import torch
 
-from spc3d import captures, hot_pixels, io, photon_cubes, sensors, spc
+from spc3d import io
+from spc3d.captures import folders as captures
+from spc3d.captures import photon_cubes
+from spc3d.evaluation.metrics import psnr
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.scenes import render_scene, write_builtin_scene
+from spc3d.physics import hot_pixels, sensors, spc
 from spc3d.reconstruct.objectives import BernoulliObjective
-from spc3d.metrics import psnr
-from spc3d.scenes import render_scene, write_builtin_scene
-from spc3d.inputs import simulate_scene
+
 from conftest import REPO
 
 BAYER = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -287,22 +292,15 @@ def test_bayer_demosaic_is_classic_bilinear():
     assert rgb[y, x + 1, 0] == pytest.approx((plane[y, x] + plane[y, x + 2]) / 2)  # R at a G site of an R row
 
 
-def test_average_demosaic_and_channel_stack():
+def test_average_demosaic_is_the_demosaic_of_the_mean():
     pattern = sensors.cfa_pattern("RGBW")
     cube = random_cube((6, 4, 6), 0.4)
     np.testing.assert_allclose(
         sensors.demosaic_average(cube, pattern), sensors.demosaic_bilinear(cube.mean(0), pattern)
     )
-    valid = np.ones((4, 6), bool)
-    valid[1, 1] = False
-    stack, names = sensors.channel_stack(cube.mean(0), pattern, valid)
-    assert names == ["R", "G", "B", "W", "valid"] and stack.shape == (4, 6, 5)
-    assert stack[0, 0, 0] == pytest.approx(cube.mean(0)[0, 0]) and stack[0, 0, 1:4].tolist() == [0, 0, 0]
-    assert stack[1, 1].tolist() == [0, 0, 0, 0, 0]  # a masked B pixel: no value, mask 0
-    assert (stack[..., :4] != 0).sum(-1).max() <= 1  # each pixel fills at most its own class
 
 
-def test_mosaic_mle_fills_hot_pixels_and_demosaics():
+def test_mle_rgb_leaves_out_hot_pixels_and_demosaics():
     params = spc.SPCParams(frames=200, exposure_s=1e-4, dark_count_rate=0.0)
     pattern = sensors.cfa_pattern("RGGB")
     phi = np.broadcast_to([3000.0, 6000.0, 1500.0], (8, 10, 3))
@@ -310,10 +308,10 @@ def test_mosaic_mle_fills_hot_pixels_and_demosaics():
     hot = np.zeros((8, 10), bool)
     hot[3, 4] = hot[4, 4] = True
     S[hot] = 200  # saturated: would read as ln(400)/(qT)
-    flux = sensors.mosaic_mle(S, 200, params, pattern, hot)
-    assert flux[3, 4] == pytest.approx(flux[3, 2]) and flux[4, 4] == pytest.approx(flux[4, 2])  # same colour
     rgb = sensors.mle_rgb(S, 200, params, pattern, hot)
     np.testing.assert_allclose(rgb, np.broadcast_to(phi, rgb.shape), rtol=0.05)  # S rounded to counts
+    blind = sensors.mle_rgb(S, 200, params, pattern)  # the same counts, hot pixels taken at their word
+    assert not np.allclose(blind[3:5, 3:6], phi[3:5, 3:6], rtol=0.05)
 
 
 # --------------------------------------------------------------------------------------------
@@ -325,16 +323,25 @@ def fractions(shape, seed=3, dtype=torch.float64):
     return torch.rand(shape, generator=g, dtype=dtype), torch.rand(shape, generator=g, dtype=dtype) * 0.5
 
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_all_ones_rgb_mask_equals_bernoulli_objective(dtype):
-    pred, target = fractions((12, 16, 3), dtype=dtype)
-    ones = torch.ones(12, 16, 3, dtype=torch.bool)
-    assert torch.equal(sensors.channel_bernoulli_loss(OBJ, pred, target, ones), OBJ.loss(pred, target))
-    assert torch.equal(sensors.channel_bernoulli_loss(OBJ, pred, target), OBJ.loss(pred, target))
-    rays, bits = pred.reshape(-1, 3), target.reshape(-1, 3)  # a ray batch, as the NeRF trainer passes
-    assert torch.equal(
-        sensors.channel_bernoulli_loss(OBJ, rays, bits, torch.ones(3, dtype=torch.bool)), OBJ.loss(rays, bits)
-    )
+def test_log_detection_probability_is_accurate_at_extreme_rates():
+    """Both implementations of the SPAD NLL (BernoulliObjective.loss, sensors.bernoulli_nll_terms)
+    give log p = log(1 - exp(-x)) and log(1 - p) = -x to full precision from x = λT = 1e-12 (the
+    objective's clamp; log p -> log x) to x = 800 (log p = 0 in float64), across the ln 2 branch
+    point, with gradients -f / expm1(x) + (1 - f) accurate there too."""
+    x = torch.tensor([1e-12, 1e-8, 0.1, 0.69, 0.7, 5.0, 40.0, 800.0], dtype=torch.float64)
+    log_p = [math.log(-math.expm1(-v)) if v < 1 else math.log1p(-math.exp(-v)) for v in x.tolist()]
+    unit = BernoulliObjective(flux_scale=1.0, q=1.0, exposure_s=1.0, dark_count_rate=0.0)  # λT = pred
+    ones, zeros = torch.ones_like(x), torch.zeros_like(x)
+    for nll in (sensors.bernoulli_nll_terms, lambda a, f: torch.stack([unit.loss(v, g) for v, g in zip(a, f)])):
+        torch.testing.assert_close(-nll(x, ones), torch.tensor(log_p, dtype=torch.float64), rtol=1e-14, atol=1e-300)
+        torch.testing.assert_close(nll(x, zeros), x, rtol=0, atol=0)  # log(1 - p) = -λT exactly
+        assert -nll(x[:1], ones[:1]).item() == pytest.approx(math.log(1e-12), rel=1e-15)
+        assert -nll(x[-2:-1], ones[:1]).item() == pytest.approx(-math.exp(-40.0), rel=1e-12)
+        assert nll(x[-1:], ones[:1]).item() == 0.0
+        for f in (0.0, 0.3, 1.0):
+            a = x.clone().requires_grad_(True)
+            (g,) = torch.autograd.grad(nll(a, torch.full_like(x, f)).sum(), a)
+            torch.testing.assert_close(g, -f / torch.expm1(x) + (1 - f), rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("name", BAYER)
@@ -344,8 +351,8 @@ def test_bayer_mosaic_likelihood_is_the_one_hot_channel_likelihood(name):
     w = torch.from_numpy(sensors.cfa_mask(pattern, 6, 8)).double()
     raw = (target * w).sum(-1)  # the fraction each pixel measured, in its own channel
     mosaic_loss = sensors.mosaic_bernoulli_loss(OBJ, pred, raw, w)
-    channel_loss = sensors.channel_bernoulli_loss(OBJ, pred, target, w > 0)
-    torch.testing.assert_close(mosaic_loss, channel_loss, rtol=1e-14, atol=0)
+    seen = w > 0  # one channel per pixel: BernoulliObjective over the measured (pixel, channel) pairs
+    torch.testing.assert_close(mosaic_loss, OBJ.loss(pred[seen], target[seen]), rtol=1e-14, atol=0)
 
 
 def test_white_pixel_rate_is_the_sum_of_the_channels():
@@ -538,9 +545,10 @@ def test_captured_route_recovers_the_views_like_the_simulated_one(simulated, tmp
     for i, cube in enumerate(cubes):
         rgb = sensors.mle_rgb(cube.sum(0), len(cube), sensor.params, sensor.cfa) / scale
         simulated_bits = spc.unpack_frames(*io.load_frames(simulated / "spc" / "frames" / f"{names[i]}.npz"))
-        full = spc.mle_srgb(simulated_bits.sum(0), 24, scale, sensor.params)  # all three channels per pixel
+        full = spc.mle_flux(simulated_bits.sum(0), 24, sensor.params) / scale  # all three channels per pixel
         # a third of the measurements, interpolated: about as good at K = 24 (measured: +0.1 dB)
-        assert psnr(spc.linear_to_srgb(np.clip(rgb, 0, 1)), gt[i]) > psnr(full, gt[i]) - 2
+        srgb = [spc.linear_to_srgb(np.clip(lin, 0, 1)) for lin in (rgb, full)]
+        assert psnr(srgb[0], gt[i]) > psnr(srgb[1], gt[i]) - 2
 
 
 def test_bad_captures_name_the_file_and_key(simulated, tmp_path):
@@ -624,7 +632,7 @@ def test_capture_tool_errors_name_the_file(simulated, tmp_path):
 def test_data_summary_figure_of_a_capture_without_reference_views(tmp_path):
     """The data summary's panels for a capture: no reference image (the figure says so instead of
     showing a black frame) and the MLE at a metered gain (there is no flux_scale to be exact with)."""
-    from spc3d.summary import figure_panels, write_figure
+    from spc3d.evaluation.summary import figure_panels, write_figure
 
     scene, spc_dir = tmp_path / "scene", tmp_path / "spc"
     rng = np.random.default_rng(0)
@@ -655,8 +663,9 @@ def test_luminance_and_colourless_sensors():
 def test_a_colourless_capture_is_scored_on_luminance(tmp_path, lpips_cache):
     """A mono capture's rows are scored on the luminance of render and reference: a render with the
     reference's luminance and none of its colour is perfect there, and the tables say so."""
-    from spc3d import llff, tables
-    from spc3d.evaluate import LUMINANCE_NOTE, evaluate
+    from spc3d import llff
+    from spc3d.evaluation import tables
+    from spc3d.evaluation.evaluate import LUMINANCE_NOTE, evaluate
 
     scene_dir = tmp_path / "scene"
     write_builtin_scene("courtyard", scene_dir, height=48, width=64, views=8, supersample=1)

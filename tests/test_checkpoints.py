@@ -10,8 +10,9 @@ import torch
 import yaml
 
 from spc3d import io
-from spc3d.checkpoints import Checkpoint, CheckpointPolicy, digest_path, differences, fingerprint
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy, differences, digest_path, fingerprint
 from spc3d.training import run
+
 from conftest import REPO, InterruptAt, Interrupted, llff_scene, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"

@@ -1,5 +1,6 @@
-"""COLMAP poses: alignment and error maths (spc3d.alignment) on synthetic cameras, the pycolmap
-conversions (spc3d.colmap) on a synthetic reconstruction, and one real COLMAP run on fern (skipped without data)."""
+"""COLMAP poses: alignment and error maths (spc3d.poses.alignment) on synthetic cameras, the pycolmap
+conversions (spc3d.poses.colmap) on a synthetic reconstruction, and one real COLMAP run on fern
+(skipped without data)."""
 
 import json
 from pathlib import Path
@@ -8,8 +9,9 @@ import numpy as np
 import pycolmap
 import pytest
 
-from spc3d import alignment, colmap, io, llff
+from spc3d import io, llff
 from spc3d.cameras import Cameras, invert_rigid, look_at, rotation_angle_deg, transform_cameras
+from spc3d.poses import alignment, colmap
 
 LLFF_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "llff"
 

@@ -1,4 +1,4 @@
-"""COLMAP-format scenes (spc3d.colmap_scene): a COLMAP twin of an LLFF scene reads to the same
+"""COLMAP-format scenes (spc3d.inputs.colmap_scene): a COLMAP twin of an LLFF scene reads to the same
 cameras (.txt and .bin models), general intrinsics survive the canonical folder (intrinsics.npy),
 distorted cameras are refused or undistorted, and scene folders are told apart (inputs.scene_layout).
 
@@ -19,9 +19,11 @@ import numpy as np
 import pycolmap
 import pytest
 
-from spc3d import colmap_scene, inputs, llff
+from spc3d import llff
 from spc3d.cameras import Cameras, cameras_to_llff, llff_to_cameras, project
-from spc3d.scenes import write_builtin_scene
+from spc3d.inputs import build as inputs
+from spc3d.inputs import colmap_scene
+from spc3d.inputs.scenes import write_builtin_scene
 
 W2C_ATOL, INTR_RTOL, BOUNDS_RTOL = 1e-9, 1e-12, 1e-9
 
@@ -335,7 +337,7 @@ def test_scene_layout(builtin, tmp_path, caplog):
     twin = colmap_twin(builtin, tmp_path / "twin")
     assert inputs.scene_layout(builtin) == "llff" and inputs.scene_layout(twin) == "colmap"
     shutil.copy(builtin / "poses_bounds.npy", twin / "poses_bounds.npy")
-    with caplog.at_level(logging.INFO, logger="spc3d.inputs"):
+    with caplog.at_level(logging.INFO, logger="spc3d.inputs.build"):
         assert inputs.scene_layout(twin) == "llff"
     assert "read as LLFF" in caplog.text and "sparse/0" in caplog.text
     empty = tmp_path / "empty"
@@ -358,13 +360,13 @@ def test_prepare_scene_colmap_kind(builtin, tmp_path):
     back, ref = llff.read_scene(tmp_path / "out"), llff.read_scene(builtin)
     assert_same_cameras(back.cameras, ref.cameras)
     assert back.meta["source"] == "colmap" and back.meta["settings"] == {"factor": 1, "width": 32, "undistort": False}
-    with pytest.raises(ValueError, match="'builtin', 'llff', 'colmap' or 'capture'"):
+    with pytest.raises(ValueError, match="'builtin', 'llff' or 'colmap'"):
         inputs.prepare_scene({"kind": "nerfstudio"}, tmp_path / "x")
 
 
 def test_named_spec_for_tools_and_benchmarks(tmp_path):
     """A built-in layout by name, else an LLFF folder under the root, else None."""
-    from spc3d.inputs import named_spec
+    from spc3d.inputs.build import named_spec
 
     spec = named_spec("courtyard", 128, tmp_path)
     assert spec == {

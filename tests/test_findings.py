@@ -8,7 +8,16 @@ import numpy as np
 import pytest
 
 from spc3d import io
-from spc3d.findings import MIN_RUNS, N_RANDOM, holm, interval, needed_runs, sign_flip_p, verdict, write_findings
+from spc3d.evaluation.findings import (
+    MIN_RUNS,
+    N_RANDOM,
+    holm,
+    interval,
+    needed_runs,
+    sign_flip_p,
+    verdict,
+    write_findings,
+)
 
 NERF = "nerf-grid"
 SCENES, SEEDS = ("courtyard", "tabletop"), (0, 1, 2)  # 6 runs: the smallest n that can reach a verdict

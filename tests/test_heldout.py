@@ -1,12 +1,12 @@
-"""The no-reference score of novel views: held-out photons explained by a render (spc3d.heldout)."""
+"""The no-reference score of novel views: held-out photons explained by a render (spc3d.evaluation.heldout)."""
 
 import dataclasses
 
 import numpy as np
 import pytest
 
-from spc3d import sensors, spc
-from spc3d.heldout import heldout_photon_score
+from spc3d.evaluation.heldout import heldout_photon_score
+from spc3d.physics import sensors, spc
 
 PARAMS = dataclasses.replace(spc.SPCParams(), frames=64)
 SCALE = 8.0e4  # photons/s at linear 1

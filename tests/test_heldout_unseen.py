@@ -7,12 +7,16 @@ import shutil
 import numpy as np
 import pytest
 
-from spc3d import captures, exposure, io, photon_cubes, spc
+from spc3d import io
 from spc3d.cameras import split_views
-from spc3d.capture_import import import_capture_frames, import_capture_scene
-from spc3d.inputs import simulate_scene
-from spc3d.scenes import write_builtin_scene
-from spc3d.stage2 import reconstruct
+from spc3d.captures import folders as captures
+from spc3d.captures import photon_cubes
+from spc3d.captures.importing import import_capture_frames, import_capture_scene
+from spc3d.inputs import exposure
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.physics import spc
+from spc3d.reconstruct.stage2 import reconstruct
 
 TINY_3DGS = {"iterations": 8, "densify_from": 4, "densify_until": 6, "densify_every": 2, "init_points": 200}
 VIEWS, K, S = 9, 2, 2

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from spc3d import io, spc
+from spc3d import io
+from spc3d.physics import spc
 
 
 @pytest.mark.parametrize("bits,tol", [(8, 0.5 / 255), (16, 0.5 / 65535)])

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from spc3d import cameras, llff
+
 from conftest import LLFF_SCENES, llff_scene
 
 

@@ -1,4 +1,5 @@
-"""Tests of spc3d.metrics (PSNR, SSIM, LPIPS), spc3d.lpips_net and spc3d.lpips_weights (weights, safe unpickling)."""
+"""Tests of spc3d.evaluation.metrics (PSNR, SSIM, LPIPS), spc3d.evaluation.lpips_net and
+spc3d.evaluation.lpips_weights (weights, safe unpickling)."""
 
 import io
 import json
@@ -12,7 +13,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from spc3d import lpips_net, lpips_weights, metrics
+from spc3d.evaluation import lpips_net, lpips_weights, metrics
 from spc3d.io import read_rgb
 
 LPIPS_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lpips"

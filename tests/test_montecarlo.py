@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from spc3d import spc
-from spc3d.montecarlo import simulate_counts
+from spc3d.physics import spc
+from spc3d.physics.montecarlo import simulate_counts
 
 pytestmark = pytest.mark.filterwarnings("error")
 

@@ -10,6 +10,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from spc3d.cameras import split_views, transform_cameras
+from spc3d.inputs.scenes import render_scene
 from spc3d.reconstruct.gaussians import GaussianConfig, GaussianModel, random_points
 from spc3d.reconstruct.objectives import RGBObjective
 from spc3d.reconstruct.pose_refine import (
@@ -21,8 +22,7 @@ from spc3d.reconstruct.pose_refine import (
     quat_mul,
 )
 from spc3d.reconstruct.splatting import SplatTrainer, pose_lr
-from spc3d.reconstruct.train import Views
-from spc3d.scenes import render_scene
+from spc3d.reconstruct.views import Views
 
 BLACK = torch.zeros(3)
 

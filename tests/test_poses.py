@@ -1,4 +1,4 @@
-"""Poses from the photons (spc3d.poses): COLMAP on a source's training views, stage 2 on the estimated
+"""Poses from the photons (spc3d.poses.estimate): COLMAP on a source's training views, stage 2 on the estimated
 cameras, evaluation after the similarity alignment, rows that could not be posed, and the table."""
 
 import json
@@ -6,13 +6,14 @@ import json
 import numpy as np
 import pytest
 
-from spc3d import io, llff, tables
+from spc3d import io, llff
 from spc3d.cameras import split_views
-from spc3d.evaluate import evaluate
-from spc3d.poses import NoPoses, estimate_poses, estimated_views, filled_bounds
-from spc3d.scenes import write_builtin_scene
-from spc3d.stage2 import reconstruct
-from spc3d.workflow import ConfigError, combination_frames, parse_combination, resolve_combinations
+from spc3d.evaluation import tables
+from spc3d.evaluation.evaluate import evaluate
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.names import ConfigError, parse_combination, resolve_combinations
+from spc3d.poses.estimate import NoPoses, estimate_poses, estimated_views, filled_bounds
+from spc3d.reconstruct.stage2 import reconstruct
 
 TINY_3DGS = {"iterations": 30, "densify_from": 10, "densify_until": 25, "densify_every": 5, "init_points": 500}
 
@@ -100,10 +101,6 @@ def test_missing_training_image_is_named(posed, tmp_path):
 def test_combination_syntax_and_budget():
     assert parse_combination("bernoulli+3dgs@mle-k16") == ("bernoulli", "3dgs", "mle-k16")
     assert parse_combination("pix2pix+nerf-grid") == ("pix2pix", "nerf-grid", None)
-    # the frames that posed the views count: K = 16 for a K = 1 source posed by the 16-frame MLE
-    assert combination_frames("bernoulli+3dgs@mle-k16", 1, 1) == 16
-    assert combination_frames("pix2pix+3dgs@pix2pix", 1, 1) == 1
-    assert combination_frames("gt+3dgs", 1, 1) is None and combination_frames("gt+3dgs@none", 1, 1) == 1
     assert resolve_combinations(["bernoulli+nerf@pix2pix"], "nerf-grid") == ["bernoulli+nerf-grid@pix2pix"]
     for bad in ("bernoulli+3dgs@bernoulli", "gt+3dgs@pix2pix-k4", "gt+3dgs@photos"):
         with pytest.raises(ConfigError, match="After '@' name the images COLMAP poses"):

@@ -4,11 +4,13 @@ physics rows' display gain is metered from their own frames."""
 import numpy as np
 import pytest
 
-from spc3d import exposure, io, spc
-from spc3d.augment import AugmentSettings, augment_scene
-from spc3d.scenes import write_builtin_scene
-from spc3d.inputs import simulate_scene
-from spc3d.stage2 import reconstruct
+from spc3d import io
+from spc3d.inputs import exposure
+from spc3d.inputs.augment import AugmentSettings, augment_scene
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.physics import spc
+from spc3d.reconstruct.stage2 import reconstruct
 from spc3d.translate.apply import translate_scene
 from spc3d.translate.train import train_translator
 

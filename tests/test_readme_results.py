@@ -43,3 +43,42 @@ def test_a_missing_run_or_file_is_named(tmp_path):
     with pytest.raises(SystemExit, match="t.md does not exist"):
         runpy.run_path(str(TOOL), run_name="not_main")["main"]([str(tmp_path), str(readme)])
     assert run_tool(tmp_path, readme, "--run", "broken") == 2  # malformed: the usage
+
+
+def test_blocks_in_docs_files_are_replaced(tmp_path):
+    (tmp_path / "res" / "tables").mkdir(parents=True)
+    (tmp_path / "res" / "tables" / "t.md").write_text("# Title\n\n| a | 1 |\n")
+    (tmp_path / "fnd" / "tables").mkdir(parents=True)
+    (tmp_path / "fnd" / "tables" / "t.md").write_text("# Title\n\n| b | 2 |\n")
+    readme = tmp_path / "README.md"
+    readme.write_text("no blocks here\n")
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    (docs / "results.md").write_text(
+        "# Results\n\n<!-- generated: tables/t.md -->\nold\n<!-- /generated -->\n"
+        "<!-- generated: findings:tables/t.md -->\nold\n<!-- /generated -->\n"
+    )
+    (docs / "plain.md").write_text("# Plain\n")
+    assert run_tool(tmp_path / "res", readme, "--run", f"findings={tmp_path / 'fnd'}") == 0
+    text = (docs / "results.md").read_text()
+    assert "| a | 1 |" in text and "| b | 2 |" in text and "old" not in text and "# Title" not in text
+    assert "from `results/tables/t.md`" in text and "from the findings run's `results/tables/t.md`" in text
+    assert readme.read_text() == "no blocks here\n" and (docs / "plain.md").read_text() == "# Plain\n"
+    assert not list(tmp_path.rglob(".*.tmp"))
+
+
+def test_a_missing_run_in_a_docs_file_names_that_file(tmp_path):
+    (tmp_path / "tables").mkdir()
+    (tmp_path / "tables" / "t.md").write_text("| a | 1 |\n")
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- generated: tables/t.md -->\nold\n<!-- /generated -->\n")
+    (tmp_path / "docs").mkdir()
+    doc = tmp_path / "docs" / "results.md"
+    doc.write_text("<!-- generated: findings:tables/t.md -->\n<!-- /generated -->\n")
+    main = runpy.run_path(str(TOOL), run_name="not_main")["main"]
+    with pytest.raises(SystemExit, match=r"docs/results\.md.*--run findings=DIR"):
+        main([str(tmp_path), str(readme)])
+    doc.write_text("<!-- generated: tables/gone.md -->\n<!-- /generated -->\n")
+    with pytest.raises(SystemExit, match=r"gone\.md does not exist.*docs/results\.md"):
+        main([str(tmp_path), str(readme)])
+    assert "old" in readme.read_text()  # an error in one document leaves every document as it was

@@ -28,11 +28,14 @@ import pytest
 import torch
 import yaml
 
-from spc3d import io, metrics, spc
-from spc3d.scenes import write_builtin_scene
-from spc3d.exposure import calibrate_display, write_display
-from spc3d.inputs import simulate_scene
-from spc3d.stage2 import reconstruct
+from spc3d import io
+from spc3d.evaluation import metrics
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.exposure import calibrate_display, write_display
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.physics import spc
+from spc3d.reconstruct.stage2 import reconstruct
+
 from conftest import REPO, child_processes, process_alive, run_snakemake, snakemake_process, wait_until
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"

@@ -46,12 +46,12 @@ def test_freed_memory_is_reused_not_faulted_in_again():
 
 
 def test_logged_sets_up_the_job(tmp_path, monkeypatch):
-    """Every rule script enters through workflow.logged, which sets the process up."""
-    from spc3d import runtime, workflow
+    """Every rule script enters through jobs.logged, which sets the process up."""
+    from spc3d import jobs, runtime
 
     calls = []
     monkeypatch.setattr(runtime, "keep_freed_memory", lambda: calls.append(1) or True)
-    with workflow.logged(str(tmp_path / "job.log")):
+    with jobs.logged(str(tmp_path / "job.log")):
         pass
     assert calls == [1]
 
@@ -59,10 +59,10 @@ def test_logged_sets_up_the_job(tmp_path, monkeypatch):
 def test_logged_writes_the_jobs_own_benchmark(tmp_path, monkeypatch):
     """logs/{rule}/x.log -> benchmarks/{rule}/x.tsv: wall, user, sys, peak RSS and status, measured
     by the job itself (getrusage), also for a job that fails; no file for a log outside logs/."""
-    from spc3d import workflow
+    from spc3d import jobs
 
     monkeypatch.chdir(tmp_path)
-    with workflow.logged("logs/score_images/courtyard/pix2pix.log"):
+    with jobs.logged("logs/score_images/courtyard/pix2pix.log"):
         block = bytearray(64 << 20)  # touched: the peak RSS must see it
         sum(block[::4096])
         t_end = time.process_time() + 0.2
@@ -70,11 +70,11 @@ def test_logged_writes_the_jobs_own_benchmark(tmp_path, monkeypatch):
             pass
     header, row = (tmp_path / "benchmarks/score_images/courtyard/pix2pix.tsv").read_text().splitlines()
     values = dict(zip(header.split("\t"), row.split("\t")))
-    assert list(values) == list(workflow.BENCHMARK_COLUMNS) and values["status"] == "ok"
+    assert list(values) == list(jobs.BENCHMARK_COLUMNS) and values["status"] == "ok"
     assert float(values["s"]) >= 0.2 and float(values["user_s"]) + float(values["sys_s"]) >= 0.2
     assert float(values["max_rss_mb"]) >= 64
-    with pytest.raises(RuntimeError), workflow.logged("logs/evaluate/x.log"):
+    with pytest.raises(RuntimeError), jobs.logged("logs/evaluate/x.log"):
         raise RuntimeError("boom")
     assert (tmp_path / "benchmarks/evaluate/x.tsv").read_text().splitlines()[1].endswith("\tfailed")
-    assert workflow.benchmark_path("elsewhere/x.log") is None
+    assert jobs.benchmark_path("elsewhere/x.log") is None
     assert not list(tmp_path.glob("benchmarks/**/.*.tmp"))

@@ -1,4 +1,4 @@
-"""Tests of spc3d.scenes: the built-in procedural LLFF captures."""
+"""Tests of spc3d.inputs.scenes: the built-in procedural LLFF captures."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 
 from spc3d import llff
 from spc3d.cameras import project
-from spc3d.scenes import LAYOUTS, render_scene, write_builtin_scene
-from spc3d.scenes.primitives import Box, Sphere, ground, nearest, quad
-from spc3d.scenes.textures import solid, texture
+from spc3d.inputs.scenes import LAYOUTS, render_scene, write_builtin_scene
+from spc3d.inputs.scenes.primitives import Box, Sphere, ground, nearest, quad
+from spc3d.inputs.scenes.textures import solid, texture
 
 H, W, N, SS = 36, 48, 4, 2
 
@@ -190,9 +190,9 @@ def test_textures_are_cached_linear_and_filtered():
 
 
 def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
-    from spc3d.scenes import LAYOUT_ROLES, content
-    from spc3d.scenes.procedural import PATTERNS
-    from spc3d.scenes.textures import EVAL_SOURCES, SAMPLE_IMAGES, TRAIN_SOURCES
+    from spc3d.inputs.scenes import LAYOUT_ROLES, content
+    from spc3d.inputs.scenes.procedural import PATTERNS
+    from spc3d.inputs.scenes.textures import EVAL_SOURCES, SAMPLE_IMAGES, TRAIN_SOURCES
 
     assert not TRAIN_SOURCES & EVAL_SOURCES
     assert TRAIN_SOURCES | EVAL_SOURCES == set(SAMPLE_IMAGES) | {f"proc:{p}" for p in PATTERNS}
@@ -204,7 +204,7 @@ def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
 
 def test_three_evaluation_layouts_hold_out_all_training_content():
     """The statistics step needs three evaluation scenes; none shows a source of a training layout."""
-    from spc3d.scenes import LAYOUT_ROLES, shared_content
+    from spc3d.inputs.scenes import LAYOUT_ROLES, shared_content
 
     train = sorted(n for n, role in LAYOUT_ROLES.items() if role == "train")
     evaluate = sorted(n for n, role in LAYOUT_ROLES.items() if role == "eval")
@@ -223,7 +223,8 @@ def test_the_default_split_shares_no_texture_source():
     """The default config (and the smoke preset) train and evaluate on layouts that share nothing."""
     import yaml
 
-    from spc3d.scenes import content, shared_content
+    from spc3d.inputs.scenes import content, shared_content
+
     from conftest import REPO
 
     for path in (REPO / "config.yaml", REPO / "workflow" / "presets" / "smoke.yaml"):
@@ -236,7 +237,9 @@ def test_the_default_split_shares_no_texture_source():
 def test_a_split_that_shares_content_is_refused_naming_the_source():
     import yaml
 
-    from spc3d.workflow import ConfigError, scene_specs
+    from spc3d.jobs import scene_specs
+    from spc3d.names import ConfigError
+
     from conftest import REPO
 
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
@@ -246,7 +249,7 @@ def test_a_split_that_shares_content_is_refused_naming_the_source():
 
 
 def test_procedural_patterns_are_deterministic_and_in_range():
-    from spc3d.scenes import procedural
+    from spc3d.inputs.scenes import procedural
 
     for name, spec in procedural.PATTERNS.items():
         img = procedural.pattern(name)

@@ -20,6 +20,7 @@ import torch
 import yaml
 
 from spc3d import io
+
 from conftest import REPO
 
 pytestmark = [pytest.mark.slurm, pytest.mark.slow]

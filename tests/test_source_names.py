@@ -1,15 +1,13 @@
-"""The stage-2 source names (spc3d.workflow.SourceName): the suffixes -x1, -pub, -mse and -k<K>,
+"""The stage-2 source names (spc3d.names.SourceName): the suffixes -x1, -pub, -mse and -k<K>,
 what each row reads and consumes, the published networks' settings, and the untrained prior as a
 stage-1 method of its own."""
 
 import numpy as np
 import pytest
 import torch
-from spc3d import workflow
-from spc3d.translate import TRANSLATORS
-from spc3d.translate.apply import translate_scene
-from spc3d.translate.train import train_translator
-from spc3d.workflow import (
+
+from spc3d import names
+from spc3d.names import (
     ConfigError,
     SourceName,
     display_budget,
@@ -23,6 +21,9 @@ from spc3d.workflow import (
     stage1_sources,
     translator_settings,
 )
+from spc3d.translate import TRANSLATORS
+from spc3d.translate.apply import translate_scene
+from spc3d.translate.train import train_translator
 
 
 @pytest.mark.parametrize(
@@ -72,7 +73,7 @@ def test_published_networks_are_their_method_without_the_prior():
     settings, train = translator_settings(stage1, "pix2pix-pub")
     assert settings == {"ngf": 8, "prior_sigma": 0.0} and train == {"iterations": 10, "batch_size": 2}
     assert translator_settings(stage1, "pix2pix")[0] == {"ngf": 8}
-    assert workflow.translator_validation(stage1, "pix2pix-pub") == {"every": 5}
+    assert names.translator_validation(stage1, "pix2pix-pub") == {"every": 5}
 
 
 @pytest.mark.parametrize(
@@ -99,18 +100,19 @@ def test_labels_say_what_each_suffix_means():
 
 
 def test_registry_and_workflow_agree_on_the_prior():
-    assert "prior" in TRANSLATORS and "prior" in workflow.STAGE1_METHODS
-    assert "prior" not in workflow.TRAINED_METHODS and not TRANSLATORS["prior"].Translator.trainable
+    assert "prior" in TRANSLATORS and "prior" in names.STAGE1_METHODS
+    assert "prior" not in names.TRAINED_METHODS and not TRANSLATORS["prior"].Translator.trainable
 
 
 def test_the_prior_method_trains_nothing_and_translates_like_the_residuals_start(tmp_path):
     """``prior``: 0 steps, its gain fitted on the training pairs as a residual translator fits its
     prior's; its output equals the prior alone a trained residual model writes beside its images."""
+    from spc3d.inputs.augment import AugmentSettings, augment_scene
+    from spc3d.inputs.build import simulate_scene
+    from spc3d.inputs.scenes import write_builtin_scene
+    from spc3d.physics import spc
+
     from conftest import TINY_TRANSLATORS
-    from spc3d import spc
-    from spc3d.augment import AugmentSettings, augment_scene
-    from spc3d.inputs import simulate_scene
-    from spc3d.scenes import write_builtin_scene
 
     for name in ("tabletop", "courtyard"):
         write_builtin_scene(name, tmp_path / "scenes" / name, height=24, width=32, views=9, supersample=1)
@@ -140,8 +142,9 @@ def test_the_prior_method_trains_nothing_and_translates_like_the_residuals_start
 def test_a_capture_runs_single_frame_rows_as_their_working_resolution_variant(tmp_path):
     """A capture has no capture-resolution frame: its ``none`` / ``mle`` runs at K = 1 (S = 1) count
     as ``-x1`` rows, so a table over a simulated scene (S = 4) and a capture never mixes budgets."""
-    from spc3d import io, tables
-    from spc3d.workflow import as_read
+    from spc3d import io
+    from spc3d.evaluation import tables
+    from spc3d.names import as_read
 
     assert as_read("none+3dgs", 1, 1) == "none-x1+3dgs" and as_read("none-mse+3dgs", 1, 1) == "none-x1-mse+3dgs"
     assert as_read("none+3dgs", 1, 4) == "none+3dgs" and as_read("mle+3dgs", 16, 1) == "mle+3dgs"

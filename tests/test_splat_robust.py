@@ -474,7 +474,7 @@ def _trainer(**changes):
     from spc3d.reconstruct.gaussians import GaussianConfig
     from spc3d.reconstruct.objectives import RGBObjective
     from spc3d.reconstruct.splatting import SplatTrainer
-    from spc3d.reconstruct.train import Views
+    from spc3d.reconstruct.views import Views
 
     w2c = np.stack([look_at(np.array([x, 0.0, -4.0]), np.zeros(3)) for x in (-0.5, 0.0, 0.5)])
     cams = Cameras(w2c, np.tile([30.0, 30.0, 16.0, 12.0], (3, 1)), H, W, np.tile([1.0, 8.0], (3, 1)))

@@ -11,14 +11,17 @@ import pytest
 import torch
 from torch import nn
 
-from spc3d import augment, io, spc, translate
-from spc3d.augment import AugmentSettings
+from spc3d import io, translate
 from spc3d.cameras import split_views
-from spc3d.scenes import write_builtin_scene
-from spc3d.inputs import simulate_scene
 from spc3d.checkpoints import Checkpoint, CheckpointPolicy
+from spc3d.inputs import augment
+from spc3d.inputs.augment import AugmentSettings
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.physics import spc
 from spc3d.training import run
 from spc3d.translate import base, model_io, online, train, validate
+
 from conftest import InterruptAt, Interrupted
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

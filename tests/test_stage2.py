@@ -4,16 +4,18 @@ import numpy as np
 import pytest
 import torch
 
-from spc3d import io, spc, tables
-from spc3d.evaluate import evaluate
-from spc3d.exposure import calibrate_display, write_display
+from spc3d import io
+from spc3d.evaluation import tables
+from spc3d.evaluation.evaluate import evaluate
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.exposure import calibrate_display, write_display
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.physics import spc
 from spc3d.reconstruct import RECONSTRUCTORS, build_config
 from spc3d.reconstruct.gaussians import GaussianConfig
 from spc3d.reconstruct.objectives import BernoulliObjective
-from spc3d.scenes import write_builtin_scene
-from spc3d.inputs import simulate_scene
-from spc3d.sources import load_source
-from spc3d.stage2 import reconstruct
+from spc3d.reconstruct.sources import load_source
+from spc3d.reconstruct.stage2 import reconstruct
 
 TINY_3DGS = {
     "iterations": 12,
@@ -144,7 +146,7 @@ def test_evaluate_perfect_renders(scene, tmp_path, lpips_cache):
     assert rec["mean"]["lpips_alex"] == pytest.approx(0.0, abs=1e-6) and rec["combination"] == "gt+3dgs"
     assert io.read_json(tmp_path / "metrics.json")["mean"]["psnr"] == float("inf")
     with pytest.raises(ValueError, match="at least 32x32"):
-        from spc3d.metrics import lpips
+        from spc3d.evaluation.metrics import lpips
 
         lpips(np.zeros((20, 40, 3)), np.zeros((20, 40, 3)), cache_dir=lpips_cache)
 
@@ -193,7 +195,7 @@ def test_single_stage_table_ranks_within_equal_budgets(tmp_path):
 @pytest.fixture(scope="module")
 def colmap_scene(tmp_path_factory):
     """A built-in scene COLMAP registers (128 x 96, 24 views, as the default config) and its COLMAP run."""
-    from spc3d.colmap import colmap_poses
+    from spc3d.poses.colmap import colmap_poses
 
     root = tmp_path_factory.mktemp("colmap_init")
     write_builtin_scene("courtyard", root / "scene", height=96, width=128, views=24, supersample=2)
@@ -205,8 +207,8 @@ def colmap_scene(tmp_path_factory):
 
 def test_colmap_points_land_on_the_scene(colmap_scene):
     from spc3d.cameras import project
-    from spc3d.colmap import sparse_points
     from spc3d.llff import read_scene
+    from spc3d.poses.colmap import sparse_points
 
     xyz, rgb = sparse_points(colmap_scene / "colmap")
     scene = read_scene(colmap_scene / "scene", with_depth=True)

@@ -10,11 +10,12 @@ import pytest
 import yaml
 from snakemake.utils import Paramspace
 
-from spc3d import io, workflow
+from spc3d import io, names
 from spc3d.sweeps import knobs, plan
 from spc3d.sweeps.budget import WIDTH_KEYS, resolve_point
 from spc3d.sweeps.pareto import front_steps, pareto_mask
 from spc3d.sweeps.report import photon_level_report, tradeoff_report
+
 from conftest import REPO
 
 TABLE = REPO / "workflow" / "tradeoff.tsv"
@@ -69,12 +70,12 @@ def test_pareto_front_ties_single_point_and_nan():
 
 # ---- knobs, tables, combinations ---------------------------------------------------------------------
 def test_models_and_widths_match_the_registries():
-    """The torch-free vocabulary of spc3d.workflow (used by the rules and the sweeps) names exactly
+    """The torch-free vocabulary of spc3d.names (used by the rules and the sweeps) names exactly
     the registered models; every translator with a network has a width knob."""
     from spc3d.reconstruct import RECONSTRUCTORS
     from spc3d.translate import TRANSLATORS
 
-    assert tuple(RECONSTRUCTORS) == workflow.STAGE2_MODELS
+    assert tuple(RECONSTRUCTORS) == names.STAGE2_MODELS
     assert set(WIDTH_KEYS) == {m for m, module in TRANSLATORS.items() if module.Translator.trainable}
     for method, key in WIDTH_KEYS.items():
         assert hasattr(TRANSLATORS[method].Config(), key)
@@ -115,7 +116,7 @@ def test_bad_tables_settings_and_combinations_are_named(tmp_path):
         knobs.read_table(bad)
     with pytest.raises(ValueError, match=r"where: knob iters=2.5 must be a positive integer"):
         knobs.check_setting({"iters": 2.5}, "where")
-    sources = workflow.PLAIN_SOURCES + workflow.STAGE1_METHODS
+    sources = names.PLAIN_SOURCES + names.STAGE1_METHODS
     with pytest.raises(ValueError, match=r"tradeoff.combinations: 'sketch\+3dgs' has unknown source 'sketch'"):
         knobs.parse_combinations(["sketch+3dgs"], "nerf-grid", sources, "tradeoff.combinations")
     with pytest.raises(ValueError, match=r"photon_level.combinations: combination 'gt\+mesh' must be"):

@@ -13,6 +13,7 @@ import torch
 
 from spc3d.checkpoints import Checkpoint, CheckpointInUse, CheckpointLock, SnakemakeWatch, _is_snakemake, fingerprint
 from spc3d.training import run
+
 from conftest import process_alive, wait_until
 
 LINUX = Path("/proc/self/stat").exists()

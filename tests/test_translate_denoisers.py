@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import pytest
 import torch
+
 from spc3d.translate import diffusion as D
 from spc3d.translate import restormer as R
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 import torch
-from conftest import TINY_TRANSLATORS
-from spc3d import lpips_specs
+
+from spc3d.evaluation import lpips_specs
 from spc3d.translate import cyclegan, pix2pix, pix2pixhd
 from spc3d.translate.networks import (
     GANLoss,
@@ -20,6 +20,8 @@ from spc3d.translate.networks import (
     UnetGenerator,
 )
 from spc3d.translate.vgg import VGGFeatures, VGGLoss
+
+from conftest import TINY_TRANSLATORS
 
 CPU = torch.device("cpu")
 # The published networks at tiny sizes, without the physics prior (tested with it in test_translate_prior.py).

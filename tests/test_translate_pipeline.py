@@ -11,18 +11,22 @@ import types
 import numpy as np
 import pytest
 import torch
-from spc3d import io, spc, tables, translate
-from spc3d.augment import AugmentSettings, augment_scene
-from spc3d.figures import pick_view, qualitative_figure
-from spc3d.scenes import write_builtin_scene
-from spc3d.inputs import simulate_scene
+from torch import nn
+
+from spc3d import io, translate
+from spc3d.checkpoints import CheckpointPolicy
+from spc3d.evaluation import tables
+from spc3d.evaluation.figures import pick_view, qualitative_figure
+from spc3d.inputs.augment import AugmentSettings, augment_scene
+from spc3d.inputs.build import simulate_scene
+from spc3d.inputs.scenes import write_builtin_scene
+from spc3d.names import LABELS, STAGE1_METHODS, translator_settings
+from spc3d.physics import spc
+from spc3d.training import run
 from spc3d.translate import base, data, model_io, train
 from spc3d.translate.apply import score_images, self_ensemble, translate_scene
-from spc3d.checkpoints import CheckpointPolicy
-from spc3d.training import run
-from spc3d.workflow import LABELS, STAGE1_METHODS, translator_settings
+
 from conftest import InterruptAt, Interrupted
-from torch import nn
 
 
 @dataclasses.dataclass(frozen=True)

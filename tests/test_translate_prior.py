@@ -8,11 +8,13 @@ import copy
 import numpy as np
 import pytest
 import torch
-from conftest import TINY_TRANSLATORS
-from spc3d import spc
+
 from spc3d.colour import linear_to_srgb
+from spc3d.physics import spc
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.prior import P_MAX, PhysicsPrior, gaussian_kernel
+
+from conftest import TINY_TRANSLATORS
 
 CPU = torch.device("cpu")
 TINY = TINY_TRANSLATORS  # tiny networks of every method, with the default physics prior (sigma 2 px)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from spc3d import lpips_specs
+
+from spc3d.evaluation import lpips_specs
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.base import to_signed
 from spc3d.translate.networks import conditional_d_step, set_requires_grad

@@ -7,9 +7,12 @@ import pandas as pd
 import pytest
 import yaml
 
-from spc3d import io, spc
-from spc3d.scenes import LAYOUTS
-from spc3d.workflow import ConfigError, scene_specs
+from spc3d import io
+from spc3d.inputs.scenes import LAYOUTS
+from spc3d.jobs import scene_specs
+from spc3d.names import ConfigError
+from spc3d.physics import spc
+
 from conftest import LLFF_ROOT, REPO, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"

@@ -11,12 +11,11 @@ check_config(config, read_yaml(Path(workflow.basedir) / "workflow" / "schemas" /
 validate(config, schema="../schemas/config.schema.yaml")
 resolve_paths(config, workflow.basedir)
 
-from spc3d.augment import split_count
-from spc3d.scenes import LAYOUTS
-from spc3d.workflow import (PLAIN_SOURCES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, folder_files,
-                            llff_input_files, parse_combination, parse_source, reads_capture_frame,
-                            resolve_combinations, scene_specs, source_frames, source_images, spc_settings,
-                            stage1_sources, translator_settings, translator_validation)
+from spc3d.inputs.augment import split_count
+from spc3d.inputs.scenes import LAYOUTS
+from spc3d.models import RECONSTRUCTORS as MODELS
+from spc3d.names import PLAIN_SOURCES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation
+from spc3d.jobs import folder_files, llff_input_files, scene_specs
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -46,7 +45,7 @@ STAGE1_SCORED = STAGE1_USED + sorted({parse_source(parse_combination(c)[0]).imag
 wildcard_constraints:
     scene="|".join(ALL_SCENES) or "(?!)",
     images="rgb|binary|average",
-    source="[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.workflow.SourceName
+    source="[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.names.SourceName
     poses="(@[a-z0-9]+(-k[0-9]+)?)?",  # "@mle-k16": poses COLMAP estimated from that source's images
     model="|".join(STAGE2_MODELS),
     method=f"({'|'.join(STAGE1_METHODS)})(-pub)?",  # "-pub": the published network (prior_sigma: 0)
@@ -137,7 +136,7 @@ def get_reconstruct_inputs(wildcards):
         inputs["translated"] = f"results/translate/{wildcards.scene}/{name.method}{wildcards.rep}"
     if name.base in ("mle", "bernoulli"):
         inputs["display"] = display_folder(wildcards)
-    if wildcards.model == "3dgs" and config["stage2"]["init"] == "colmap":
+    if MODELS[wildcards.model].accepts_points and config["stage2"]["init"] == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     if wildcards.poses:
         inputs["poses"] = f"results/poses/{wildcards.scene}/{wildcards.poses[1:]}{wildcards.rep}"
@@ -145,7 +144,7 @@ def get_reconstruct_inputs(wildcards):
 
 
 def get_eval_frames(wildcards):
-    """A scene without reference views is scored on its held-out frames (spc3d.heldout); others need none."""
+    """A scene without reference views is scored on its held-out frames (spc3d.evaluation.heldout); others need none."""
     return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE else []
 
 
@@ -153,7 +152,7 @@ def get_model_settings(wildcards):
     """The config's settings of the stage-2 model (overrides of its dataclass defaults); a 3DGS row
     refines its cameras per stage2.refine_poses (by default: the rows on estimated poses)."""
     settings, refine = dict(config["stage2"][wildcards.model]), config["stage2"]["refine_poses"]
-    if wildcards.model == "3dgs" and "pose_refine" not in settings:
+    if MODELS[wildcards.model].refines_poses and "pose_refine" not in settings:
         settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(wildcards.poses))
     return settings
 
@@ -302,8 +301,8 @@ def get_qualitative_inputs(wildcards):
 
 
 def get_stage2_gpus(wildcards):
-    """GPUs a stage-2 job can use: 3DGS runs on CPU threads here, the NeRFs use CUDA when present."""
-    return 0 if wildcards.model == "3dgs" else 1
+    """GPUs a stage-2 job can use (its spec's ``gpu``): 3DGS runs on CPU threads here, the NeRFs use CUDA when present."""
+    return int(MODELS[wildcards.model].gpu)
 
 
 # --- SLURM: every distinct request is tried before anything is submitted -------------------------

@@ -1,6 +1,6 @@
 # The inputs every combination reads: scene folders (prepare_scene), their SPC frames (simulate_scene),
 # the metered MLE displays of the physics rows (calibrate_display, write_display) and the augmented
-# training pairs of stage 1 (augment_scene). Library: spc3d.inputs, spc3d.exposure, spc3d.augment.
+# training pairs of stage 1 (augment_scene). Library: spc3d.inputs.build, spc3d.inputs.exposure, spc3d.inputs.augment.
 
 rule prepare_scene:
     """Render a built-in scene or import a real LLFF folder into the canonical LLFF layout."""
@@ -60,7 +60,7 @@ rule calibrate_display:
 
 rule write_display:
     """A scene's MLE images of one budget (first K frames, or the capture-resolution frame) at the
-    gain metered on its training views (no ground truth: spc3d.exposure)."""
+    gain metered on its training views (no ground truth: spc3d.inputs.exposure)."""
     input:
         spc="results/spc/{scene}{rep}",
         calibration="results/calibration/display-{budget}{rep}.json",

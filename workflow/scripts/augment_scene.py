@@ -1,7 +1,7 @@
-"""Adapter: rule augment_scene -> spc3d.augment.augment_scene."""
+"""Adapter: rule augment_scene -> spc3d.inputs.augment.augment_scene."""
 
-from spc3d.augment import AugmentSettings, augment_scene
-from spc3d.workflow import logged
+from spc3d.inputs.augment import AugmentSettings, augment_scene
+from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
     s = dict(snakemake.params.settings)

@@ -1,7 +1,7 @@
-"""Adapter: rule calibrate_display -> spc3d.exposure.calibrate_display (params: frames K, capture)."""
+"""Adapter: rule calibrate_display -> spc3d.inputs.exposure.calibrate_display (params: frames K, capture)."""
 
-from spc3d.exposure import calibrate_display
-from spc3d.workflow import logged
+from spc3d.inputs.exposure import calibrate_display
+from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
     calibrate_display(

@@ -1,9 +1,9 @@
-"""Adapter: rule colmap_poses -> spc3d.colmap.colmap_poses."""
+"""Adapter: rule colmap_poses -> spc3d.poses.colmap.colmap_poses."""
 
 from pathlib import Path
 
-from spc3d.colmap import colmap_poses
-from spc3d.workflow import logged
+from spc3d.jobs import logged
+from spc3d.poses.colmap import colmap_poses
 
 with logged(snakemake.log[0]):
     colmap_poses(

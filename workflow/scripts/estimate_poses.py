@@ -1,9 +1,9 @@
-"""Adapter: rule estimate_poses -> spc3d.poses.estimate_poses."""
+"""Adapter: rule estimate_poses -> spc3d.poses.estimate.estimate_poses."""
 
 from pathlib import Path
 
-from spc3d.poses import estimate_poses
-from spc3d.workflow import logged
+from spc3d.jobs import logged
+from spc3d.poses.estimate import estimate_poses
 
 with logged(snakemake.log[0]):
     p = snakemake.params

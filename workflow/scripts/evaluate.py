@@ -1,9 +1,9 @@
-"""Adapter: rule evaluate -> spc3d.evaluate.evaluate."""
+"""Adapter: rule evaluate -> spc3d.evaluation.evaluate.evaluate."""
 
 from pathlib import Path
 
-from spc3d.evaluate import evaluate
-from spc3d.workflow import logged
+from spc3d.evaluation.evaluate import evaluate
+from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
     evaluate(

@@ -1,9 +1,9 @@
-"""Adapter: rule lpips_weights -> spc3d.lpips_weights (fetch/convert into the workflow's cache)."""
+"""Adapter: rule lpips_weights -> spc3d.evaluation.lpips_weights (fetch/convert into the workflow's cache)."""
 
 from pathlib import Path
 
-from spc3d.lpips_weights import cache_file, fetch_to_cache, lpips_weights, save_npz
-from spc3d.workflow import logged
+from spc3d.evaluation.lpips_weights import cache_file, fetch_to_cache, lpips_weights, save_npz
+from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
     out, source = snakemake.output, snakemake.params.source

@@ -1,7 +1,8 @@
 """Adapter: rule photon_level_report -> spc3d.sweeps.report.photon_level_report."""
 
+from spc3d.jobs import logged
+from spc3d.names import LABELS
 from spc3d.sweeps.report import photon_level_report
-from spc3d.workflow import LABELS, logged
 
 with logged(snakemake.log[0]):
     out = snakemake.output

@@ -1,9 +1,10 @@
-"""Adapter: rule qualitative_figure -> spc3d.figures.qualitative_figure."""
+"""Adapter: rule qualitative_figure -> spc3d.evaluation.figures.qualitative_figure."""
 
 from pathlib import Path
 
-from spc3d.figures import qualitative_figure
-from spc3d.workflow import LABELS, logged
+from spc3d.evaluation.figures import qualitative_figure
+from spc3d.jobs import logged
+from spc3d.names import LABELS
 
 with logged(snakemake.log[0]):
     recons = {Path(d).name: d for d in snakemake.input.recons}

@@ -1,10 +1,10 @@
-"""Adapter: rule reconstruct -> spc3d.stage2.reconstruct."""
+"""Adapter: rule reconstruct -> spc3d.reconstruct.stage2.reconstruct."""
 
 from pathlib import Path
 
-from spc3d.stage2 import reconstruct
 from spc3d.checkpoints import CheckpointPolicy
-from spc3d.workflow import logged
+from spc3d.jobs import logged
+from spc3d.reconstruct.stage2 import reconstruct
 
 with logged(snakemake.log[0]):
     w, p, inp = snakemake.wildcards, snakemake.params, snakemake.input

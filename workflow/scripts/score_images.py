@@ -2,8 +2,8 @@
 
 from pathlib import Path
 
+from spc3d.jobs import logged
 from spc3d.translate.apply import score_images
-from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
     p = snakemake.params

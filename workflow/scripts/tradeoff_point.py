@@ -2,9 +2,9 @@
 
 from pathlib import Path
 
-from spc3d.sweeps.point import run_point
 from spc3d.checkpoints import CheckpointPolicy
-from spc3d.workflow import logged
+from spc3d.jobs import logged
+from spc3d.sweeps.point import run_point
 
 with logged(snakemake.log[0]):
     p = snakemake.params

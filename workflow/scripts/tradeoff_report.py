@@ -1,7 +1,8 @@
 """Adapter: rule tradeoff_report -> spc3d.sweeps.report.tradeoff_report."""
 
+from spc3d.jobs import logged
+from spc3d.names import LABELS
 from spc3d.sweeps.report import tradeoff_report
-from spc3d.workflow import LABELS, logged
 
 with logged(snakemake.log[0]):
     out = snakemake.output

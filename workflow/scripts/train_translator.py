@@ -1,9 +1,9 @@
 """Adapter: rule train_translator -> spc3d.translate.train.train_translator."""
 
-from spc3d.lpips_weights import load_npz
 from spc3d.checkpoints import CheckpointPolicy
+from spc3d.evaluation.lpips_weights import load_npz
+from spc3d.jobs import logged
 from spc3d.translate.train import train_translator, training_data
-from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
     p, inputs = snakemake.params, snakemake.input

@@ -1,7 +1,7 @@
 """Adapter: rule translate_scene -> spc3d.translate.apply.translate_scene."""
 
+from spc3d.jobs import logged
 from spc3d.translate.apply import translate_scene
-from spc3d.workflow import logged
 
 with logged(snakemake.log[0]):
     translate_scene(

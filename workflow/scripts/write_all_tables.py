@@ -1,4 +1,4 @@
-"""Adapter: rules write_all_tables and tables -> spc3d.tables.write_all_tables.
+"""Adapter: rules write_all_tables and tables -> spc3d.evaluation.tables.write_all_tables.
 
 write_all_tables gets its metrics as inputs (built first); tables reads whichever of the configured
 metrics files exist already, so `snakemake tables` regenerates the tables without training.
@@ -7,8 +7,9 @@ metrics files exist already, so `snakemake tables` regenerates the tables withou
 import logging
 from pathlib import Path
 
-from spc3d.tables import write_all_tables
-from spc3d.workflow import LABELS, logged
+from spc3d.evaluation.tables import write_all_tables
+from spc3d.jobs import logged
+from spc3d.names import LABELS
 
 with logged(snakemake.log[0]):
     p = snakemake.params

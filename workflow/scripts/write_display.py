@@ -1,7 +1,7 @@
-"""Adapter: rule write_display -> spc3d.exposure.write_display (params: frames K, capture)."""
+"""Adapter: rule write_display -> spc3d.inputs.exposure.write_display (params: frames K, capture)."""
 
-from spc3d.exposure import write_display
-from spc3d.workflow import logged
+from spc3d.inputs.exposure import write_display
+from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
     write_display(

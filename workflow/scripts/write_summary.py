@@ -1,7 +1,7 @@
-"""Adapter: rule write_summary -> spc3d.summary.write_summary."""
+"""Adapter: rule write_summary -> spc3d.evaluation.summary.write_summary."""
 
-from spc3d.summary import write_summary
-from spc3d.workflow import logged
+from spc3d.evaluation.summary import write_summary
+from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
     out = snakemake.output

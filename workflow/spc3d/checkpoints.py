@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from . import io
+from spc3d import io
 
 try:
     import fcntl  # POSIX only: where it is missing (Windows) a checkpoint is not locked

@@ -1,6 +1,6 @@
 """sRGB transfer functions on torch tensors (IEC 61966-2-1), shared by stage 1 and stage 2.
 
-The numpy versions used by the simulator live in :mod:`spc3d.spc`.
+The numpy versions used by the simulator live in :mod:`spc3d.physics.spc`.
 """
 
 from __future__ import annotations

@@ -1,11 +1,14 @@
 """The workflow's config, checked before anything runs: short messages, one path rule, typed settings.
 
     read_yaml(path)                   a YAML file, or an error naming its file, line and column
-    check_config(config, schema)      JSON-schema errors as one short line each (key, value, what is right)
+    check_config(config, schema)      JSON-schema errors as one short line each (key, value, what is right),
+                                      and every NaN / inf anywhere in the config (:func:`non_finite`)
     resolve_paths(config, base)       every relative path in the config taken from ``base`` (the repository)
     check_settings(config, ...)       every stage-1 / stage-2 settings block the run uses, built as its
                                       dataclass now, so a typo or an impossible value stops the parse,
-                                      not a job an hour later
+                                      not a job an hour later; then what the jobs would refuse of those
+                                      values: augmentation ranges, translator crops against the training
+                                      images and the networks, the grid schedule (:func:`check_crops`, ...)
 
 Snakemake parses the Snakefile before any job starts; the rules call these there
 (``workflow/rules/common.smk``). Nothing here imports Snakemake.
@@ -14,12 +17,13 @@ Snakemake parses the Snakefile before any job starts; the rules call these there
 from __future__ import annotations
 
 import difflib
+import math
 import os
 from pathlib import Path
 
 import yaml
 
-from .workflow import ConfigError
+from spc3d.names import ConfigError
 
 # Config keys that hold file or folder paths ("*" = every key at that level). A relative path is
 # taken from the repository root (where config.yaml and the presets live), whatever --directory is.
@@ -61,22 +65,63 @@ def read_yaml(path: str | os.PathLike) -> dict:
 
 
 def check_config(config: dict, schema: dict) -> None:
-    """Raise :class:`ConfigError` listing every schema violation of ``config``, one short line each."""
+    """Raise :class:`ConfigError` listing every schema violation of ``config`` and every number in it
+    that is not finite (:func:`non_finite`), one short line each."""
     import jsonschema
 
+    bad = non_finite(config)
     validator = jsonschema.Draft202012Validator(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: (list(e.absolute_path), e.validator))
-    if errors:
-        lines = [schema_message(e) for e in errors[:MAX_ERRORS]]
-        more = f"\n  ... and {len(errors) - MAX_ERRORS} more" if len(errors) > MAX_ERRORS else ""
+    # A non-finite value is named once, as such (-inf also fails a "minimum"; NaN passes every bound).
+    named = {path for path, _ in bad}
+    errors = [e for e in errors if tuple(e.absolute_path) not in named]
+    lines = [f"{_dotted(path)} = {value!r}: must be a finite number (not NaN or ±inf)" for path, value in bad]
+    lines += [schema_message(e) for e in errors]
+    lines += model_block_errors(config, schema)
+    if lines:
+        more = f"\n  ... and {len(lines) - MAX_ERRORS} more" if len(lines) > MAX_ERRORS else ""
+        lines = lines[:MAX_ERRORS]
         raise ConfigError(
             "invalid config (keys and defaults: workflow/schemas/config.schema.yaml):\n  " + "\n  ".join(lines) + more
         )
 
 
+def model_block_errors(config: dict, schema: dict) -> list[str]:
+    """Keys of ``stage1`` / ``stage2`` that are neither the schema's own nor a registered model's
+    settings block (:mod:`spc3d.models`: the schema admits any block there, for plugins' models)."""
+    from spc3d import models
+
+    lines = []
+    for block, registry in (("stage1", models.TRANSLATORS), ("stage2", models.RECONSTRUCTORS)):
+        known = sorted({*schema["properties"][block]["properties"], *registry})
+        given = config.get(block) if isinstance(config.get(block), dict) else {}
+        lines += [_unknown_key(block, key, known) for key in given if key not in known]
+    return lines
+
+
+def non_finite(node, path: tuple = ()) -> list[tuple[tuple, float]]:
+    """(key path, value) of every float in ``node`` (nested dicts and lists: the whole config) that
+    is NaN or ±inf. YAML reads ``.nan`` / ``.inf`` as floats, and NaN passes every bound of the
+    schema (each comparison is false), so these would reach a job: a NaN exposure, learning rate or
+    flux gives NaN images or losses minutes later. No key takes infinity on purpose: every "off" or
+    "never" value in the schema and the settings dataclasses is 0 (checkpoints.minutes, grad_clip,
+    validation.every, ...), so nothing is exempt."""
+    if isinstance(node, float):
+        return [] if math.isfinite(node) else [(path, node)]
+    if isinstance(node, dict):
+        return [hit for key, value in node.items() for hit in non_finite(value, (*path, key))]
+    if isinstance(node, (list, tuple)):
+        return [hit for i, value in enumerate(node) for hit in non_finite(value, (*path, i))]
+    return []
+
+
+def _dotted(path) -> str:
+    return ".".join(map(str, path)) or "(top level)"
+
+
 def schema_message(error) -> str:
     """One line for a jsonschema error: the key, the value, what would be right."""
-    key = ".".join(map(str, error.absolute_path)) or "(top level)"
+    key = _dotted(error.absolute_path)
     kind, want, value = error.validator, error.validator_value, error.instance
     if kind == "additionalProperties" and isinstance(value, dict):
         allowed = sorted(error.schema.get("properties", {}))
@@ -148,43 +193,147 @@ def check_file(path: str | None, key: str, what: str) -> None:
 def physics_sources(combinations: list[str]) -> set[str]:
     """The MLE and SPAD-likelihood sources (with their frame suffixes) the combinations read, pose
     sources included."""
-    from .workflow import BUDGET_SOURCES, combination_sources, split_source
+    from spc3d.names import BUDGET_SOURCES, combination_sources, split_source
 
     return {s for s in combination_sources(combinations) if split_source(s)[0] in BUDGET_SOURCES}
 
 
 def check_settings(config: dict, methods: list[str], models: list[str], combinations: list[str] = ()) -> None:
-    """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``), check
-    published weights, input paths and the values that constrain each other, so that a wrong key
-    or value is reported at parse time."""
-    from .reconstruct import CONFIGS
-    from .translate.model_io import check_pretrained, model_config
-    from .translate.train import data_mode, train_settings
-    from .translate.validate import validation_settings
-    from .workflow import parse_source, translator_settings, translator_validation
+    """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``, the
+    augmentation ranges), check published weights, input paths and the values that constrain each
+    other, so that a wrong key or value is reported at parse time."""
+    from spc3d.inputs.augment import AugmentSettings
+    from spc3d.names import parse_source, translator_settings, translator_validation
+    from spc3d.reconstruct import CONFIGS
+    from spc3d.training import build_config
+    from spc3d.translate.model_io import check_pretrained, model_config
+    from spc3d.translate.train import data_mode, train_settings
+    from spc3d.translate.validate import validation_settings
 
+    trainings = []  # (method, model Config, TrainSettings) of every translator trained
     try:
+        # The ranges the augment rule's pairs and stage1.data: online draw from, built as the jobs
+        # build them (spc3d.translate.train.training_data: the block without its count).
+        build_config(AugmentSettings, {k: v for k, v in config["augment"].items() if k != "count"}, "augment")
         if methods:
             data_mode(config["stage1"]["data"])
         for method in methods:  # model folders: "pix2pixhd-pub" is pix2pixhd's network with prior_sigma: 0
             base = parse_source(method).base
             settings, train = translator_settings(config["stage1"], method)
-            model_config(base, settings)
-            train_settings(train, base, pretrained=settings.get("checkpoint"))
+            cfg = model_config(base, settings)
+            trainings.append((method, cfg, train_settings(train, base, pretrained=settings.get("checkpoint"))))
             validation_settings(translator_validation(config["stage1"], method), f"stage1.{base}.validation")
             if settings.get("checkpoint"):
                 check_file(settings["checkpoint"], f"stage1.{base}.checkpoint", "published weights to start from")
                 check_pretrained(base, settings)
         for model in models:
-            CONFIGS[model](dict(config["stage2"][model]))
+            built = CONFIGS[model](dict(config["stage2"][model]))
+            if model == "nerf-grid":
+                check_grid_schedule(built.res_schedule)
     except (TypeError, ValueError, FileNotFoundError) as e:
         raise ConfigError(str(e)) from None
+    check_crops(config, trainings)
     check_consistency(config, methods, combinations)
+
+
+# Sides a translator's training crops must be multiples of, as 2 ** (the sum of these Config
+# fields): each Translator's ``multiple``, which its train_step checks on every batch
+# (spc3d.translate.networks.check_multiple), so that skips and residuals line up. Restormer and
+# the diffusion restorer pad their crops; the prior has no network. tests/test_parse_checks.py
+# compares these with the built networks' ``multiple``.
+CROP_HALVINGS = {
+    "pix2pix": ("num_downs",),
+    "pix2pixhd": ("n_downsample_global", "n_local_enhancers"),
+    "cyclegan": ("n_downsampling",),
+}
+
+
+def crop_multiple(method: str, cfg) -> int:
+    """The side a training crop of ``method`` (Config ``cfg``) must be a multiple of (1: any)."""
+    return 2 ** sum(getattr(cfg, name) for name in CROP_HALVINGS.get(method, ()))
+
+
+def crop_key(config: dict, method: str) -> str:
+    """The key a translator's crop comes from: its own ``train`` block's, else ``stage1.train``'s."""
+    own = (config["stage1"].get(method) or {}).get("train") or {}
+    return f"stage1.{method}.train.crop" if "crop" in own else "stage1.train.crop"
+
+
+def training_image_sizes(config: dict) -> dict[str, tuple[int | None, int]]:
+    """(height, width) of the images of every training scene, which the translators' samplers crop
+    (an augmented pair and an online sample keep the size of the view they warp:
+    spc3d.inputs.augment.warp_linear). A built-in scene is resolution.height x resolution.width; an
+    LLFF folder is scaled to resolution.width with the aspect of its images at resolution.llff_factor
+    (the first file's header; spc3d.llff.resize_scene's rounding); a COLMAP-format folder's height
+    is known only after undistortion (None: its side is at most resolution.width)."""
+    from spc3d import io, llff
+    from spc3d.inputs.build import scene_layout
+
+    res, sizes = config["resolution"], {}
+    for name in config["scenes"]["train"]:
+        path = config["llff_scenes"].get(name)
+        if path is None:  # a built-in layout (scene_specs refused any other name)
+            sizes[name] = (res["height"], res["width"])
+        elif scene_layout(path) == "llff":
+            h0, w0, _ = io.image_shape(io.list_images(llff.image_folder(path, res["llff_factor"]))[0])
+            sizes[name] = (max(1, int(round(res["width"] * h0 / w0))), res["width"])
+        else:
+            sizes[name] = (None, res["width"])
+    return sizes
+
+
+def check_crops(config: dict, trainings: list[tuple]) -> None:
+    """Every trained translator's crop fits the smallest training image (the condition of the
+    samplers, spc3d.translate.data.PairSampler and .online.OnlineSampler) and, for a network
+    that does not pad, is a multiple of its :func:`crop_multiple` (checked when it trains a step).
+    ``trainings``: (method, model Config, TrainSettings) of each translator the run trains."""
+    from spc3d.names import parse_source
+
+    sizes = training_image_sizes(config) if trainings else {}
+    sides = {name: min(s for s in size if s) for name, size in sizes.items()}
+    if not sides:
+        return  # no translator, or no training scene (check_consistency says so)
+    scene = min(sides, key=sides.get)
+    smallest, (height, width) = sides[scene], sizes[scene]
+    shown = f"{width}x{height}" if height else f"at most {width} px wide"
+    for method, cfg, s in trainings:
+        base = parse_source(method).base
+        key = crop_key(config, base)
+        if s.crop > smallest:
+            raise ConfigError(
+                f"{key} = {s.crop}: larger than the smallest training image side, {smallest} px (scene "
+                f"{scene!r} is {shown} at resolution.width = {config['resolution']['width']}); {base} "
+                f"trains on {s.crop}x{s.crop} crops of those images: use {key} <= {smallest}"
+            )
+        multiple = crop_multiple(base, cfg)
+        if s.iterations and s.crop % multiple:
+            halvings = CROP_HALVINGS[base]
+            values = " + ".join(str(getattr(cfg, name)) for name in halvings)
+            fit = max(multiple, s.crop // multiple * multiple)
+            hint = f" (e.g. {fit})" if fit <= smallest else f" (at most {smallest} px fit the training images)"
+            raise ConfigError(
+                f"{key} = {s.crop}: {base} needs crops whose side is a multiple of {multiple} "
+                f"(2**({' + '.join(halvings)}) = 2**({values}) in stage1.{base}); use a multiple of "
+                f"{multiple}{hint} or a network with fewer halvings"
+            )
+
+
+def check_grid_schedule(schedule) -> None:
+    """stage2.nerf-grid.res_schedule must give the grid a resolution at the first training step
+    (step 1): the grid takes the entry of the largest iteration <= the step
+    (spc3d.reconstruct.nerf_grid.GridModel.res_for_step), and none is an error in the job."""
+    first = min(it for it, _ in schedule)
+    if first > 1:
+        shown = [list(entry) for entry in schedule]
+        raise ConfigError(
+            f"stage2.nerf-grid.res_schedule = {shown}: its first iteration is {first}, so the grid has "
+            f"no resolution for steps 1..{first - 1}; start it at iteration 0 (e.g. [[0, {schedule[0][1]}], ...])"
+        )
 
 
 def check_consistency(config: dict, methods: list[str], combinations: list[str] = ()) -> None:
     """Values that are each valid but impossible together, and input paths that must exist."""
-    from .workflow import combination_sources, split_source
+    from spc3d.names import combination_sources, split_source
 
     spc_frames, train = config["spc"]["frames"], config["scenes"]["train"]
     for key in ("stage1", "stage2"):

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io
-from .cameras import Cameras, cameras_to_llff, llff_to_cameras
+from spc3d import io
+from spc3d.cameras import Cameras, cameras_to_llff, llff_to_cameras
 
 INTRINSICS_FILE = "intrinsics.npy"  # optional, beside poses_bounds.npy (see the module docstring)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from . import io
+from spc3d import io
 
 
 def pyplot():

@@ -34,8 +34,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .checkpoints import Checkpoint, CheckpointLock, CheckpointPolicy, SnakemakeWatch
-
+from spc3d.checkpoints import Checkpoint, CheckpointLock, CheckpointPolicy, SnakemakeWatch
 
 # --- small helpers ------------------------------------------------------------------------------
 

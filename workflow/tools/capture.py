@@ -4,10 +4,10 @@
         --cfa RGGB --format npy.gz --scene results/scenes/courtyard [--no-poses]
     python workflow/tools/capture.py inspect captures/courtyard-rggb inspect/courtyard-rggb
 
-``export`` writes the folder layout of :mod:`spc3d.captures` (sensor.json, frames/, and with
+``export`` writes the folder layout of :mod:`spc3d.captures.folders` (sensor.json, frames/, and with
 ``--scene`` the reference images/ and poses_bounds.npy). ``inspect`` reads any capture folder (a
 real one or an export), detects hot pixels and writes MLE previews, the hot-pixel map and
-capture.json (:func:`spc3d.captures.inspect_capture`). Errors name the file and what is wrong.
+capture.json (:func:`spc3d.captures.folders.inspect_capture`). Errors name the file and what is wrong.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # a source checkout works without `pip install -e .`
 
-from spc3d import captures, photon_cubes  # noqa: E402  (after the path line above)
+from spc3d.captures import folders as captures  # noqa: E402  (after the path line above)
+from spc3d.captures import photon_cubes
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

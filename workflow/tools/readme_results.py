@@ -1,18 +1,19 @@
-"""Copy generated result tables into the README, between markers, so its numbers are never typed.
+"""Copy generated result tables into the README and docs/, between markers, so their numbers are never typed.
 
     python workflow/tools/readme_results.py RESULTS_DIR [README.md] [--run NAME=DIR ...]
 
-Every block of the README of the form
+Every block of the README, and of every ``docs/*.md`` beside it, of the form
 
     <!-- generated: tables/two_stage.md -->
     ...anything (replaced)...
     <!-- /generated -->
 
 is replaced by the file ``RESULTS_DIR/tables/two_stage.md`` (its first heading dropped) and a line
-naming the file and its date; the README's own text says which run that was. A block naming
+naming the file and its date; the document's own text says which run that was. A block naming
 ``NAME:tables/findings.md`` is read from the results of another run, given as ``--run NAME=DIR``
-(e.g. the findings preset's). A missing file or run is an error naming it; the README is written
-atomically.
+(e.g. the findings preset's). The README defaults to ``./README.md``; its ``docs/`` folder is found
+next to it. A missing file or run is an error naming it and the document that asks for it, and
+then no document is written; otherwise each document is written atomically.
 """
 
 from __future__ import annotations
@@ -32,17 +33,34 @@ def provenance(results: Path, path: Path, run: str = "") -> str:
     return f"*Copied by `workflow/tools/readme_results.py` from {where}`results/{rel}` ({when}).*"
 
 
-def body(runs: dict[str, Path], ref: str) -> str:
+def body(runs: dict[str, Path], ref: str, doc: Path = Path("README.md")) -> str:
+    """The text for a block of ``doc`` naming ``ref`` (``[RUN:]path`` in a run's results)."""
     run, _, rel = ref.rpartition(":")
     if run not in runs:
-        raise SystemExit(f"the README block names run {run!r} ({ref}): give its results as --run {run}=DIR")
+        raise SystemExit(f"{doc}: a block names run {run!r} ({ref}): give its results as --run {run}=DIR")
     results = runs[run]
     path = results / rel
     if not path.is_file():
-        raise SystemExit(f"{path} does not exist: run the workflow first (the README block names {rel})")
+        raise SystemExit(f"{path} does not exist: run the workflow first ({doc} has a block naming {ref})")
     text = path.read_text()
-    text = re.sub(r"\A# .*\n+", "", text)  # the file's own title: the README has its heading
+    text = re.sub(r"\A# .*\n+", "", text)  # the file's own title: the document has its heading
     return text.rstrip() + "\n\n" + provenance(results, path, run) + "\n"
+
+
+def documents(readme: Path) -> list[Path]:
+    """The README and every ``docs/*.md`` next to it, in a fixed order."""
+    return [readme, *sorted((readme.parent / "docs").glob("*.md"))]
+
+
+def refresh(runs: dict[str, Path], doc: Path) -> tuple[str, int]:
+    """``doc``'s text with every generated block replaced, and how many there were."""
+    return BLOCK.subn(lambda m: m.group(1) + body(runs, m.group("path"), doc) + m.group(4), doc.read_text())
+
+
+def write_atomically(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
 
 
 def parse_args(argv: list[str]) -> tuple[dict[str, Path], Path] | None:
@@ -69,12 +87,16 @@ def main(argv: list[str]) -> int:
         print(__doc__)
         return 2
     runs, readme = parsed
-    text = readme.read_text()
-    new, count = BLOCK.subn(lambda m: m.group(1) + body(runs, m.group("path")) + m.group(4), text)
-    tmp = readme.with_name(f".{readme.name}.tmp")
-    tmp.write_text(new)
-    tmp.replace(readme)
-    print(f"{readme}: {count} generated block(s) refreshed from {', '.join(map(str, runs.values()))}")
+    if not readme.is_file():
+        raise SystemExit(f"{readme} does not exist: give the README's path")
+    # Every document is rendered before any is written: a missing file or run changes nothing.
+    refreshed = [(doc, *refresh(runs, doc)) for doc in documents(readme)]
+    sources = ", ".join(map(str, runs.values()))
+    for doc, text, count in refreshed:
+        if text != doc.read_text():
+            write_atomically(doc, text)
+        if count or doc == readme:
+            print(f"{doc}: {count} generated block(s) refreshed from {sources}")
     return 0
 
 

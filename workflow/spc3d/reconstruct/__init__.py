@@ -14,31 +14,32 @@ has ``step / render / capacity / state / load`` and is driven by :func:`spc3d.tr
 
 from __future__ import annotations
 
-from ..training import build_config
-from .objectives import RGBObjective
+from spc3d import models
+from spc3d.reconstruct.objectives import RGBObjective
+from spc3d.training import build_config
 
 
 def config_3dgs(settings: dict):
-    from .gaussians import GaussianConfig
+    from spc3d.reconstruct.gaussians import GaussianConfig
 
     return build_config(GaussianConfig, settings, "stage2.3dgs")
 
 
 def config_nerf(settings: dict):
-    from .nerf import NerfConfig, nerf_preset
+    from spc3d.reconstruct.nerf import NerfConfig, nerf_preset
 
     settings = dict(settings)
     return build_config(NerfConfig, settings, "stage2.nerf", nerf_preset(settings.pop("preset", "paper")))
 
 
 def config_nerf_grid(settings: dict):
-    from .nerf_grid import GridConfig
+    from spc3d.reconstruct.nerf_grid import GridConfig
 
     return build_config(GridConfig, settings, "stage2.nerf-grid")
 
 
 def make_3dgs(views, objective, settings: dict, seed: int, points=None):
-    from .splatting import SplatTrainer
+    from spc3d.reconstruct.splatting import SplatTrainer
 
     cfg = config_3dgs(settings)
     xyz, rgb = points if points is not None else (None, None)
@@ -47,19 +48,20 @@ def make_3dgs(views, objective, settings: dict, seed: int, points=None):
 
 
 def make_nerf(views, objective, settings: dict, seed: int, points=None):  # points: unused by NeRF
-    from .nerf_trainer import RayTrainer
+    from spc3d.reconstruct.nerf_trainer import RayTrainer
 
     cfg = config_nerf(settings)
     return RayTrainer(views, objective or RGBObjective("mse"), "nerf", cfg, seed), cfg.n_iters, cfg
 
 
 def make_nerf_grid(views, objective, settings: dict, seed: int, points=None):  # points: unused
-    from .nerf_trainer import RayTrainer
+    from spc3d.reconstruct.nerf_trainer import RayTrainer
 
     cfg = config_nerf_grid(settings)
     return RayTrainer(views, objective or RGBObjective("mse"), "nerf-grid", cfg, seed), cfg.n_iters, cfg
 
 
-RECONSTRUCTORS = {"3dgs": make_3dgs, "nerf": make_nerf, "nerf-grid": make_nerf_grid}
-# The settings dataclass of each model from its config block (checked at parse time: spc3d.config).
-CONFIGS = {"3dgs": config_3dgs, "nerf": config_nerf, "nerf-grid": config_nerf_grid}
+# name -> factory and name -> settings dataclass builder, from the specs of spc3d.models (a spec
+# names its functions as "module:function"; the built-in ones are the functions above).
+RECONSTRUCTORS = {name: models.load(spec.factory) for name, spec in models.RECONSTRUCTORS.items()}
+CONFIGS = {name: models.load(spec.config) for name, spec in models.RECONSTRUCTORS.items()}

@@ -22,8 +22,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .gaussians import PARAM_NAMES, GaussianConfig, GaussianModel
-from .splat import quat_to_rotmat
+from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel
+from spc3d.reconstruct.splat import quat_to_rotmat
 
 
 class DensityControl:

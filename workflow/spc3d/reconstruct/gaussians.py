@@ -10,7 +10,7 @@ uniform in inverse depth (as forward-facing scenes are sampled in NDC). Initial 
 distance to the 3 nearest neighbours, opacity 0.1, colour from the points (grey when random).
 
 Density control lives in :mod:`spc3d.reconstruct.densify`; the training loop in
-:mod:`spc3d.reconstruct.train`.
+:mod:`spc3d.reconstruct.views`.
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..cameras import Cameras
-from ..training import require_positive
-from .pose_refine import quat_mul
-from .splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
-from .splat.project import SH_C0
+from spc3d.cameras import Cameras
+from spc3d.reconstruct.pose_refine import quat_mul
+from spc3d.reconstruct.splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
+from spc3d.reconstruct.splat.project import SH_C0
+from spc3d.training import require_positive
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 

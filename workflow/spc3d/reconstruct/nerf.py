@@ -14,8 +14,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from ..training import require_positive, set_lr  # noqa: F401 - set_lr: part of this module's API (lr_at -> set_lr)
-from .volume import composite, edges_from_points, sample_pdf, stratified_t
+from spc3d.reconstruct.volume import composite, edges_from_points, sample_pdf, stratified_t
+from spc3d.training import require_positive, set_lr  # noqa: F401 - set_lr: part of this module's API (lr_at -> set_lr)
 
 
 @dataclass(frozen=True)

@@ -28,9 +28,9 @@ import torch.nn as nn
 import torch.nn.functional as F
 from numba import njit
 
-from ..training import require_positive
-from .nerf import positional_encoding
-from .volume import accumulate, composite_weights, march_grid, stratified_t
+from spc3d.reconstruct.nerf import positional_encoding
+from spc3d.reconstruct.volume import accumulate, composite_weights, march_grid, stratified_t
+from spc3d.training import require_positive
 
 
 @dataclass(frozen=True)

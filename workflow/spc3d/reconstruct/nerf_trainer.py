@@ -19,13 +19,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras, transform_cameras
-from . import nerf, nerf_grid
-from .rays import camera_rays, ndc_rays, recenter, view_dirs
-from ..metrics import psnr
-from ..training import default_device, set_lr
-from .train import Views
-from .volume import render_chunked
+from spc3d.cameras import Cameras, transform_cameras
+from spc3d.evaluation.metrics import psnr
+from spc3d.reconstruct import nerf, nerf_grid
+from spc3d.reconstruct.rays import camera_rays, ndc_rays, recenter, view_dirs
+from spc3d.reconstruct.views import Views
+from spc3d.reconstruct.volume import render_chunked
+from spc3d.training import default_device, set_lr
 
 
 def all_rays(cams: Cameras, idx) -> tuple[Tensor, Tensor, Tensor]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..colour import linear_to_srgb
+from spc3d.colour import linear_to_srgb
 
 LN2 = 0.6931471805599453
 
@@ -38,7 +38,7 @@ class RGBObjective:
         err = (pred - target).abs().mean() if self.kind == "l1" else (pred - target).square().mean()
         if self.ssim_weight == 0.0:
             return err
-        from ..metrics import ssim_loss
+        from spc3d.evaluation.metrics import ssim_loss
 
         return (1.0 - self.ssim_weight) * err + self.ssim_weight * ssim_loss(_bchw(pred), _bchw(target))
 

@@ -25,7 +25,7 @@ import torch
 from scipy.spatial.transform import Rotation
 from torch import Tensor, nn
 
-from ..cameras import Cameras, transform_cameras
+from spc3d.cameras import Cameras, transform_cameras
 
 
 @dataclass
@@ -175,7 +175,7 @@ class RowAdam:
 def heldout_cameras(refined_train: Cameras, reference_train: Cameras, reference_test: Cameras) -> Cameras:
     """The held-out views' reference cameras in the refined model's world: mapped by the inverse of
     the similarity that aligns the refined training cameras with their reference ones."""
-    from ..alignment import fit_similarity
+    from spc3d.poses.alignment import fit_similarity
 
     s, R, t = fit_similarity(reference_train, refined_train)  # x_ref = s R x_model + t
     return transform_cameras(reference_test, 1.0 / s, R.T, -R.T @ t / s)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..cameras import Cameras, transform_cameras
+from spc3d.cameras import Cameras, transform_cameras
 
 BD_FACTOR = 0.75  # LLFF NeRF: scale so the nearest bound lands at 1 / 0.75 (a margin before near = 1)
 _MIN_DZ = 1e-6  # rays must point forward (d_z > 0) for NDC; clamp guards the division for grazing rays
@@ -103,25 +103,6 @@ def ndc_rays(
         [ax * (dirs[:, 0] / dz - o[:, 0] / oz), ay * (dirs[:, 1] / dz - o[:, 1] / oz), 2.0 * near / oz], dim=1
     )
     return o_ndc, d_ndc
-
-
-def ndc_t_to_depth(t: torch.Tensor, near: float = 1.0, t_max: float = 1.0 - 1e-6) -> torch.Tensor:
-    """Depth z (recentred frame) at NDC ray parameter t: z = near / (1 − t).
-
-    t is clamped to ``t_max`` because t = 1 is the point at infinity.
-    """
-    return near / (1.0 - t.clamp(max=t_max))
-
-
-def ndc_points_to_world(
-    p: torch.Tensor, fx: float, fy: float, W: int, H: int, near: float = 1.0, z_ndc_max: float = 1.0 - 1e-6
-) -> torch.Tensor:
-    """Inverse of the NDC map for points (..., 3) -> recentred-world points (..., 3).
-
-    z_ndc is clamped below 1 (z_ndc = 1 is at infinity).
-    """
-    z = 2.0 * near / (1.0 - p[..., 2].clamp(max=z_ndc_max))
-    return torch.stack([p[..., 0] * z * W / (2.0 * fx), p[..., 1] * z * H / (2.0 * fy), z], dim=-1)
 
 
 def view_dirs(dirs: torch.Tensor) -> torch.Tensor:

@@ -22,13 +22,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..cameras import Cameras
-from .densify import DensityControl
-from .splat.project import CameraError
-from .gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
-from .pose_refine import PoseCorrections, RowAdam, heldout_cameras
-from ..metrics import psnr
-from .train import Views
+from spc3d.cameras import Cameras
+from spc3d.evaluation.metrics import psnr
+from spc3d.reconstruct.densify import DensityControl
+from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
+from spc3d.reconstruct.pose_refine import PoseCorrections, RowAdam, heldout_cameras
+from spc3d.reconstruct.splat.project import CameraError
+from spc3d.reconstruct.views import Views
 
 
 def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> torch.optim.Adam:

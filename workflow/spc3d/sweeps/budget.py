@@ -4,7 +4,7 @@
 
     {"seed": 0,
      "scene_name": "courtyard",        # the evaluation scene ...
-     "scene": {...},                   # ... and its spec (spc3d.inputs.prepare_scene)
+     "scene": {...},                   # ... and its spec (spc3d.inputs.build.prepare_scene)
      "train_scenes": {name: {...}},    # specs of the stage-1 training scenes (disjoint from it)
      "spc": {...},                     # the config's spc block
      "augment": {...},                 # the config's augment block (count = total pairs)
@@ -20,20 +20,17 @@ from __future__ import annotations
 
 import dataclasses
 
-from ..augment import split_count
-from ..training import build_config
-from ..workflow import BUDGET_SOURCES, PLAIN_SOURCES, STAGE1_METHODS, spc_settings
-from .knobs import check_setting, split_combination, used_knobs
+from spc3d import models
+from spc3d.inputs.augment import split_count
+from spc3d.names import BUDGET_SOURCES, PLAIN_SOURCES, STAGE1_METHODS, spc_settings
+from spc3d.sweeps.knobs import check_setting, split_combination, used_knobs
+from spc3d.training import build_config
 
-# The translator's main width (``width`` knob) per stage-1 method with a network (not ``prior``).
-WIDTH_KEYS = {"pix2pixhd": "ngf", "pix2pix": "ngf", "cyclegan": "ngf", "restormer": "dim", "diffusion": "base_channels"}
-# Stage-2 settings counted in iterations, scaled with the ``iters`` knob.
-ITERATION_FIELD = {"3dgs": "iterations", "nerf": "n_iters", "nerf-grid": "n_iters"}
-SCHEDULE_FIELDS = {
-    "3dgs": ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_interval"),
-    "nerf": (),
-    "nerf-grid": ("occupancy_every", "occupancy_warmup"),
-}
+# From the model specs (spc3d.models): the translator's main width (``width`` knob) per stage-1
+# method with a network (not ``prior``), and the stage-2 settings counted in iterations (``iters``).
+WIDTH_KEYS = {name: spec.width_field for name, spec in models.TRANSLATORS.items() if spec.width_field}
+ITERATION_FIELD = {name: spec.iteration_field for name, spec in models.RECONSTRUCTORS.items()}
+SCHEDULE_FIELDS = {name: spec.schedule_fields for name, spec in models.RECONSTRUCTORS.items()}
 CROP_MULTIPLE = 16  # translator training crops: a multiple of every default network's stride
 
 
@@ -101,7 +98,7 @@ def augment_settings(augment: dict, train_names: list[str]) -> dict:
 
 def translator_settings(translator: dict, method: str, knobs: dict, scene: dict) -> dict:
     """The method's model overrides with ``width``, training settings with ``steps`` and a crop that fits."""
-    from ..translate.train import TrainSettings
+    from spc3d.translate.train import TrainSettings
 
     if method not in STAGE1_METHODS:
         raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(STAGE1_METHODS)}")
@@ -127,14 +124,14 @@ def fit_crop(crop: int, scene: dict) -> int:
 def stage2_config(model: str, settings: dict):
     """The model's resolved config dataclass (as spc3d.reconstruct.RECONSTRUCTORS builds it)."""
     if model == "3dgs":
-        from ..reconstruct.gaussians import GaussianConfig
+        from spc3d.reconstruct.gaussians import GaussianConfig
 
         return build_config(GaussianConfig, settings, "stage2.3dgs")
     if model == "nerf-grid":
-        from ..reconstruct.nerf_grid import GridConfig
+        from spc3d.reconstruct.nerf_grid import GridConfig
 
         return build_config(GridConfig, settings, "stage2.nerf-grid")
-    from ..reconstruct.nerf import NerfConfig, nerf_preset
+    from spc3d.reconstruct.nerf import NerfConfig, nerf_preset
 
     settings = dict(settings)
     return build_config(NerfConfig, settings, "stage2.nerf", nerf_preset(settings.pop("preset", "paper")))

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..workflow import PLAIN_SOURCES, STAGE2_MODELS
+from spc3d.names import PLAIN_SOURCES, STAGE2_MODELS
 
 # Knob -> (type, what it sets). Order = the order of path components in a default table.
 KNOBS: dict[str, tuple[type, str]] = {

@@ -15,8 +15,8 @@ import os
 import numpy as np
 import pandas as pd
 
-from .. import io
-from .knobs import KNOBS, label
+from spc3d import io
+from spc3d.sweeps.knobs import KNOBS, label
 
 SCORES = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
 

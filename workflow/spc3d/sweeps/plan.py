@@ -6,11 +6,10 @@
 
 from __future__ import annotations
 
-
 import pandas as pd
 
-from ..workflow import BUDGET_SOURCES
-from .knobs import check_setting, distinct_rows, split_combination
+from spc3d.names import BUDGET_SOURCES
+from spc3d.sweeps.knobs import check_setting, distinct_rows, split_combination
 
 
 class ByCombination(dict):
@@ -61,7 +60,7 @@ def point_base(
     """The config's values a point of ``combo`` starts from (the ``base`` of :mod:`.budget`).
 
     ``specs``: scene name -> spec; ``translators``: stage-1 method -> (model overrides, training
-    settings), as ``spc3d.workflow.translator_settings`` resolves them.
+    settings), as ``spc3d.names.translator_settings`` resolves them.
     """
     source, model = split_combination(combo)
     translator = None
@@ -87,7 +86,7 @@ def point_base(
 
 def scene_inputs(base: dict) -> list[str]:
     """The files of the real LLFF scenes a point reads (poses and images: editing one reruns it)."""
-    from ..workflow import llff_input_files
+    from spc3d.jobs import llff_input_files
 
     specs = [base["scene"], *base["train_scenes"].values()]
     return [f for s in specs if s["kind"] == "llff" for f in llff_input_files(s["path"], s["factor"])]

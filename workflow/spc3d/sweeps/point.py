@@ -2,13 +2,13 @@
 
 ``run_point`` calls the stage functions the workflow's rules call (the same arguments), in order:
 
-    prepare      spc3d.inputs.prepare_scene         the evaluation scene (+ training scenes)
-    simulate     spc3d.inputs.simulate_scene        SPC frames (not for gt)
-    augment      spc3d.augment.augment_scene        training pairs       } stage-1
+    prepare      spc3d.inputs.build.prepare_scene         the evaluation scene (+ training scenes)
+    simulate     spc3d.inputs.build.simulate_scene        SPC frames (not for gt)
+    augment      spc3d.inputs.augment.augment_scene        training pairs       } stage-1
     train        spc3d.translate.train.train_translator                  } sources
     translate    spc3d.translate.apply.translate_scene                   } only
-    reconstruct  spc3d.stage2.reconstruct           stage 2, renders of the held-out views
-    evaluate     spc3d.evaluate.evaluate            PSNR / SSIM / LPIPS (+ the source images before 3D)
+    reconstruct  spc3d.reconstruct.stage2.reconstruct           stage 2, renders of the held-out views
+    evaluate     spc3d.evaluation.evaluate.evaluate            PSNR / SSIM / LPIPS (+ the source images before 3D)
 
 Output folder::
 
@@ -41,17 +41,17 @@ from pathlib import Path
 
 import torch
 
-from .. import io
-from ..augment import AugmentSettings, augment_scene
-from ..evaluate import evaluate
-from ..inputs import prepare_scene, simulate_scene
-from ..checkpoints import CheckpointPolicy, canonical, digest_path
-from ..training import peak_rss_mb
-from ..spc import SPCParams
-from ..stage2 import reconstruct
-from .budget import resolve_point
-from ..workflow import BUDGET_SOURCES, SOURCE_IMAGES
-from .plan import scene_inputs
+from spc3d import io
+from spc3d.checkpoints import CheckpointPolicy, canonical, digest_path
+from spc3d.evaluation.evaluate import evaluate
+from spc3d.inputs.augment import AugmentSettings, augment_scene
+from spc3d.inputs.build import prepare_scene, simulate_scene
+from spc3d.names import BUDGET_SOURCES, SOURCE_IMAGES
+from spc3d.physics.spc import SPCParams
+from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.sweeps.budget import resolve_point
+from spc3d.sweeps.plan import scene_inputs
+from spc3d.training import peak_rss_mb
 
 log = logging.getLogger(__name__)
 STAGES = ("prepare", "simulate", "augment", "train", "translate", "reconstruct", "evaluate")
@@ -183,7 +183,7 @@ def prepare_and_simulate(plan: dict, work: Path, times: dict) -> tuple[Path, Pat
 
 def meter_display(plan: dict, work: Path, times: dict) -> Path:
     """The metered MLE display of the evaluation scene at the point's K (level fitted on its training scenes)."""
-    from ..exposure import calibrate_display, write_display
+    from spc3d.inputs.exposure import calibrate_display, write_display
 
     with timed(times, "simulate"):
         train = list(plan["train_scenes"])
@@ -201,9 +201,9 @@ def run_stage1(
     plan: dict, work: Path, lpips_dir, threads: int, times: dict, resume: Resume = Resume(None, {})
 ) -> tuple[dict, Path]:
     """Augment the training scenes, train the translator, translate the evaluation scene."""
-    from ..lpips_weights import cache_file, load_npz
-    from ..translate.apply import translate_scene
-    from ..translate.train import train_translator
+    from spc3d.evaluation.lpips_weights import cache_file, load_npz
+    from spc3d.translate.apply import translate_scene
+    from spc3d.translate.train import train_translator
 
     aug, tr = plan["augment"], plan["translator"]
     with timed(times, "augment"):
@@ -241,7 +241,7 @@ def run_stage1(
 
 def score_source(plan: dict, work: Path, image_dir: Path | None, lpips_dir) -> dict | None:
     """Scores of the source's held-out images before 3D (translators, MLE, binary frame); None for gt/bernoulli."""
-    from ..translate.apply import score_images
+    from spc3d.translate.apply import score_images
 
     source, name = plan["source"], plan["scene_name"]
     kind, sub = SOURCE_IMAGES.get(source, (None, None))

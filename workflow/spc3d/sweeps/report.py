@@ -18,10 +18,10 @@ import os
 import numpy as np
 import pandas as pd
 
-from .. import io
-from ..plotting import pyplot, save_png
-from .knobs import KNOBS, label
-from .pareto import clock_column, front_steps, photon_table, tradeoff_table
+from spc3d import io
+from spc3d.plotting import pyplot, save_png
+from spc3d.sweeps.knobs import KNOBS, label
+from spc3d.sweeps.pareto import clock_column, front_steps, photon_table, tradeoff_table
 
 K_STYLES = ("-", "--", "-.", (0, (5, 1)), (0, (3, 1, 1, 1, 1, 1)))
 K_MARKERS = ("o", "s", "^", "D", "v", "P")

@@ -13,18 +13,12 @@ perceptual loss in :mod:`.vgg`, the physics prior in :mod:`.prior`). The
 training loop is :mod:`.train`, a model folder's files :mod:`.model_io` (its curve figure
 :mod:`.curves`), applying a model to a scene and stage-1 scoring :mod:`.apply`.
 Physics baselines without training (``mle``, the raw binary frame ``none``) are stage-2 sources
-(:mod:`spc3d.sources`), scored before 3D alongside the translators.
+(:mod:`spc3d.reconstruct.sources`), scored before 3D alongside the translators.
 """
 
 from __future__ import annotations
 
-from . import blurred_mle, cyclegan, diffusion, pix2pix, pix2pixhd, restormer
+from spc3d import models
 
-TRANSLATORS = {
-    "pix2pixhd": pix2pixhd,
-    "pix2pix": pix2pix,
-    "cyclegan": cyclegan,
-    "restormer": restormer,
-    "diffusion": diffusion,
-    "prior": blurred_mle,
-}
+# name -> the model's module (Config, PAPER, Translator), from the specs of spc3d.models
+TRANSLATORS = {name: models.import_module(spec.module) for name, spec in models.TRANSLATORS.items()}

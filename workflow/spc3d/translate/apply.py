@@ -16,7 +16,7 @@ pass, 2 = with the horizontal mirror, 4 = with both mirrors. It is the inference
 estimate of the posterior mean: the error of a single pass is partly specific to the orientation
 of the noise, and the diffusion stand-in's one sample is one draw of many. On the training scenes'
 held-out views (never an evaluation scene) 4 beat 1 for four of the five
-methods (README, Stage 1). Validation while training scores single passes (:mod:`.validate`).
+methods (docs/stage1.md). Validation while training scores single passes (:mod:`.validate`).
 
 ``score_images`` (rule ``score_images``) compares the held-out views of any image source
 (a translator's folder, the MLE image, the raw binary frame) with the ground truth, so stage-1
@@ -35,11 +35,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import io, llff
-from ..cameras import split_views
-from ..evaluate import mean_scores, scene_has_colour, score_view, scored_on
-from .data import binary_input
-from .model_io import load_translator
+from spc3d import io, llff
+from spc3d.cameras import split_views
+from spc3d.evaluation.evaluate import mean_scores, scene_has_colour, score_view, scored_on
+from spc3d.translate.data import binary_input
+from spc3d.translate.model_io import load_translator
 
 log = logging.getLogger(__name__)
 
@@ -118,8 +118,9 @@ def translate_scene(
 def input_sensor(model_dir: str | os.PathLike, spc_dir: str | os.PathLike):
     """(pattern, valid) of a scene's SPC folder (None, None: the simulator's RGB frames), checked
     against the sensor the model in ``model_dir`` was trained for (its train.json)."""
-    from ..capture_import import sensor_tag, spc_sensor
-    from .data import sensor_pattern
+    from spc3d.captures.importing import sensor_tag
+    from spc3d.physics.record import spc_sensor
+    from spc3d.translate.data import sensor_pattern
 
     train_json = Path(model_dir) / "train.json"
     trained = sensor_pattern(io.read_json(train_json).get("sensor")) if train_json.is_file() else None
@@ -186,7 +187,7 @@ def score_folder(
     colour: bool = True,
 ) -> dict[str, dict]:
     """Scores of ``image_dir/{name}.png`` against the scene's ground truth, per view name (``colour``
-    False: of their luminance, :func:`spc3d.evaluate.score_view`)."""
+    False: of their luminance, :func:`spc3d.evaluation.evaluate.score_view`)."""
     per_view = {}
     for name in names:
         pred_path = image_dir / f"{name}.png"

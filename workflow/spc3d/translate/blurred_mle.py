@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from .base import TranslatorBase
+from spc3d.translate.base import TranslatorBase
 
 
 @dataclass(frozen=True)

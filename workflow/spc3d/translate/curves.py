@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..plotting import pyplot, save_png
+from spc3d.plotting import pyplot, save_png
 
 
 def plot_curve(frame: pd.DataFrame, path: Path, title: str, best_step: int | None = None) -> None:

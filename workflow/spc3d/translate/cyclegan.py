@@ -21,8 +21,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import TranslatorBase, adam, from_signed, to_signed
-from .networks import (
+from spc3d.translate.base import TranslatorBase, adam, from_signed, to_signed
+from spc3d.translate.networks import (
     GANLoss,
     ImagePool,
     NLayerDiscriminator,

@@ -18,8 +18,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import io, sensors, spc
-from ..sensors import CFAPattern
+from spc3d import io
+from spc3d.physics import sensors, spc
+from spc3d.physics.sensors import CFAPattern
 
 
 def binary_input(
@@ -34,9 +35,9 @@ def binary_input(
     """(H, W, 3) float32 input of the first ``frames`` binary frames stored in ``frames_npz``.
 
     The simulator's RGB frames (K, H, W, 3) give their mean; with a sensor ``pattern`` they are
-    first recorded as that sensor would (:func:`spc3d.sensors.sensor_frames`: ``phi``, ``params``
+    first recorded as that sensor would (:func:`spc3d.physics.sensors.sensor_frames`: ``phi``, ``params``
     and ``rng`` draw its W / mono pixels). A capture's frames (K, H, W) give their demosaiced mean
-    (:func:`spc3d.sensors.sensor_input`, ``valid`` False at hot pixels).
+    (:func:`spc3d.physics.sensors.sensor_input`, ``valid`` False at hot pixels).
     """
     bits = spc.unpack_frames(*io.load_frames(frames_npz))
     if not 1 <= frames <= bits.shape[0]:

@@ -35,8 +35,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import TranslatorBase, adam, from_signed, pad_to_multiple, to_signed
-from .ddim import NoiseSchedule, ddim_sample, make_betas
+from spc3d.translate.base import TranslatorBase, adam, from_signed, pad_to_multiple, to_signed
+from spc3d.translate.ddim import NoiseSchedule, ddim_sample, make_betas
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,10 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from .. import io
-from ..training import build_config, default_device
-from . import TRANSLATORS
-from .curves import plot_curve
+from spc3d import io
+from spc3d.training import build_config, default_device
+from spc3d.translate import TRANSLATORS
+from spc3d.translate.curves import plot_curve
 
 
 def model_config(method: str, settings: dict):

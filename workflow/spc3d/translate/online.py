@@ -2,8 +2,8 @@
 
 Each sample takes a random training view (not a held-out one: those validate, :mod:`.validate`)
 of a random training scene, a fresh random affine map from the augmentation's distribution
-(:func:`spc3d.augment.sample_params`, zoom / rotation / shear / flip), a random ``crop`` window of
-the warped view (only that window is warped: :func:`spc3d.augment.warp_linear`), and a fresh
+(:func:`spc3d.inputs.augment.sample_params`, zoom / rotation / shear / flip), a random ``crop`` window of
+the warped view (only that window is warped: :func:`spc3d.inputs.augment.warp_linear`), and a fresh
 Bernoulli sample of ``frames`` 1-bit frames of exactly that window at the scene's exposure (its
 ``flux_scale`` and physics from ``spc.json``), averaged as the fixed pairs' input is. The RGB
 target is the warped window in sRGB, so input and target are pixel-aligned as in a fixed pair,
@@ -27,11 +27,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .. import llff, sensors, spc
-from ..augment import AugmentSettings, sample_params, warp_linear
-from ..cameras import split_views
-from ..inputs import params_from_record, read_spc_record
-from .data import chw, sensor_pattern
+from spc3d import llff
+from spc3d.cameras import split_views
+from spc3d.inputs.augment import AugmentSettings, sample_params, warp_linear
+from spc3d.physics import sensors, spc
+from spc3d.physics.record import params_from_record, read_spc_record
+from spc3d.translate.data import chw, sensor_pattern
 
 
 @dataclass

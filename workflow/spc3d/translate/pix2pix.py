@@ -18,8 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .base import PairedGANBase, adam, to_signed
-from .networks import (
+from spc3d.translate.base import PairedGANBase, adam, to_signed
+from spc3d.translate.networks import (
     GANLoss,
     ImagePool,
     NLayerDiscriminator,

@@ -23,8 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .base import PairedGANBase, adam, to_signed
-from .networks import (
+from spc3d.translate.base import PairedGANBase, adam, to_signed
+from spc3d.translate.networks import (
     GANLoss,
     ImagePool,
     MultiscaleDiscriminator,
@@ -34,7 +34,7 @@ from .networks import (
     init_weights,
     norm_layer,
 )
-from .vgg import VGGLoss
+from spc3d.translate.vgg import VGGLoss
 
 
 @dataclass(frozen=True)
@@ -144,7 +144,7 @@ class Generator(nn.Module):
 class Translator(PairedGANBase):
     """Pix2PixHD as a stage-1 model; ``G`` binary -> sRGB, ``D`` multiscale conditional PatchGAN.
 
-    ``vgg_weights``: ``spc3d.lpips_weights.lpips_weights("vgg")``, required when ``cfg.vgg_loss``.
+    ``vgg_weights``: ``spc3d.evaluation.lpips_weights.lpips_weights("vgg")``, required when ``cfg.vgg_loss``.
     """
 
     paired = True
@@ -171,7 +171,7 @@ class Translator(PairedGANBase):
         if vgg_weights is None:
             raise ValueError(
                 "pix2pixhd: vgg_loss is True but no vgg_weights were given; pass the VGG16 "
-                "weights from spc3d.lpips_weights.lpips_weights('vgg') or set vgg_loss: false"
+                "weights from spc3d.evaluation.lpips_weights.lpips_weights('vgg') or set vgg_loss: false"
             )
         return VGGLoss(vgg_weights).to(self.device)
 

@@ -21,7 +21,7 @@ mean (per image and channel) and the training targets are re-levelled to the pri
 frames carry no absolute brightness, and the level and colour balance are the prior's. This is a
 deviation from the published networks (``prior_sigma: 0`` restores them, as every ``PAPER``
 preset does); it exists because on a CPU budget of a few hundred steps the plain networks stay
-below this estimate (issue 13's measurements, in the README).
+below this estimate (measured in docs/stage1.md).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..colour import linear_to_srgb, srgb_to_linear
+from spc3d.colour import linear_to_srgb, srgb_to_linear
 
 # The MLE diverges at p = 1 (every bit in the window set); 1 - 1e-3 caps λ at 6.9 photons per frame,
 # which any gain fitted on scenes calibrated to a mean detection of 0.5 (λ ~ 0.7) displays as white.

@@ -35,8 +35,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .. import io
-from .base import TranslatorBase, adam, pad_to_multiple
+from spc3d import io
+from spc3d.translate.base import TranslatorBase, adam, pad_to_multiple
 
 
 @dataclass(frozen=True)

@@ -33,13 +33,13 @@ from dataclasses import dataclass
 
 import torch
 
-from ..augment import AugmentSettings
-from ..checkpoints import Checkpoint, CheckpointPolicy, digest_arrays, digest_path, fingerprint
-from ..training import build_config, default_device, peak_rss_mb, run, seed_everything
-from .data import PairSampler, load_pairs
-from .model_io import build_translator, model_config, write_model_folder
-from .online import OnlineSampler, load_sources
-from .validate import Validator, load_views, score, validation_settings
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy, digest_arrays, digest_path, fingerprint
+from spc3d.inputs.augment import AugmentSettings
+from spc3d.training import build_config, default_device, peak_rss_mb, run, seed_everything
+from spc3d.translate.data import PairSampler, load_pairs
+from spc3d.translate.model_io import build_translator, model_config, write_model_folder
+from spc3d.translate.online import OnlineSampler, load_sources
+from spc3d.translate.validate import Validator, load_views, score, validation_settings
 
 log = logging.getLogger(__name__)
 
@@ -218,7 +218,7 @@ def training_data(
     sensor: dict | None = None,
 ) -> TrainingData:
     """TrainingData from the rule's values (``augment``: the config's augment block, ``count``
-    ignored; ``sensor``: a capture's sensor, :func:`spc3d.capture_import.capture_sensor`)."""
+    ignored; ``sensor``: a capture's sensor, :func:`spc3d.captures.importing.capture_sensor`)."""
     ranges = {k: v for k, v in (augment or {}).items() if k != "count"}
     return TrainingData(
         mode,
@@ -353,7 +353,7 @@ def train_translator(
 ) -> dict:
     """Train ``method`` on ``data`` (default: the augmented pairs of ``augment_dirs``), validating per
     ``validation``; write ``out_dir`` (see module doc). ``input_digests``: see
-    :func:`spc3d.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
+    :func:`spc3d.reconstruct.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
     if threads:
         torch.set_num_threads(threads)
     data = data or TrainingData("fixed", tuple(map(str, augment_dirs)))

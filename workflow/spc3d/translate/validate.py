@@ -2,7 +2,7 @@
 early stopping (``stage1.validation``).
 
 The slice is the held-out views (every 8th, :func:`spc3d.cameras.split_views`) of the *training*
-scenes, never an evaluation scene. Neither the fixed pairs (:mod:`spc3d.augment` draws training
+scenes, never an evaluation scene. Neither the fixed pairs (:mod:`spc3d.inputs.augment` draws training
 views only) nor the online samples (:mod:`.online`, likewise) ever show them. Their input is the
 first ``frames`` stored frames of the scene's SPC folder (a seeded sample, fixed for the run),
 translated exactly as an evaluation scene is (:func:`.apply.translate_scene`).
@@ -26,12 +26,12 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from .. import io, llff
-from ..cameras import split_views
-from ..inputs import read_spc_record
-from ..metrics import psnr
-from ..training import build_config
-from .data import binary_input, chw, sensor_draws, sensor_pattern
+from spc3d import io, llff
+from spc3d.cameras import split_views
+from spc3d.evaluation.metrics import psnr
+from spc3d.physics.record import read_spc_record
+from spc3d.training import build_config
+from spc3d.translate.data import binary_input, chw, sensor_draws, sensor_pattern
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from spc3d import lpips_specs
+from spc3d.evaluation import lpips_specs
 
 VGG16_STAGES = ((64, 2), (128, 2), (256, 3), (512, 3), (512, 3))  # (width, convs) per stage
 VGG_LOSS_WEIGHTS = (1.0 / 32, 1.0 / 16, 1.0 / 8, 1.0 / 4, 1.0)
@@ -21,7 +21,7 @@ VGG_LOSS_WEIGHTS = (1.0 / 32, 1.0 / 16, 1.0 / 8, 1.0 / 4, 1.0)
 
 class VGGFeatures(nn.Module):
     """Frozen VGG16 returning relu1_1, relu2_1, relu3_1, relu4_1, relu5_1 (the first conv of each
-    stage); written with plain convs, weights from ``spc3d.lpips_weights.lpips_weights("vgg")``.
+    stage); written with plain convs, weights from ``spc3d.evaluation.lpips_weights.lpips_weights("vgg")``.
 
     pix2pixHD uses VGG19 at these taps. VGG19 weights are not available offline here, so VGG16
     (the LPIPS backbone: same five stages and widths, but 3 instead of 4 convs in stages 3-5)
@@ -42,7 +42,7 @@ class VGGFeatures(nn.Module):
                 if key not in weights:
                     raise ValueError(
                         f"VGG weights: key {key!r} missing; expected the layout of "
-                        f"spc3d.lpips_weights.lpips_weights('vgg')"
+                        f"spc3d.evaluation.lpips_weights.lpips_weights('vgg')"
                     )
                 value = torch.as_tensor(np.asarray(weights[key], dtype=np.float32))
                 if tuple(value.shape) != expected[key]:

@@ -6,8 +6,8 @@
                              H, W, background, backend="native")
 
 Back-ends (plain registry ``BACKENDS``): ``native`` (numba kernels, hand-written gradients; the
-default), ``reference`` (pure PyTorch "exact pixel pairs", autograd) and ``gsplat`` (not provided:
-it would need CUDA and the gsplat package; using it raises an error that says so).
+default) and ``reference`` (pure PyTorch "exact pixel pairs", autograd). Both run on CPU; a CUDA
+back-end (gsplat) is not shipped, and asking for one says so.
 ``project_gaussians`` (pure PyTorch, the definition) and ``project_gaussians_native`` (numba,
 hand-written gradients, ~3x faster) are interchangeable.
 
@@ -19,22 +19,12 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from .native import rasterize_native
-from .native_project import project_gaussians_native
-from .project import Projected, eval_sh, project_gaussians, quat_to_rotmat
-from .reference import rasterize_dense, rasterize_reference
+from spc3d.reconstruct.splat.native import rasterize_native
+from spc3d.reconstruct.splat.native_project import project_gaussians_native
+from spc3d.reconstruct.splat.project import Projected, eval_sh, project_gaussians, quat_to_rotmat
+from spc3d.reconstruct.splat.reference import rasterize_dense, rasterize_reference
 
-
-def rasterize_gsplat(*args, **kwargs):
-    """The optional GPU back-end, not shipped here: raises an error naming what it needs."""
-    raise RuntimeError(
-        "rasterize backend 'gsplat' is not available in spc3d: it needs a CUDA GPU and the gsplat "
-        "package (pip install 'spc3d[gpu]'), and spc3d ships no adapter for it; on CUDA call "
-        "gsplat.rasterization with the 3-D Gaussians directly, or use backend='native' / 'reference'"
-    )
-
-
-BACKENDS = {"native": rasterize_native, "reference": rasterize_reference, "gsplat": rasterize_gsplat}
+BACKENDS = {"native": rasterize_native, "reference": rasterize_reference}
 
 
 def rasterize(
@@ -51,7 +41,10 @@ def rasterize(
 ) -> tuple[Tensor, Tensor]:
     """Composite screen-space Gaussians with the chosen back-end: image (H, W, C), alpha (H, W)."""
     if backend not in BACKENDS:
-        raise ValueError(f"rasterize: unknown backend {backend!r}; choose one of {sorted(BACKENDS)}")
+        raise ValueError(
+            f"rasterize: unknown backend {backend!r}; choose one of {sorted(BACKENDS)} (both CPU; spc3d ships "
+            "no CUDA back-end such as gsplat: it needs a CUDA GPU and an adapter that is not written)"
+        )
     return BACKENDS[backend](means2d, conics, opacities, colors, depths, radii, height, width, background)
 
 

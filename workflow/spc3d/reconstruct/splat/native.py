@@ -75,16 +75,16 @@ NaN / inf and the clamps behave as in the reference.
 from __future__ import annotations
 
 import math
+
 import numpy as np
 import torch
 from numba import njit
 from torch import Tensor
 
-from .native_prep import TILE, prepare_tiles
-from .native_simd import backward_tiles32, cache_rows, forward_tiles32, sum_records
-from .native_threads import n_workers, run_parallel
-from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
-
+from spc3d.reconstruct.splat.native_prep import TILE, prepare_tiles
+from spc3d.reconstruct.splat.native_simd import backward_tiles32, cache_rows, forward_tiles32, sum_records
+from spc3d.reconstruct.splat.native_threads import n_workers, run_parallel
+from spc3d.reconstruct.splat.reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
 
 @njit(inline="always")

@@ -36,8 +36,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .native_threads import in_chunks, next_chunk
-from .reference import ALPHA_MIN, POWER_MIN
+from spc3d.reconstruct.splat.native_threads import in_chunks, next_chunk
+from spc3d.reconstruct.splat.reference import ALPHA_MIN, POWER_MIN
 
 TILE_SHIFT = 4
 TILE = 1 << TILE_SHIFT  # tile edge in pixels (3DGS uses 16)

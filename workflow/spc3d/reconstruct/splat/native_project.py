@@ -32,9 +32,9 @@ import torch
 from numba import njit
 from torch import Tensor
 
-from .native_prep import CHUNK, gather_columns
-from .native_threads import in_chunks, next_chunk
-from .project import MAX_RADIUS, Projected, check_camera, check_gaussians
+from spc3d.reconstruct.splat.native_prep import CHUNK, gather_columns
+from spc3d.reconstruct.splat.native_threads import in_chunks, next_chunk
+from spc3d.reconstruct.splat.project import MAX_RADIUS, Projected, check_camera, check_gaussians
 
 
 @njit(inline="always")

@@ -48,9 +48,9 @@ from llvmlite import ir
 from numba import njit, types
 from numba.core.extending import intrinsic
 
-from .native_prep import sort_scratch, sort_tile
-from .native_threads import next_item, next_items
-from .reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
+from spc3d.reconstruct.splat.native_prep import sort_scratch, sort_tile
+from spc3d.reconstruct.splat.native_threads import next_item, next_items
+from spc3d.reconstruct.splat.reference import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN
 
 L = 16  # tile edge, and lanes per 4x4 block
 F = np.float32

@@ -1,0 +1,213 @@
+"""Adding a model family is its code and its spec: a toy translator and a toy reconstructor, defined
+here and registered from here (``SPC3D_PLUGINS`` names this file; :mod:`spc3d.models`), run
+through the smoke DAG from training to the tables, with no edit to the package.
+
+The toys are real models, only small: a 3x3 convolution as a residual over the physics prior, and
+a reconstructor that learns one colour per pixel of the mean training view (it renders every
+novel view the same, so it scores like a blurred mean image, but it trains, checkpoints and
+renders through the same contract as 3DGS).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import torch
+from torch import nn
+
+TOY_TRANSLATOR, TOY_RECONSTRUCTOR = "toy", "toy-mean"
+
+
+# --- the toy translator (the contract of spc3d.translate.base) ----------------------------------
+
+
+@dataclass(frozen=True)
+class Config:
+    width: int = 3  # channels of the convolution (the sweeps' width knob sets it)
+    prior_sigma: float = 2.0  # a residual over the physics prior, like the default translators
+    lr: float = 1e-3
+
+
+PAPER: dict = {}
+
+
+def _translator_base():
+    from spc3d.translate.base import TranslatorBase, adam
+
+    class Translator(TranslatorBase):
+        paired, multiple = True, 1
+
+        def __init__(self, cfg: Config, device, vgg_weights=None):
+            self.cfg, self.device = cfg, torch.device(device)
+            self.net = nn.Conv2d(3, 3, 3, padding=1).to(self.device)
+            self.make_prior(cfg.prior_sigma, head=self.net)
+            self.opt = adam(self.net.parameters(), self.device, lr=cfg.lr)
+
+        def modules(self):
+            return self.with_prior({"net": self.net})
+
+        def optimizers(self):
+            return {"opt": self.opt}
+
+        def forward_image(self, binary):
+            return self.plus_prior(self.net(binary), binary, signed=False).clamp(0.0, 1.0)
+
+        def train_step(self, binary, rgb):
+            self.opt.zero_grad()
+            loss = (self.forward_image(binary) - rgb).abs().mean()
+            loss.backward()
+            self.opt.step()
+            return {"loss": float(loss)}
+
+    return Translator
+
+
+def __getattr__(name):  # Translator is built on first use, so registering imports no torch module of spc3d
+    if name == "Translator":
+        return _translator_base()
+    raise AttributeError(name)
+
+
+# --- the toy reconstructor (the contract of spc3d.training.run and spc3d.reconstruct.stage2) ----
+
+
+@dataclass(frozen=True)
+class MeanConfig:
+    iterations: int = 30
+    lr: float = 0.05
+
+
+class MeanImageTrainer:
+    """One learnt colour per pixel, fitted to every training view: the mean image."""
+
+    def __init__(self, views, objective, cfg: MeanConfig, seed: int):
+        torch.manual_seed(seed)
+        self.views, self.objective, self.cfg = views, objective, cfg
+        self.image = nn.Parameter(torch.full(views.targets.shape[1:], 0.5))
+        self.opt = torch.optim.Adam([self.image], lr=cfg.lr)
+
+    def step(self, it: int) -> dict[str, float]:
+        self.opt.zero_grad()
+        pred = self.image.expand_as(self.views.targets)
+        loss = self.objective.loss(pred, self.views.targets)
+        loss.backward()
+        self.opt.step()
+        return {"loss": float(loss)}
+
+    def render(self, cameras, j: int):
+        return self.objective.to_srgb(self.image.detach())
+
+    def capacity(self) -> dict:
+        return {"parameters": self.image.numel()}
+
+    def state(self) -> dict:
+        return {"image": self.image.detach().clone(), "opt": self.opt.state_dict()}
+
+    def load(self, state: dict) -> None:
+        with torch.no_grad():
+            self.image.copy_(state["image"])
+        self.opt.load_state_dict(state["opt"])
+
+
+def mean_config(settings: dict) -> MeanConfig:
+    from spc3d.training import build_config
+
+    return build_config(MeanConfig, settings, f"stage2.{TOY_RECONSTRUCTOR}")
+
+
+def make_mean(views, objective, settings: dict, seed: int, points=None):
+    from spc3d.reconstruct.objectives import RGBObjective
+
+    cfg = mean_config(settings)
+    return MeanImageTrainer(views, objective or RGBObjective("mse"), cfg, seed), cfg.iterations, cfg
+
+
+# --- the registration (called by spc3d.models when SPC3D_PLUGINS names this file) ----------------
+
+
+def spc3d_register(register):
+    from spc3d.models import ReconstructorSpec, TranslatorSpec
+
+    here = str(Path(__file__).resolve())
+    register(TranslatorSpec(TOY_TRANSLATOR, "Toy (3x3 conv)", here, width_field="width"))
+    register(
+        ReconstructorSpec(TOY_RECONSTRUCTOR, "Toy mean image", f"{here}:make_mean", f"{here}:mean_config", "iterations")
+    )
+
+
+# --- the tests ------------------------------------------------------------------------------------
+
+
+def plugin_env() -> dict:
+    return dict(os.environ, SPC3D_PLUGINS=str(Path(__file__).resolve()))
+
+
+def test_a_plugin_registers_both_families_in_a_fresh_process():
+    """The registries, names and knobs all see the toys; the built-in models stay as they were."""
+    import subprocess
+
+    code = (
+        "import sys; sys.path.insert(0, 'workflow');"
+        "from spc3d import names; from spc3d.sweeps.budget import WIDTH_KEYS, ITERATION_FIELD;"
+        "from spc3d.translate import TRANSLATORS; from spc3d.reconstruct import RECONSTRUCTORS, CONFIGS;"
+        f"assert names.STAGE1_METHODS[-1] == '{TOY_TRANSLATOR}' and names.STAGE2_MODELS[-1] == '{TOY_RECONSTRUCTOR}';"
+        f"assert WIDTH_KEYS['{TOY_TRANSLATOR}'] == 'width' and ITERATION_FIELD['{TOY_RECONSTRUCTOR}'] == 'iterations';"
+        f"assert TRANSLATORS['{TOY_TRANSLATOR}'].Config().width == 3;"
+        f"assert CONFIGS['{TOY_RECONSTRUCTOR}']({{'iterations': 7}}).iterations == 7;"
+        f"print(names.LABELS['{TOY_TRANSLATOR}'], sorted(RECONSTRUCTORS))"
+    )
+    repo = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], cwd=repo, env=plugin_env(), capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "Toy (3x3 conv) ['3dgs', 'nerf', 'nerf-grid', 'toy-mean']"
+
+
+def test_register_refuses_a_clash_and_a_bad_name():
+    from spc3d import models
+
+    with pytest.raises(ValueError, match="already registered"):
+        models.register(models.TranslatorSpec("pix2pix", "again", "spc3d.translate.pix2pix"))
+    with pytest.raises(ValueError, match="must match"):
+        models.register(models.TranslatorSpec("toy-net", "a dash ends a source name", "x"))
+    with pytest.raises(ValueError, match="defines no spc3d_register"):
+        models.load_plugins(str(Path(models.__file__)))
+
+
+@pytest.mark.slow
+def test_toy_models_run_through_the_smoke_dag(tmp_path, lpips_cache):
+    import yaml
+
+    from conftest import REPO
+
+    combos = [f"{TOY_TRANSLATOR}+{TOY_RECONSTRUCTOR}", f"gt+{TOY_RECONSTRUCTOR}", f"{TOY_TRANSLATOR}+3dgs"]
+    local = tmp_path / "toy.yaml"
+    local.write_text(
+        yaml.safe_dump(
+            {
+                "metrics": {"lpips_source": str(lpips_cache)},
+                "colmap": {"inputs": []},
+                "stage1": {TOY_TRANSLATOR: {"width": 3}},
+                "stage2": {"combinations": combos, TOY_RECONSTRUCTOR: {"iterations": 20}},
+            }
+        )
+    )
+    smoke = REPO / "workflow" / "presets" / "smoke.yaml"
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(tmp_path)]
+    cmd += ["--cores", "2", "--configfile", str(smoke), str(local)]
+    import subprocess
+
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=plugin_env())
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
+    res = tmp_path / "results"
+    for combo in combos:
+        metrics = yaml.safe_load((res / "eval" / "courtyard" / combo / "metrics.json").read_text())
+        assert metrics["mean"]["psnr"] > 5.0, (combo, metrics["mean"])
+    record = yaml.safe_load((res / "recon" / "courtyard" / combos[0] / "train.json").read_text())
+    assert record["capacity"]["parameters"] == 48 * 64 * 3 and record["iterations"] == 20
+    two_stage = (res / "tables" / "two_stage.csv").read_text()
+    assert all(combo in two_stage for combo in combos)
+    assert "Toy (3x3 conv)" in (res / "tables" / "stage1.csv").read_text()

@@ -1,0 +1,363 @@
+"""Photon cubes: one view's 1-bit frames of a real (or exported) SPAD sensor, read and written.
+
+A photon cube is bool ``(K, H, W)``: K binary frames of the raw sensor plane, one value per pixel
+(a colour-filter sensor's mosaic, not RGB; see :mod:`spc3d.physics.sensors`). Four on-disk formats:
+
+``npy``     uint8 ``(K, H, ceil(W/8))``: each frame row bit-packed along the last (width) axis,
+            pixel ``x`` in byte ``x // 8``. Bit order ``big`` (the default) puts pixel ``8j`` in the
+            most significant bit of byte ``j``: ``np.packbits(cube, axis=-1)`` /
+            ``np.unpackbits(..., axis=-1)`` with numpy's default bit order. That is the layout of
+            the SwissSPAD2 ``.npy`` photon cubes of the WISION lab's ``photoncube`` tools
+            (WISION-Lab/photoncube2video: ``unpack_single`` in ``src/transforms.rs`` maps bit
+            ``7 - s`` of byte ``j`` to pixel ``8j + s``; its ``.bin``-to-``.npy`` conversion in
+            ``src/cube.rs`` reverses the bits of the sensor's raw ``.bin`` bytes to get there, so the
+            raw ``.bin`` bytes are ``little``). ``bitorder="little"`` reads and writes that other
+            order. A width that is not a multiple of 8 leaves padding bits at the end of every row:
+            they are written as 0 and dropped on read; the true width is an argument (a capture
+            keeps it in ``sensor.json``), and without it the width is ``8 * ceil(W/8)``.
+``npy.gz``  the same ``.npy`` file, gzip-compressed (read as a stream: nothing is unpacked to disk).
+``png``     a folder of single-channel 0/255 PNG frames (8 or 16 bit), one per frame, in natural
+            name order (``2.png`` before ``10.png``; zero-padded ``NNNN.png`` when written).
+``npz``     the project's own :func:`spc3d.io.save_frames` file (``packed``, ``shape``; little bit
+            order over the whole flattened array, :func:`spc3d.physics.spc.pack_frames`), shape ``(K, H, W)``.
+
+:func:`read_cube` picks the format from the name (a folder is PNG frames) and checks what it
+reads: every error names the file and what was expected. Writers go through
+:func:`spc3d.io.atomic_path`; every format round-trips exactly.
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+import re
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from spc3d import io
+from spc3d.physics import spc
+
+FORMATS = ("npy", "npy.gz", "png", "npz")
+BITORDERS = ("big", "little")
+_EXPECTED = (
+    "a photon cube: .npy or .npy.gz (uint8 (K, H, ceil(W/8)), bit-packed along the width), "
+    ".npz (spc3d.io.save_frames) or a folder of 0/255 PNG frames"
+)
+
+
+# --------------------------------------------------------------------------------------------
+# names and checks
+
+
+def cube_format(path: str | os.PathLike) -> str:
+    """The format of an existing cube path: a folder is ``png``, else the file name's ending."""
+    path = Path(path)
+    if path.is_dir():
+        return "png"
+    if not path.exists():
+        raise FileNotFoundError(f"photon cube {path} does not exist (expected {_EXPECTED})")
+    return _format_from_name(path)
+
+
+def _format_from_name(path: Path) -> str:
+    name = path.name.lower()
+    for fmt in ("npy.gz", "npy", "npz"):
+        if name.endswith("." + fmt):
+            return fmt
+    raise ValueError(f"{path}: unknown photon-cube format; expected {_EXPECTED}")
+
+
+def cube_path(folder: str | os.PathLike, view: str, fmt: str) -> Path:
+    """Where view ``view`` of a frames folder lives in format ``fmt`` (``png``: a folder)."""
+    check_choice("fmt", fmt, FORMATS)
+    return Path(folder) / (view if fmt == "png" else f"{view}.{fmt}")
+
+
+def check_choice(name: str, value: object, choices: tuple[str, ...]) -> str:
+    if value not in choices:
+        raise ValueError(f"{name}={value!r}: use one of {choices}")
+    return value
+
+
+def _check_cube(cube: np.ndarray, path: Path) -> np.ndarray:
+    cube = np.asarray(cube)
+    if cube.dtype != np.bool_ or cube.ndim != 3 or 0 in cube.shape:
+        raise ValueError(
+            f"writing {path}: got {cube.dtype} array of shape {cube.shape}; a photon cube "
+            f"is a non-empty bool (K, H, W) array"
+        )
+    return cube
+
+
+def _check_width(width: int | None, packed_width: int, path: Path) -> int:
+    """The true width: ``width`` if it fits ``packed_width`` bytes per row, else an error."""
+    if width is None:
+        return 8 * packed_width
+    if (
+        isinstance(width, bool)
+        or not isinstance(width, (int, np.integer))
+        or not 8 * (packed_width - 1) < width <= 8 * packed_width
+    ):
+        raise ValueError(
+            f"{path}: width={width!r} does not fit rows of {packed_width} bytes; the true "
+            f"width must be an integer in [{8 * packed_width - 7}, {8 * packed_width}]"
+        )
+    return int(width)
+
+
+def _natural_key(path: Path) -> list:
+    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", path.name)]
+
+
+# --------------------------------------------------------------------------------------------
+# bit-packed .npy / .npy.gz
+
+
+def pack_cube(cube: np.ndarray, bitorder: str = "big") -> np.ndarray:
+    """bool (K, H, W) -> uint8 (K, H, ceil(W/8)), packed along the width (padding bits 0)."""
+    check_choice("bitorder", bitorder, BITORDERS)
+    return np.packbits(cube, axis=-1, bitorder=bitorder)
+
+
+def unpack_cube(
+    packed: np.ndarray, width: int | None = None, bitorder: str = "big", path: str | os.PathLike = "<array>"
+) -> np.ndarray:
+    """uint8 (K, H, ceil(W/8)) -> bool (K, H, W); the padding bits past ``width`` are dropped."""
+    check_choice("bitorder", bitorder, BITORDERS)
+    _check_packed(packed.shape, packed.dtype, Path(path))
+    width = _check_width(width, packed.shape[2], Path(path))
+    return np.unpackbits(packed, axis=-1, count=width, bitorder=bitorder).view(bool)
+
+
+def _check_packed(shape: tuple[int, ...], dtype: np.dtype, path: Path) -> None:
+    if np.dtype(dtype) != np.uint8 or len(shape) != 3 or 0 in shape:
+        hint = (
+            (
+                " (a bool array is an unpacked cube: pack it with np.packbits along the last axis, "
+                "or write it with write_cube)"
+            )
+            if np.dtype(dtype) == np.bool_
+            else ""
+        )
+        raise ValueError(
+            f"{path}: holds a {np.dtype(dtype)} array of shape {tuple(shape)}; expected "
+            f"uint8 (K, H, ceil(W/8)) bit-packed 1-bit frames{hint}"
+        )
+
+
+def read_npy(
+    path: str | os.PathLike, width: int | None = None, bitorder: str = "big", max_frames: int | None = None
+) -> np.ndarray:
+    """A bit-packed ``.npy`` or ``.npy.gz`` cube -> bool (K, H, W) (the first ``max_frames`` only)."""
+    path = Path(path)
+    if _format_from_name(path) == "npy.gz":
+        packed = _read_npy_gz(path, max_frames)
+    else:
+        packed = _read_npy_plain(path, max_frames)
+    return unpack_cube(packed, width, bitorder, path)
+
+
+def _read_npy_plain(path: Path, max_frames: int | None) -> np.ndarray:
+    try:
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)  # only the frames asked for are read
+    except (OSError, ValueError, EOFError) as e:
+        raise ValueError(f"cannot read photon cube {path}: {e} (truncated, or not a .npy file?)") from e
+    if not isinstance(arr, np.ndarray):
+        raise ValueError(f"cannot read photon cube {path}: not a .npy array")
+    _check_packed(arr.shape, arr.dtype, path)
+    return np.array(arr[:max_frames])
+
+
+def _read_npy_gz(path: Path, max_frames: int | None) -> np.ndarray:
+    """Stream a gzip-compressed .npy: header, then only the bytes of the frames asked for."""
+    try:
+        with gzip.open(path, "rb") as f:
+            shape, fortran, dtype = _npy_header(f)
+            _check_packed(shape, dtype, path)
+            frames = shape[0] if fortran or max_frames is None else min(shape[0], max_frames)
+            want = frames * shape[1] * shape[2]
+            data = f.read(want)
+    except (OSError, EOFError, zlib.error) as e:  # BadGzipFile is an OSError
+        raise ValueError(
+            f"cannot read photon cube {path}: {type(e).__name__}: {e} (a truncated or "
+            f"corrupt gzip file; expected a gzip-compressed .npy)"
+        ) from e
+    if len(data) < want:
+        raise ValueError(
+            f"{path}: truncated: the .npy header announces {shape} but the data ends after {len(data)} of {want} bytes"
+        )
+    arr = np.frombuffer(data, np.uint8).reshape(
+        ((frames,) + shape[1:]) if not fortran else shape, order="F" if fortran else "C"
+    )
+    return np.ascontiguousarray(arr[:max_frames])
+
+
+def _npy_header(f) -> tuple[tuple[int, ...], bool, np.dtype]:
+    fmt = np.lib.format
+    try:
+        version = fmt.read_magic(f)
+        if version == (1, 0):
+            return fmt.read_array_header_1_0(f)
+        if version == (2, 0):
+            return fmt.read_array_header_2_0(f)
+    except ValueError as e:
+        raise OSError(f"not a .npy stream ({e})") from e
+    raise OSError(f"unsupported .npy format version {version}")
+
+
+def write_npy(path: str | os.PathLike, cube: np.ndarray, bitorder: str = "big", compresslevel: int = 6) -> Path:
+    """Write bool (K, H, W) as a bit-packed ``.npy`` (or ``.npy.gz`` by name), atomically."""
+    path = Path(path)
+    fmt = _format_from_name(path)
+    packed = pack_cube(_check_cube(cube, path), bitorder)
+    with io.atomic_path(path) as tmp:
+        if fmt == "npy.gz":
+            with (
+                open(tmp, "wb") as raw,
+                gzip.GzipFile(fileobj=raw, mode="wb", filename="", compresslevel=compresslevel, mtime=0) as f,
+            ):
+                np.lib.format.write_array(f, packed, allow_pickle=False)  # mtime 0: same bytes each time
+        else:
+            with open(tmp, "wb") as f:
+                np.lib.format.write_array(f, packed, allow_pickle=False)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# PNG frame folders
+
+
+def png_frames(folder: str | os.PathLike) -> list[Path]:
+    """The ``*.png`` frames of a folder in natural name order (hidden files skipped)."""
+    folder = Path(folder)
+    files = sorted(
+        (p for p in folder.glob("*") if p.suffix.lower() == ".png" and not p.name.startswith(".")), key=_natural_key
+    )
+    if not files:
+        raise FileNotFoundError(
+            f"{folder}: no PNG frames; expected a folder of 0/255 single-channel PNG files, one per binary frame"
+        )
+    return files
+
+
+def read_png_frames(folder: str | os.PathLike, max_frames: int | None = None) -> np.ndarray:
+    """A folder of 0/255 PNG frames -> bool (K, H, W); every frame must match the first's size."""
+    files = png_frames(folder)[:max_frames]
+    first = _read_png_frame(files[0])
+    cube = np.empty((len(files),) + first.shape, dtype=bool)
+    cube[0] = first
+    for k, f in enumerate(files[1:], start=1):
+        frame = _read_png_frame(f)
+        if frame.shape != first.shape:
+            raise ValueError(
+                f"{f}: frame is {frame.shape[1]}x{frame.shape[0]} (WxH) but {files[0].name} "
+                f"is {first.shape[1]}x{first.shape[0]}; all frames of a view must have one size"
+            )
+        cube[k] = frame
+    return cube
+
+
+def _read_png_frame(path: Path) -> np.ndarray:
+    img = io.read_image(path)  # (H, W, C) float32 in [0, 1]
+    if img.shape[2] != 1:
+        raise ValueError(
+            f"{path}: {img.shape[2]} channels; a binary frame is a single-channel image "
+            f"(monochrome, or the raw mosaic of a colour-filter sensor)"
+        )
+    bad = (img != 0.0) & (img != 1.0)
+    if bad.any():
+        y, x = np.argwhere(bad[:, :, 0])[0]
+        raise ValueError(
+            f"{path}: {int(bad.sum())} pixels are neither 0 nor full scale (e.g. "
+            f"{float(img[y, x, 0]) * 255:.1f}/255 at row {y}, column {x}); binary frames "
+            f"hold only 0 and 255"
+        )
+    return img[:, :, 0] == 1.0
+
+
+def write_png_frames(folder: str | os.PathLike, cube: np.ndarray) -> Path:
+    """Write bool (K, H, W) as ``folder/NNNN.png`` 0/255 8-bit frames (the folder atomically)."""
+    folder = Path(folder)
+    cube = _check_cube(cube, folder)
+    digits = max(4, len(str(len(cube) - 1)))
+    with io.atomic_path(folder, is_dir=True) as tmp:
+        for k, frame in enumerate(cube):
+            io.write_image(tmp / f"{k:0{digits}d}.png", frame[:, :, None].astype(np.float32))
+    return folder
+
+
+# --------------------------------------------------------------------------------------------
+# the project's .npz
+
+
+def read_npz(path: str | os.PathLike, max_frames: int | None = None) -> np.ndarray:
+    """A :func:`spc3d.io.save_frames` file of shape (K, H, W) (or (K, H, W, 1)) -> bool (K, H, W)."""
+    path = Path(path)
+    packed, shape = io.load_frames(path)
+    try:
+        frames = spc.unpack_frames(packed, shape)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from e
+    if frames.ndim == 4 and frames.shape[3] == 1:
+        frames = frames[..., 0]
+    if frames.ndim != 3:
+        hint = (
+            (
+                " — the simulator's RGB frames (K, H, W, 3): export them as a sensor plane with "
+                "spc3d.captures.folders.export_simulated"
+            )
+            if frames.ndim == 4 and frames.shape[3] == 3
+            else ""
+        )
+        raise ValueError(
+            f"{path}: frames of shape {frames.shape}; a photon cube is (K, H, W), one raw value per pixel{hint}"
+        )
+    return frames[:max_frames]
+
+
+def write_npz(path: str | os.PathLike, cube: np.ndarray) -> Path:
+    path = Path(path)
+    io.save_frames(path, *spc.pack_frames(_check_cube(cube, path)))
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# entry points
+
+
+def read_cube(
+    path: str | os.PathLike, width: int | None = None, bitorder: str = "big", max_frames: int | None = None
+) -> np.ndarray:
+    """Any photon cube -> bool (K, H, W), the raw sensor plane.
+
+    path: a ``.npy`` / ``.npy.gz`` (``width`` and ``bitorder`` apply), a ``.npz``, or a folder of PNG
+    frames. max_frames: read only the first frames (a plain ``.npy`` is memory-mapped, a ``.npy.gz``
+    streamed, so a long capture costs only what is read).
+    """
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
+        raise ValueError(f"max_frames={max_frames!r}: must be a positive integer or None")
+    fmt = cube_format(path)
+    if fmt == "png":
+        return read_png_frames(path, max_frames)
+    if fmt == "npz":
+        return read_npz(path, max_frames)
+    return read_npy(path, width, bitorder, max_frames)
+
+
+def write_cube(path: str | os.PathLike, cube: np.ndarray, fmt: str | None = None, bitorder: str = "big") -> Path:
+    """Write bool (K, H, W) in ``fmt`` (default: from the name; a name without a known ending is a
+    PNG folder). Returns the path written."""
+    path = Path(path)
+    if fmt is None:
+        try:
+            fmt = _format_from_name(path)
+        except ValueError:
+            fmt = "png"
+    check_choice("fmt", fmt, FORMATS)
+    if fmt == "png":
+        return write_png_frames(path, cube)
+    if not path.name.lower().endswith("." + fmt):
+        raise ValueError(f"write_cube({path}): fmt={fmt!r} needs a name ending in .{fmt}")
+    return write_npz(path, cube) if fmt == "npz" else write_npy(path, cube, bitorder)

@@ -1,0 +1,195 @@
+"""Image-quality metrics (PSNR, SSIM, LPIPS) and the differentiable SSIM training loss.
+
+Layouts
+-------
+- Reported metrics ``psnr``, ``ssim``, ``lpips`` take ONE image pair: sRGB (H, W, 3) float arrays
+  in [0, 1], numpy or torch (any (H, W, C) works for PSNR/SSIM), and return Python floats.
+- Batched torch functions (``ssim_map``, ``ssim_loss``, ``gs_photometric_loss``, ``lpips_batch``)
+  take (B, C, H, W) tensors in [0, 1] and keep gradients.
+
+Conventions (pinned)
+--------------------
+- PSNR: data range 1, ``10 log10(1 / MSE)`` over all pixels and channels, computed in float64;
+  identical images give ``float('inf')``.
+- SSIM (reported metric, ``ssim``): Wang et al. (2004) — Gaussian window 11x11, sigma 1.5,
+  K1 = 0.01, K2 = 0.03, data range 1, population covariance (no N/(N-1) factor), 'valid'
+  filtering (no padding: only windows fully inside the image, i.e. a 5-pixel border is dropped),
+  mean over the map and the channels, float64. This equals scikit-image's
+  ``structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+  data_range=1, channel_axis=-1)``. Images must be at least 11x11.
+- SSIM training loss (``ssim_loss``, ``gs_photometric_loss``): the 3D Gaussian Splatting
+  convention — the same window and constants, but zero 'same' padding (map the size of the
+  image, borders included), in the input dtype. Do not report it as the metric.
+- LPIPS: v0.1 net-lin with AlexNet (``net="alex"``) or VGG16 (``net="vgg"``) as in the official
+  code; images are scaled ``x * 2 - 1``. Name the backbone wherever a value is reported (3DGS
+  reports VGG, gsplat/nerfstudio AlexNet). Networks: ``spc3d.evaluation.lpips_net``; weights:
+  ``spc3d.evaluation.lpips_weights``.
+
+Constant and all-black images give finite values everywhere (C1, C2 > 0 keep SSIM's
+denominators positive; identical constant images give SSIM 1); LPIPS of identical images is 0.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from spc3d.evaluation.lpips_net import get_lpips_net
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_K1 = 0.01
+SSIM_K2 = 0.03
+DATA_RANGE = 1.0
+
+
+def _as_tensor(img, dtype: torch.dtype | None = None) -> torch.Tensor:
+    """numpy or torch array -> torch tensor (detached only if it came from numpy)."""
+    t = img if isinstance(img, torch.Tensor) else torch.from_numpy(np.asarray(img))
+    return t.to(dtype) if dtype is not None else t
+
+
+def _pair_hwc(pred, target, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
+    """Two (H, W, C) images -> two (1, C, H, W) tensors of ``dtype``; checks shapes."""
+    a, b = _as_tensor(pred, dtype), _as_tensor(target, dtype)
+    if a.shape != b.shape or a.ndim != 3:
+        raise ValueError(f"expected two (H, W, C) images of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
+    return a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
+
+
+# ---------------------------------------------------------------------------------------------
+# PSNR
+# ---------------------------------------------------------------------------------------------
+def psnr(pred, target) -> float:
+    """PSNR in dB (data range 1) between two arrays of one shape (images (H, W, C), ray batches
+    (R, 3), ...); ``inf`` when they are identical. No gradient."""
+    a, b = _as_tensor(pred, torch.float64).detach(), _as_tensor(target, torch.float64).detach()
+    if a.shape != b.shape:
+        raise ValueError(f"expected two arrays of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
+    mse = torch.mean((a - b) ** 2).item()
+    if mse == 0.0:
+        return float("inf")
+    return 10.0 * math.log10(DATA_RANGE**2 / mse)
+
+
+# ---------------------------------------------------------------------------------------------
+# SSIM
+# ---------------------------------------------------------------------------------------------
+def gaussian_window(
+    size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype: torch.dtype = torch.float64
+) -> torch.Tensor:
+    """Normalised 1-D Gaussian taps (size,), centred on the middle tap."""
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
+    g = torch.exp(-(x**2) / (2 * sigma**2))
+    return (g / g.sum()).to(dtype)
+
+
+def _blur(x: torch.Tensor, window: torch.Tensor, pad: int) -> torch.Tensor:
+    """Separable depthwise Gaussian filter of (B, C, H, W) ``x`` with zero padding ``pad``."""
+    c, k = x.shape[1], window.numel()
+    x = F.conv2d(x, window.view(1, 1, 1, k).expand(c, 1, 1, k), padding=(0, pad), groups=c)
+    return F.conv2d(x, window.view(1, 1, k, 1).expand(c, 1, k, 1), padding=(pad, 0), groups=c)
+
+
+def ssim_map(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    padding: str = "valid",
+    window_size: int = SSIM_WINDOW,
+    sigma: float = SSIM_SIGMA,
+) -> torch.Tensor:
+    """Per-pixel SSIM of (B, C, H, W) tensors in [0, 1], differentiable.
+
+    ``padding="valid"``: (B, C, H - w + 1, W - w + 1), the Wang et al. / skimage metric map;
+    ``padding="same"``: (B, C, H, W) with zero padding, the 3DGS training-loss map.
+    Population covariance, K1 = 0.01, K2 = 0.03, data range 1.
+    """
+    if pred.shape != target.shape or pred.ndim != 4:
+        raise ValueError(
+            f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
+    if padding not in ("valid", "same"):
+        raise ValueError(f"padding must be 'valid' or 'same', got {padding!r}")
+    if padding == "valid" and min(pred.shape[-2:]) < window_size:
+        raise ValueError(
+            f"'valid' SSIM needs images of at least {window_size}x{window_size}, got {tuple(pred.shape[-2:])}"
+        )
+    window = gaussian_window(window_size, sigma, pred.dtype).to(pred.device)
+    pad = window_size // 2 if padding == "same" else 0
+    mu_x, mu_y = _blur(pred, window, pad), _blur(target, window, pad)
+    var_x = _blur(pred * pred, window, pad) - mu_x**2
+    var_y = _blur(target * target, window, pad) - mu_y**2
+    cov = _blur(pred * target, window, pad) - mu_x * mu_y
+    c1, c2 = (SSIM_K1 * DATA_RANGE) ** 2, (SSIM_K2 * DATA_RANGE) ** 2
+    num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
+    den = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
+    return num / den
+
+
+def ssim(pred, target) -> float:
+    """SSIM (Wang et al., 'valid', float64) between two (H, W, C) images in [0, 1].
+
+    Matches skimage ``structural_similarity(..., gaussian_weights=True, sigma=1.5,
+    use_sample_covariance=False, data_range=1, channel_axis=-1)``.
+    """
+    a, b = _pair_hwc(pred, target, torch.float64)
+    with torch.no_grad():
+        return ssim_map(a, b, padding="valid").mean().item()
+
+
+def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """``1 - mean SSIM`` (3DGS convention: 'same' zero padding) of (B, C, H, W); scalar tensor."""
+    return 1.0 - ssim_map(pred, target, padding="same").mean()
+
+
+def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2) -> torch.Tensor:
+    """3DGS loss ``(1 - lambda) * L1 + lambda * (1 - SSIM)`` of (B, C, H, W) tensors; scalar."""
+    l1 = torch.mean(torch.abs(pred - target))
+    return (1.0 - lambda_dssim) * l1 + lambda_dssim * ssim_loss(pred, target)
+
+
+# ---------------------------------------------------------------------------------------------
+# LPIPS
+# ---------------------------------------------------------------------------------------------
+LPIPS_MIN_SIZE = 32  # AlexNet: stride-4 conv + two 3x3/2 pools before conv3 need >= 32 px per side
+
+
+def lpips_batch(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    net: str = "alex",
+    weights_path: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> torch.Tensor:
+    """LPIPS v0.1 distances (B,) of (B, 3, H, W) tensors in [0, 1]; differentiable in the inputs.
+
+    Weights resolve as in ``spc3d.evaluation.lpips_weights.lpips_weights``; the network is cached per process.
+    """
+    if min(pred.shape[-2:]) < LPIPS_MIN_SIZE:
+        raise ValueError(
+            f"LPIPS needs images of at least {LPIPS_MIN_SIZE}x{LPIPS_MIN_SIZE} pixels (AlexNet's "
+            f"strided layers and pools leave nothing of smaller ones), got {tuple(pred.shape[-2:])}"
+        )
+    model = get_lpips_net(net, weights_path, cache_dir)
+    if model.shift.device != pred.device:
+        model.to(pred.device)
+    return model(pred * 2.0 - 1.0, target * 2.0 - 1.0)
+
+
+def lpips(
+    pred,
+    target,
+    net: str = "alex",
+    weights_path: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> float:
+    """LPIPS v0.1 (``net`` = 'alex' | 'vgg') between two (H, W, 3) sRGB images in [0, 1]."""
+    a, b = _pair_hwc(pred, target, torch.float32)
+    if a.shape[1] != 3:
+        raise ValueError(f"LPIPS needs RGB images (H, W, 3), got {a.shape[1]} channels")
+    with torch.no_grad():
+        return float(lpips_batch(a, b, net, weights_path, cache_dir).item())

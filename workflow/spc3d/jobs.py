@@ -1,0 +1,199 @@
+"""Job glue for the thin rule scripts: logging and per-job benchmarks (:func:`logged`), and the
+config's scenes turned into scene specs, checked against what is on disk (:func:`scene_specs`).
+
+Top of the package: it may import any room (scene inputs, captures) and nothing imports it but
+the config layer, the rules and the scripts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import resource
+import time
+from pathlib import Path
+
+from spc3d.names import ConfigError
+
+
+@contextlib.contextmanager
+def logged(log_path: str):
+    """Send stdout, stderr and ``logging`` of a rule script to its log file; log the wall time and
+    write the job's benchmark (:func:`write_benchmark`, beside the log under ``benchmarks/``).
+
+    Every rule script enters here, so this is also where the job's process is set up: freed
+    memory is kept for reuse (:func:`spc3d.runtime.keep_freed_memory`: without it the large
+    tensors of every training step are faulted in, and zero-filled by the kernel, afresh).
+    """
+    from spc3d.runtime import keep_freed_memory
+
+    keep_freed_memory()
+    Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+    with open(log_path, "w", buffering=1) as f, contextlib.redirect_stdout(f), contextlib.redirect_stderr(f):
+        logging.basicConfig(
+            stream=f, level=logging.INFO, force=True, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+        )
+        t0, status = time.perf_counter(), "failed"
+        try:
+            yield
+            status = "ok"
+        except Exception:
+            logging.exception("failed after %.1f s", time.perf_counter() - t0)
+            raise
+        finally:
+            write_benchmark(benchmark_path(log_path), time.perf_counter() - t0, status)
+        logging.info("done in %.1f s", time.perf_counter() - t0)
+
+
+BENCHMARK_COLUMNS = ("s", "user_s", "sys_s", "max_rss_mb", "status")
+
+
+def benchmark_path(log_path: str | os.PathLike) -> Path | None:
+    """``logs/{rule}/x.log`` -> ``benchmarks/{rule}/x.tsv`` (None for a log outside ``logs/``)."""
+    parts = Path(log_path).parts
+    if len(parts) < 2 or parts[0] != "logs":
+        return None
+    return Path("benchmarks", *parts[1:]).with_suffix(".tsv")
+
+
+def write_benchmark(path: Path | None, wall_s: float, status: str) -> None:
+    """One TSV row of what the job's process (and any child it waited for) used: wall, user and
+    system CPU seconds, peak resident memory (MB), whether it succeeded.
+
+    The job measures itself, exactly and for free (``getrusage``). Snakemake's ``benchmark:``
+    directive instead samples the job from outside through ``/proc/{pid}/smaps`` (twice a second
+    for the first 15 s, then every 30 s): about 10 ms of kernel time a sample for a process with
+    torch loaded, a third of the system time of the default run, and it can miss a short peak.
+    """
+    if path is None:
+        return
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    peak_kb = max(own.ru_maxrss, children.ru_maxrss)  # kilobytes on Linux
+    row = (
+        f"{wall_s:.2f}",
+        f"{own.ru_utime + children.ru_utime:.2f}",
+        f"{own.ru_stime + children.ru_stime:.2f}",
+        f"{peak_kb / 1024:.1f}",
+        status,
+    )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\t".join(BENCHMARK_COLUMNS) + "\n" + "\t".join(row) + "\n")
+    os.replace(tmp, path)
+
+
+def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
+    """Scene name -> spec for :func:`spc3d.inputs.build.prepare_scene`, checking every name in the config."""
+    res, llff_scenes, captures = config["resolution"], config["llff_scenes"], config.get("captures", {})
+    specs = {}
+    for role in ("train", "eval"):
+        for name in config["scenes"][role]:
+            if name in captures:
+                specs[name] = capture_spec(name, captures[name], role, config, base_dir)
+            elif name in llff_scenes:
+                specs[name] = real_scene_spec(name, Path(base_dir) / llff_scenes[name], res)
+            elif name in builtin_layouts:
+                specs[name] = {
+                    "kind": "builtin",
+                    "layout": name,
+                    "height": res["height"],
+                    "width": res["width"],
+                    "views": config["builtin"]["views"],
+                    "supersample": config["builtin"]["supersample"],
+                    "seed": config["seed"],
+                }
+            else:
+                raise ConfigError(
+                    f"scenes.{role}: unknown scene {name!r}; use a built-in layout "
+                    f"({', '.join(builtin_layouts)}), add it to llff_scenes as name: folder, "
+                    "or to captures as name: capture folder"
+                )
+    overlap = set(config["scenes"]["train"]) & set(config["scenes"]["eval"])
+    if overlap:
+        raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
+    check_disjoint_content(config["scenes"]["train"], config["scenes"]["eval"])
+    return specs
+
+
+def real_scene_spec(name: str, path: Path, res: dict) -> dict:
+    """The spec of a real RGB scene: an LLFF folder (checked now, not in a job) or a COLMAP-format one."""
+    from spc3d.inputs.build import scene_layout
+
+    try:
+        layout = scene_layout(path)
+    except FileNotFoundError as e:
+        raise ConfigError(f"llff_scenes.{name}: {path} is not an LLFF folder nor a COLMAP-format one: {e}") from None
+    if layout == "colmap":
+        return {"kind": "colmap", "path": str(path), "factor": 1, "width": res["width"], "undistort": True}
+    llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")
+    return {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
+
+
+def capture_spec(name: str, entry: str | dict, role: str, config: dict, base_dir: str | Path = ".") -> dict:
+    """The spec of a captured SPAD scene (:mod:`spc3d.captures.folders`), its sensor.json checked now.
+    ``entry``: the folder, or {"path": folder, and sensor settings that replace sensor.json's}."""
+    from spc3d.captures.importing import capture_sensor
+
+    where = f"captures.{name}"
+    entry = {"path": entry} if isinstance(entry, str) else dict(entry)
+    path, overrides = Path(base_dir) / entry.pop("path"), entry
+    if role != "eval":
+        raise ConfigError(
+            f"scenes.train lists capture {name!r}: translators train on simulated scenes (RGB truth and "
+            "photons drawn from it); list captures in scenes.eval"
+        )
+    if not (path / "sensor.json").is_file():
+        raise ConfigError(f"{where}: {path} is not a capture folder (no sensor.json; see spc3d.captures.folders)")
+    try:
+        tag, sensor = capture_sensor(path, overrides)
+    except (ValueError, FileNotFoundError) as e:
+        raise ConfigError(f"{where}: {e}") from None
+    return {
+        "kind": "capture",
+        "path": str(path),
+        "overrides": overrides,
+        "sensor_tag": tag,
+        "sensor": sensor,
+        "reference": (path / "images").is_dir(),
+        "max_features": config["colmap"]["max_features"],
+        "seed": config["seed"],
+    }
+
+
+def folder_files(path: str | Path) -> list[str]:
+    """Every file of a capture or COLMAP-format scene folder (sensor.json, frames, reference views,
+    poses, sparse model): rule inputs, so an edit reruns the scene and what follows."""
+    path = Path(path)
+    files = [p for p in sorted(path.rglob("*")) if p.is_file() and not any(s.startswith(".") for s in p.parts)]
+    return [str(p) for p in files]
+
+
+def check_disjoint_content(train: list[str], evaluate: list[str]) -> None:
+    """No texture, object or background of a built-in evaluation scene may appear in a training one."""
+    from spc3d.inputs.scenes import LAYOUT_ROLES, shared_content
+
+    shared = shared_content(train, evaluate)
+    if shared:
+        seen = "; ".join(f"{src!r} in {'/'.join(a)} and {'/'.join(b)}" for src, (a, b) in list(shared.items())[:4])
+        pools = {role: [n for n, r in LAYOUT_ROLES.items() if r == role] for role in ("train", "eval")}
+        raise ConfigError(
+            f"scenes.train and scenes.eval share content ({seen}{' ...' if len(shared) > 4 else ''}): "
+            f"evaluation scenes must be unseen in training; train on {pools['train']} and evaluate "
+            f"on {pools['eval']}"
+        )
+
+
+def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") -> list[str]:
+    """The files a real LLFF scene is read from (poses_bounds.npy and every image of the folder at
+    ``factor``), after checking the folder (:func:`spc3d.llff.llff_contents`): declared as rule
+    inputs, so editing one image reruns that scene and what follows."""
+    from spc3d.llff import llff_contents
+
+    try:
+        images, _ = llff_contents(path, factor)
+    except FileNotFoundError as e:
+        raise ConfigError(f"{where}: {e} (resolution.llff_factor={factor})") from None
+    except ValueError as e:
+        raise ConfigError(f"{where}: {e}") from None
+    return [str(Path(path) / "poses_bounds.npy"), *map(str, images)]

@@ -1,0 +1,284 @@
+"""The workflow's vocabulary: stage-1 methods, sources and their grammar, combinations and their
+photon budgets, labels, and the config turned into SPC / translator settings.
+
+The bottom of the package: torch-free (its one spc3d import, :mod:`spc3d.models`, is too), so
+parsing the Snakefile stays fast and every room may use it. Nothing here knows about Snakemake
+objects or files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from spc3d import models
+
+
+class ConfigError(ValueError):
+    """A config value that passed the JSON schema but is still wrong (e.g. an unknown scene)."""
+
+
+# Stage-1 methods and stage-2 models: the model specs' names (spc3d.models). ``prior`` is the
+# translators' untrained start (the blurred-MLE physics prior alone): a method without training, so
+# that what learning adds is a row of its own. PLAIN_SOURCES: the stage-2 sources without stage 1.
+STAGE1_METHODS = tuple(models.TRANSLATORS)
+TRAINED_METHODS = tuple(n for n, spec in models.TRANSLATORS.items() if spec.trained)  # with a published form
+PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
+STAGE2_MODELS = tuple(models.RECONSTRUCTORS)
+# Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
+# the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
+BUDGET_SOURCES = ("mle", "bernoulli")
+# The single-frame sources that read the capture-resolution frame (spc.capture_factor) at K = 1.
+CAPTURE_SOURCES = ("none", "mle")
+# Where each image source's views are: (input folder kind, subfolder). "scene" is results/scenes/{scene},
+# "spc" results/spc/{scene}, "display" the metered MLE folder of the row's budget, "translated" a
+# stage-1 method's outputs. ``bernoulli`` trains on the frames themselves (no images).
+SOURCE_IMAGES = {
+    "gt": ("scene", "images"),
+    "none": ("spc", "binary"),
+    "mle": ("display", "images"),
+    **{m: ("translated", "images") for m in STAGE1_METHODS},
+}
+# How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
+LABELS = {
+    **{name: spec.label for name, spec in models.TRANSLATORS.items()},
+    "mle": "MLE",
+    "none": "binary frame (no stage 1)",
+    "gt": "ground truth",
+    "bernoulli": "SPAD likelihood on binary",
+}
+# What each source-name suffix means (after an optional "-k<K>", in this order), for labels and errors.
+SUFFIXES = {
+    "-x1": "the frame at the working resolution (not the capture-resolution frame)",
+    "-pub": "the published network (prior_sigma: 0), not a residual over the physics prior",
+    "-mse": "3DGS fitted with MSE instead of 0.8 L1 + 0.2 D-SSIM (the mean of the targets, not their median)",
+}
+
+
+@dataclass(frozen=True)
+class SourceName:
+    """A stage-2 source name taken apart: ``base[-k<K>][-x1][-pub][-mse]``.
+
+    ``k``: its own frame budget (mle, bernoulli); ``x1``: a single-frame source (none, mle) at the
+    working resolution instead of the capture-resolution frame; ``pub``: a translator's published
+    network; ``mse``: an image source fitted with MSE by 3DGS."""
+
+    base: str
+    k: int | None = None
+    x1: bool = False
+    pub: bool = False
+    mse: bool = False
+
+    @property
+    def method(self) -> str | None:
+        """The stage-1 model folder it reads (``pix2pixhd-pub``), None for a source without stage 1."""
+        return self.base + "-pub" * self.pub if self.base in STAGE1_METHODS else None
+
+    @property
+    def images(self) -> str:
+        """The source's image set without the stage-2 loss (``none-x1`` for ``none-x1-mse``): what
+        stage 1 scores."""
+        return str(dataclasses.replace(self, mse=False))
+
+    def __str__(self) -> str:
+        return self.base + (f"-k{self.k}" if self.k else "") + "-x1" * self.x1 + "-pub" * self.pub + "-mse" * self.mse
+
+
+def parse_source(source: str) -> SourceName:
+    """``SourceName`` of ``source`` (suffixes stripped from the end, in the order of :data:`SUFFIXES`);
+    unknown parts stay in ``base``, which :func:`check_source` then rejects."""
+    rest, flags = source, {}
+    for suffix in reversed(SUFFIXES):
+        if rest.endswith(suffix) and len(rest) > len(suffix):
+            rest, flags[suffix[1:]] = rest[: -len(suffix)], True
+    base, sep, k = rest.partition("-k")
+    if not (sep and k.isdigit() and int(k) >= 1):
+        return SourceName(rest, None, **flags)
+    return SourceName(base, int(k), **flags)
+
+
+def split_source(source: str) -> tuple[str, int | None]:
+    """("mle", 16) for "mle-k16"; (base, None) without a frame suffix."""
+    name = parse_source(source)
+    return name.base, name.k
+
+
+def source_label(source: str, labels: dict[str, str] = LABELS, frames: bool = True) -> str:
+    """A source's name for tables and figures: its base's label and what each suffix means (with
+    its own frame budget unless ``frames`` is False: a table states K in a column of its own)."""
+    name = parse_source(source)
+    extras = [f"K = {name.k}" if name.k and frames else None] + [
+        text.split(" (")[0] for suffix, text in SUFFIXES.items() if getattr(name, suffix[1:])
+    ]
+    return labels.get(name.base, name.base) + "".join(f"; {e}" for e in extras if e)
+
+
+def source_frames(source: str, stage1_frames: int, stage2_frames: int) -> int | None:
+    """Binary frames per view a source consumes (its photon budget K); None for the oracle ``gt``."""
+    name = parse_source(source)
+    if name.base == "gt":
+        return None
+    if name.base == "none":
+        return 1
+    if name.base in STAGE1_METHODS:
+        return stage1_frames
+    return name.k or stage2_frames
+
+
+def reads_capture_frame(source: str, stage2_frames: int) -> bool:
+    """Whether a row reads the capture-resolution frame (``spc/{scene}/capture``, spc.capture_factor²
+    bits per working pixel): ``none`` and ``mle`` at K = 1 without ``-x1`` (the paper-faithful
+    single stage: a loader area-downsampling a binary image taken at the camera's resolution)."""
+    name = parse_source(source)
+    return name.base in CAPTURE_SOURCES and not name.x1 and source_frames(source, 1, stage2_frames) == 1
+
+
+def as_read(combination: str, K, S) -> str:
+    """The combination under the name of the frame it read: a capture has no capture-resolution
+    frame, so its ``none`` / ``mle`` runs at K = 1 record S = 1 and are ``-x1`` rows (a record
+    without S keeps its name)."""
+    source, sep, model = combination.partition("+")
+    name = parse_source(source)
+    if K == 1 and S == 1 and name.base in CAPTURE_SOURCES and not name.x1:
+        return str(dataclasses.replace(name, x1=True)) + sep + model
+    return combination
+
+
+def source_images(source: str, stage2_frames: int) -> tuple[str, str]:
+    """(folder kind, subfolder) of an image source's views (:data:`SOURCE_IMAGES`; the capture frame
+    for :func:`reads_capture_frame`)."""
+    kind, sub = SOURCE_IMAGES[parse_source(source).base]
+    if reads_capture_frame(source, stage2_frames) and kind == "spc":
+        return kind, "capture"
+    return kind, sub
+
+
+def display_budget(source: str, stage2_frames: int) -> str:
+    """The metered display a physics source reads: ``k{K}`` (its first K frames) or ``capture``."""
+    if reads_capture_frame(source, stage2_frames):
+        return "capture"
+    return f"k{source_frames(source, 1, stage2_frames)}"
+
+
+def parse_combination(combo: str) -> tuple[str, str, str | None]:
+    """("bernoulli", "3dgs", "mle-k16") for "bernoulli+3dgs@mle-k16"; poses None for the scene's
+    (ground-truth) cameras. After "@": the image source COLMAP poses the training views from
+    (:mod:`spc3d.poses.estimate`)."""
+    head, _, poses = combo.partition("@")
+    source, _, model = head.partition("+")
+    return source, model, poses or None
+
+
+def check_pose_source(poses: str, combo: str, where: str) -> None:
+    name = parse_source(poses)
+    if (
+        name.base not in SOURCE_IMAGES
+        or name.x1
+        or name.mse
+        or (poses != name.base and (name.k is None or name.base != "mle"))
+    ):
+        raise ConfigError(
+            f"{where}: {combo!r}: poses from {poses!r}? After '@' name the images COLMAP poses the "
+            f"training views from: {sorted(SOURCE_IMAGES)} (mle may take '-k<K>'), e.g. 'bernoulli+3dgs@mle-k16'"
+        )
+
+
+def check_source(source: str, combo: str, where: str) -> None:
+    """A stage-2 source name: a known base with only the suffixes that apply to it."""
+    name = parse_source(source)
+    known = f"use one of {list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}"
+    problems = {
+        f"unknown source {name.base!r}; {known}, with the suffixes {list(SUFFIXES)}": name.base
+        not in PLAIN_SOURCES + STAGE1_METHODS,
+        f"only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' (translators use stage1.frames, "
+        "'none' is one frame, 'gt' none)": name.k is not None and name.base not in BUDGET_SOURCES,
+        f"'-x1' ({SUFFIXES['-x1']}) applies to {list(CAPTURE_SOURCES)} at one frame per view only": name.x1
+        and (name.base not in CAPTURE_SOURCES or (name.k or 1) > 1),
+        f"'-pub' ({SUFFIXES['-pub']}) applies to the trained methods {list(TRAINED_METHODS)}": name.pub
+        and name.base not in TRAINED_METHODS,
+        f"'-mse' ({SUFFIXES['-mse']}) applies to {list(CAPTURE_SOURCES)}": name.mse
+        and name.base not in CAPTURE_SOURCES,
+        f"write its suffixes in the order -k<K>, -x1, -pub, -mse ({str(name)!r})": str(name) != source,
+    }
+    for problem, bad in problems.items():
+        if bad:
+            raise ConfigError(f"{where}: {combo!r}: {problem}")
+
+
+def resolve_combinations(combinations: list[str], nerf_variant: str, where: str = "stage2.combinations") -> list[str]:
+    """``source+model[@poses]`` names with the family ``nerf`` resolved to the configured NeRF variant."""
+    out = []
+    for combo in combinations:
+        source, model, poses = parse_combination(combo)
+        if "+" not in combo or not source or model not in STAGE2_MODELS:
+            raise ConfigError(
+                f"{where}: {combo!r} must be 'source+model' (or 'source+model@poses') "
+                f"with model one of {', '.join(STAGE2_MODELS)} (spc3d.models)"
+            )
+        if poses is not None:
+            check_pose_source(poses, combo, where)
+        check_source(source, combo, where)
+        resolved = f"{source}+{nerf_variant if model == 'nerf' else model}"
+        out.append(resolved + (f"@{poses}" if poses else ""))
+    return list(dict.fromkeys(out))
+
+
+def combination_sources(combinations: list[str]) -> set[str]:
+    """Every image or frame source the combinations read: their sources and their pose sources."""
+    return {s for c in combinations for s in parse_combination(c)[::2] if s}
+
+
+def stage1_sources(combinations: list[str]) -> list[str]:
+    """The stage-1 model folders the combinations need (registry order, each method's published
+    form after it), as sources or pose sources."""
+    used = {parse_source(s).method for s in combination_sources(combinations)}
+    return [m for base in STAGE1_METHODS for m in (base, f"{base}-pub") if m in used]
+
+
+def display_budgets(combinations: list[str], stage2_frames: int) -> list[str]:
+    """The metered displays (``k{K}`` or ``capture``, :func:`display_budget`) the combinations need:
+    mle / bernoulli rows, and MLE images that pose a row."""
+    used = combination_sources(combinations)
+    budgets = {display_budget(s, stage2_frames) for s in used if parse_source(s).base in BUDGET_SOURCES}
+    return sorted(budgets, key=lambda b: (b == "capture", int(b[1:]) if b != "capture" else 0))
+
+
+# The spc block's keys that are the camera's physics (spc3d.physics.spc.SPCParams); the others set its exposure.
+SPC_PHYSICS = ("mode", "q", "tau_d", "exposure_s", "dark_count_rate", "frames")
+
+
+def spc_settings(spc: dict, seed: int, frames: int | None = None, detection: float | None = None) -> dict:
+    """Arguments of :func:`spc3d.inputs.build.simulate_scene` from the config's ``spc`` block: the physics,
+    the exposure (a fixed ``flux_scale``, or calibration to ``target_detection``), the capture
+    frame's resolution factor and the seed. ``frames`` overrides K stored per view; ``detection``
+    sets a calibration target (whatever ``flux_scale`` says), as a sweep's ``K`` and ``detection``
+    knobs do."""
+    physics = {k: spc[k] for k in SPC_PHYSICS}
+    if frames is not None:
+        physics["frames"] = frames
+    exposure = (None, detection) if detection is not None else (spc["flux_scale"], spc["target_detection"])
+    return {
+        "physics": physics,
+        "flux_scale": exposure[0],
+        "target_detection": exposure[1],
+        "capture_factor": spc.get("capture_factor", 1),
+        "seed": seed,
+    }
+
+
+def translator_settings(stage1: dict, method: str) -> tuple[dict, dict]:
+    """(model overrides, training settings) of ``method`` (a model folder name: ``pix2pixhd-pub`` is
+    pix2pixhd's block with ``prior_sigma: 0``, the published network): its ``train`` block overrides
+    stage1.train (its ``validation`` block is :func:`translator_validation`'s)."""
+    name = parse_source(method)
+    settings = dict(stage1.get(name.base) or {})
+    train = {**stage1.get("train", {}), **settings.pop("train", {})}
+    settings.pop("validation", None)
+    if name.pub:
+        settings["prior_sigma"] = 0.0
+    return settings, train
+
+
+def translator_validation(stage1: dict, method: str) -> dict:
+    """stage1.validation, overridden by the method's own ``validation`` block."""
+    return {**stage1.get("validation", {}), **(stage1.get(parse_source(method).base) or {}).get("validation", {})}

@@ -1,0 +1,209 @@
+"""Stage 2: fit a reconstructor to one scene's source images and render its held-out views.
+
+``reconstruct`` is the entry point of the workflow's ``reconstruct`` rule. Output folder
+(``results/recon/{scene}/{source}+{model}/``), written atomically at the end:
+
+    renders/{view}.png   the held-out (every 8th) views rendered in sRGB
+    train.json           model, source, objective, seed, resolved settings, iterations, training and
+                         rendering wall time, capacity (Gaussians / voxels / parameters, peak memory)
+
+The checkpoint lives outside that folder (``checkpoint``, e.g. ``results/checkpoints/...``) so
+that Snakemake's clean-up of an interrupted job's outputs keeps it: a rerun resumes from it, but
+only when its fingerprint (resolved settings, seed, source, input digests, code) is the job's own
+(:mod:`spc3d.checkpoints`); a checkpoint of other settings is discarded, with the reason logged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import torch
+
+from spc3d import io, llff
+from spc3d.cameras import Cameras, split_views
+from spc3d.checkpoints import Checkpoint, CheckpointPolicy, digest_path, fingerprint
+from spc3d.poses.colmap import sparse_points
+from spc3d.poses.estimate import NoPoses, poses_summary
+from spc3d.reconstruct import RECONSTRUCTORS
+from spc3d.reconstruct.sources import load_source, with_estimated_poses
+from spc3d.training import peak_rss_mb, run, seed_everything
+
+log = logging.getLogger(__name__)
+
+
+@runtime_checkable
+class RefinesCameras(Protocol):
+    """The optional hook of a trainer that learns corrections of its training cameras (3DGS under
+    ``pose_refine``): held-out views are rendered in its own world, after re-aligning its corrected
+    training cameras with the reference ones (``train``: the reference cameras of its views)."""
+
+    def heldout_cameras(self, train: Cameras, test: Cameras) -> Cameras: ...
+
+
+def reconstruct(
+    scene_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    source: str,
+    model: str,
+    settings: dict,
+    seed: int = 0,
+    spc_dir: str | os.PathLike | None = None,
+    image_dir: str | os.PathLike | None = None,
+    checkpoint: str | os.PathLike | None = None,
+    frames: int | None = 1,
+    threads: int | None = None,
+    points_dir: str | os.PathLike | None = None,
+    policy: CheckpointPolicy = CheckpointPolicy(),
+    input_digests: dict | None = None,
+    display_dir: str | os.PathLike | None = None,
+    init_setting: str | None = None,
+    poses_dir: str | os.PathLike | None = None,
+) -> dict:
+    """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
+
+    ``frames``: binary frames per view the source consumes (its photon budget K, recorded; the
+    bernoulli source fits that many; None for the oracle ``gt``); ``capture_factor`` in the record
+    is the S of a source reading the capture-resolution frame (S x S sensor pixels per working
+    pixel; 1 otherwise): with K, the row's budget. ``display_dir``: the metered MLE
+    folder of that budget (mle and bernoulli sources, :mod:`spc3d.inputs.exposure`).
+    ``init_setting``: the config's ``stage2.init``, recorded beside what was actually done.
+    ``poses_dir``: an ``estimate_poses`` folder (:mod:`spc3d.poses.estimate`): train on the training views
+    COLMAP posed, at their estimated cameras, instead of the scene's; the row's budget K is then
+    the larger of its source's and its pose source's. Too few posed views: the record says so and
+    nothing is rendered (evaluate scores no row).
+
+    ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
+    initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
+    ``policy``: when the checkpoint is written (every 10 % of the run or 10 minutes by default).
+    ``input_digests``: what identifies the inputs in the checkpoint's fingerprint, instead of digests
+    of the input folders (for a caller that rebuilds them identically on every attempt, as a sweep
+    point does: their records' timings differ each time).
+    """
+    if model not in RECONSTRUCTORS:
+        raise ValueError(f"unknown stage-2 model {model!r}; choose one of {sorted(RECONSTRUCTORS)}")
+    if threads:
+        torch.set_num_threads(threads)
+    seed_everything(seed)
+    src = load_source(source, scene_dir, spc_dir, image_dir, frames or 1, display_dir)
+    poses = "ground truth (the scene's cameras)"
+    if poses_dir is not None:
+        poses = poses_summary(poses_dir)
+        spent = [k for k in (frames, poses["frames"]) if k is not None]  # the frames that posed the views count
+        frames = max(spent) if spent else None
+        try:
+            src = with_estimated_poses(src, poses_dir)
+        except NoPoses as e:
+            log.warning("%s", e)
+            return write_unposed(
+                scene_dir,
+                out_dir,
+                {"model": model, "source": source, "seed": seed, "frames": frames, "poses": poses, "status": str(e)},
+            )
+    points, init = initial_points(points_dir)
+    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
+    log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
+    meta = {
+        "model": model,
+        "source": source,
+        "objective": getattr(src.objective, "name", "rgb"),
+        "loss": "mse" if getattr(src.objective, "kind", None) == "mse" else "the model's own",
+        "seed": seed,
+        "settings": dataclasses.asdict(cfg),
+        "frames": frames,
+        "capture_factor": src.capture_factor,
+        "poses": poses,
+        "train_views": len(src.views.names),
+        "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},
+        "display": display_record(display_dir),
+    }
+    ckpt = (
+        Checkpoint(
+            checkpoint,
+            fingerprint(
+                "reconstruct",
+                meta,
+                input_digests
+                or {
+                    "scene": digest_path(scene_dir),
+                    "spc": digest_path(spc_dir),
+                    "images": digest_path(image_dir),
+                    "points": digest_path(points_dir),
+                    "display": digest_path(display_dir),
+                    "poses": digest_path(poses_dir),
+                },
+            ),
+        )
+        if checkpoint
+        else None
+    )
+    result = run(
+        trainer,
+        iterations,
+        ckpt,
+        policy,
+        desc=f"{source}+{model}",
+        postfix=lambda stats: {k: v for k, v in trainer.capacity().items() if isinstance(v, int)},
+    )
+    record = {
+        **{k: v for k, v in result.items() if k != "final"},
+        "final_loss": result["final"].get("loss"),
+        "final_train_psnr": result["final"].get("psnr"),
+        "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()},
+    }
+    if getattr(trainer, "poses", None) is not None:
+        record["pose_corrections"] = trainer.poses.magnitude()
+    render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
+    return record | meta | {"render_s": render_s}
+
+
+def write_unposed(scene_dir, out_dir, record: dict) -> dict:
+    """The folder of a row whose views COLMAP could not pose: ``train.json`` with the reason, no renders."""
+    scene = llff.read_scene(scene_dir, with_images=False)
+    test = [scene.names[i] for i in split_views(len(scene.names))[1]]
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        io.write_json(tmp / "train.json", record | {"test_views": test})
+    return record
+
+
+def display_record(display_dir) -> dict | None:
+    """The metered display gain a row used (mle / bernoulli), for its record."""
+    if display_dir is None:
+        return None
+    rec = io.read_json(Path(display_dir) / "display.json")
+    return {k: rec[k] for k in ("K", "gain", "level", "gain_likelihood", "level_likelihood", "rule")}
+
+
+def initial_points(points_dir) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
+    """(sparse points or None, how the model was initialised) for the record."""
+    if points_dir is None:
+        return None, "random"
+    try:
+        xyz, rgb = sparse_points(points_dir)
+    except ValueError as e:
+        log.warning("random initialisation: %s", e)
+        return None, f"random ({e})"
+    return (xyz, rgb), f"colmap sparse points ({len(xyz)}) from {points_dir}"
+
+
+def write_renders(trainer, scene_dir, out_dir, record: dict) -> float:
+    """Render every held-out view into ``out_dir/renders`` and write ``train.json``, atomically."""
+    scene = llff.read_scene(scene_dir, with_images=False)
+    _, test = split_views(len(scene.names))
+    cams = scene.cameras.subset(test)
+    if isinstance(trainer, RefinesCameras):
+        index = {n: i for i, n in enumerate(scene.names)}
+        cams = trainer.heldout_cameras(scene.cameras.subset([index[n] for n in trainer.views.names]), cams)
+    t0 = time.perf_counter()
+    with io.atomic_path(out_dir, is_dir=True) as tmp:
+        for j, i in enumerate(test):
+            image = trainer.render(cams, j).detach().cpu().numpy()
+            io.write_image(tmp / "renders" / f"{scene.names[i]}.png", np.clip(image, 0.0, 1.0))
+        render_s = time.perf_counter() - t0
+        io.write_json(tmp / "train.json", record | {"render_s": render_s, "test_views": [scene.names[i] for i in test]})
+    return render_s
