@@ -16,7 +16,7 @@ from spc3d.inputs import exposure
 from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
-from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 
 TINY_3DGS = {"iterations": 8, "densify_from": 4, "densify_until": 6, "densify_every": 2, "init_points": 200}
 VIEWS, K, S = 9, 2, 2
@@ -107,16 +107,18 @@ def test_a_stage2_fit_is_unchanged(pair):
     for source in (f"mle-k{K}", f"bernoulli-k{K}"):
         rec = {
             side: reconstruct(
-                root / side / "tabletop",
-                root / side / "recon" / source,
-                source,
-                "3dgs",
-                TINY_3DGS,
-                seed=1,
-                spc_dir=root / side / "spc",
-                frames=K,
-                display_dir=root / side / f"mle-k{K}",
-                threads=1,
+                ReconstructJob(
+                    root / side / "tabletop",
+                    root / side / "recon" / source,
+                    source,
+                    "3dgs",
+                    TINY_3DGS,
+                    seed=1,
+                    spc_dir=root / side / "spc",
+                    frames=K,
+                    display_dir=root / side / f"mle-k{K}",
+                    threads=1,
+                )
             )
             for side in "ab"
         }

@@ -13,7 +13,7 @@ from spc3d.evaluation.evaluate import evaluate
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.names import ConfigError, parse_combination, resolve_combinations
 from spc3d.poses.estimate import NoPoses, estimate_poses, estimated_views, filled_bounds
-from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 
 TINY_3DGS = {"iterations": 30, "densify_from": 10, "densify_until": 25, "densify_every": 5, "init_points": 500}
 
@@ -52,15 +52,17 @@ def test_colmap_poses_the_training_views_only_and_aligns_them(posed):
 def test_stage2_trains_on_the_estimated_cameras_and_is_scored_in_the_reference_frame(posed, tmp_path, lpips_cache):
     root, record = posed
     rec = reconstruct(
-        root / "scene",
-        tmp_path / "recon",
-        "gt",
-        "3dgs",
-        TINY_3DGS,
-        seed=0,
-        poses_dir=root / "poses",
-        threads=1,
-        frames=None,  # the oracle consumes no photons; neither did its RGB poses
+        ReconstructJob(
+            root / "scene",
+            tmp_path / "recon",
+            "gt",
+            "3dgs",
+            TINY_3DGS,
+            seed=0,
+            poses_dir=root / "poses",
+            threads=1,
+            frames=None,  # the oracle consumes no photons; neither did its RGB poses
+        )
     )
     assert rec["train_views"] == record["registered"]
     assert rec["poses"]["kind"] == "estimated (COLMAP)" and rec["poses"]["source"] == "gt" and rec["frames"] is None
@@ -79,7 +81,9 @@ def test_too_few_posed_views_is_a_recorded_row_not_a_crash(posed, tmp_path, lpip
     assert rec["status"].startswith("failed: ") and rec["cameras"] is None
     with pytest.raises(NoPoses, match="no poses from 'none'"):
         estimated_views(["image001"], tmp_path / "poses")
-    out = reconstruct(root / "scene", tmp_path / "recon", "gt", "3dgs", TINY_3DGS, poses_dir=tmp_path / "poses")
+    out = reconstruct(
+        ReconstructJob(root / "scene", tmp_path / "recon", "gt", "3dgs", TINY_3DGS, poses_dir=tmp_path / "poses")
+    )
     assert out["status"].startswith(f"{tmp_path / 'poses'}: no poses") and out["frames"] == 1
     assert not (tmp_path / "recon" / "renders").exists()
     scores = evaluate(tmp_path / "recon", root / "scene", tmp_path / "metrics.json", lpips_cache)

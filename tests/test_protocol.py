@@ -10,9 +10,9 @@ from spc3d.inputs.augment import AugmentSettings, augment_scene
 from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
-from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 from spc3d.translate.apply import translate_scene
-from spc3d.translate.train import train_translator
+from spc3d.translate.train import TranslatorJob, train_translator, training_data
 
 TINY_3DGS = {"iterations": 8, "densify_from": 4, "densify_until": 6, "densify_every": 2, "init_points": 200}
 TINY_PIX2PIX = {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2}
@@ -57,7 +57,9 @@ def _products(root, out):
         "pix2pix": {"image_dir": out / "translate" / "images"},
     }
     for source, kw in runs.items():
-        reconstruct(scene, out / source, source, "3dgs", TINY_3DGS, seed=1, spc_dir=frames, threads=1, **kw)
+        reconstruct(
+            ReconstructJob(scene, out / source, source, "3dgs", TINY_3DGS, seed=1, spc_dir=frames, threads=1, **kw)
+        )
     return sorted(p for p in out.rglob("*.png"))
 
 
@@ -71,12 +73,14 @@ def test_replacing_the_ground_truth_changes_no_non_oracle_image_or_render(tmp_pa
     augment_scene(root / "scenes" / "tabletop", root / "spc" / "tabletop", root / "augment", 4, AugmentSettings())
     exposure.calibrate_display([root / "scenes" / "tabletop"], [root / "spc" / "tabletop"], 2, root / "display-k2.json")
     train_translator(
-        "pix2pix",
-        [root / "augment"],
-        root / "model",
-        TINY_PIX2PIX,
-        {"iterations": 2, "batch_size": 2, "crop": 16},
-        threads=1,
+        TranslatorJob(
+            "pix2pix",
+            training_data("fixed", [root / "augment"]),
+            root / "model",
+            TINY_PIX2PIX,
+            {"iterations": 2, "batch_size": 2, "crop": 16},
+            threads=1,
+        )
     )
     before = _products(root, root / "a")
     images = sorted((root / "scenes" / "courtyard" / "images").glob("*.png"))
@@ -87,7 +91,9 @@ def test_replacing_the_ground_truth_changes_no_non_oracle_image_or_render(tmp_pa
     assert len(before) == 4 * 2 + 3 * 9  # renders of 4 rows (2 held-out views), MLE, translated and prior views
     for a, b in zip(before, after):
         assert a.read_bytes() == b.read_bytes(), a.relative_to(root / "a")
-    oracle = reconstruct(root / "scenes" / "courtyard", root / "gt", "gt", "3dgs", TINY_3DGS, seed=1, threads=1)
+    oracle = reconstruct(
+        ReconstructJob(root / "scenes" / "courtyard", root / "gt", "gt", "3dgs", TINY_3DGS, seed=1, threads=1)
+    )
     assert oracle["iterations"] == TINY_3DGS["iterations"]  # the oracle row does read the (new) ground truth
     assert not np.array_equal(
         io.read_rgb(root / "gt" / "renders" / "image000.png"),

@@ -34,7 +34,7 @@ from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.exposure import calibrate_display, write_display
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
-from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 
 from conftest import REPO, child_processes, process_alive, run_snakemake, snakemake_process, wait_until
 
@@ -323,15 +323,17 @@ def test_same_seed_same_result(scene, tmp_path, source, model, settings):
     try:
         for name, threads in (("a", 1), ("b", 1), ("c", 2), ("d", 2)):
             reconstruct(
-                scene / "scene",
-                tmp_path / name,
-                source,
-                model,
-                settings,
-                seed=7,
-                spc_dir=scene / "spc",
-                threads=threads,
-                display_dir=scene / "display" if source == "bernoulli" else None,
+                ReconstructJob(
+                    scene / "scene",
+                    tmp_path / name,
+                    source,
+                    model,
+                    settings,
+                    seed=7,
+                    spc_dir=scene / "spc",
+                    threads=threads,
+                    display_dir=scene / "display" if source == "bernoulli" else None,
+                )
             )
             runs[name] = _renders(tmp_path / name)
     finally:

@@ -23,7 +23,7 @@ from spc3d.names import (
 )
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.apply import translate_scene
-from spc3d.translate.train import train_translator
+from spc3d.translate.train import TranslatorJob, train_translator, training_data
 
 
 @pytest.mark.parametrize(
@@ -121,11 +121,12 @@ def test_the_prior_method_trains_nothing_and_translates_like_the_residuals_start
                   AugmentSettings(), seed=0)  # fmt: skip
     train = {"iterations": 2, "batch_size": 2, "crop": 16, "log_every": 1}
     torch.set_num_threads(1)
-    rec = train_translator("prior", [tmp_path / "pairs"], tmp_path / "m_prior", {}, train, seed=0)
+    pairs = training_data("fixed", [tmp_path / "pairs"])
+    rec = train_translator(TranslatorJob("prior", pairs, tmp_path / "m_prior", {}, train, seed=0))
     assert rec["iterations"] == 0 and rec["train"]["iterations"] == 0 and rec["parameters"] == {"prior": 0}
     assert rec["prior"]["sigma"] == 2.0 and all(g > 0 for g in rec["prior"]["gain"])
     tiny = TINY_TRANSLATORS["pix2pix"]
-    other = train_translator("pix2pix", [tmp_path / "pairs"], tmp_path / "m_p2p", tiny, train, seed=0)
+    other = train_translator(TranslatorJob("pix2pix", pairs, tmp_path / "m_p2p", tiny, train, seed=0))
     assert other["prior"]["gain"] == pytest.approx(rec["prior"]["gain"])  # the same data: the same gain
     args = (tmp_path / "spc" / "courtyard", tmp_path / "scenes" / "courtyard")
     translate_scene(tmp_path / "m_prior", *args, tmp_path / "t_prior", threads=1)

@@ -263,23 +263,24 @@ def test_the_shared_loop_stops_when_asked(tmp_path):
     assert run(StopAfter(10**6), 5)["steps"] == 5
 
 
-def _online_job(world, tmp_path, iterations=24):
-    return dict(
-        data=train.training_data("online", (), *_dirs(world), {"count": 99, "zoom": [0.9, 1.1]}),
+def _online_job(world, tmp_path, method, settings, train_block, **changes):
+    """An online-data job validating every 4 steps, its model and checkpoint under ``tmp_path``."""
+    job = train.TranslatorJob(
+        method,
+        train.training_data("online", (), *_dirs(world), {"count": 99, "zoom": [0.9, 1.1]}),
+        tmp_path / "model",
+        settings,
+        train_block,
+        seed=1,
         validation={"every": 4, "patience": 2},
         checkpoint=tmp_path / "ckpt.pt",
-        seed=1,
     )
+    return dataclasses.replace(job, **changes)
 
 
 def test_online_training_records_its_data_and_validation(world, tmp_path, scripted):
     train.train_translator(
-        scripted,
-        [],
-        tmp_path / "model",
-        {},
-        {"iterations": 30, "crop": 16, "log_every": 4, "batch_size": 2},
-        **_online_job(world, tmp_path),
+        _online_job(world, tmp_path, scripted, {}, {"iterations": 30, "crop": 16, "log_every": 4, "batch_size": 2})
     )
     rec = io.read_json(tmp_path / "model" / "train.json")
     assert rec["data"]["mode"] == "online" and rec["data"]["samples"] == rec["data"]["distinct_samples"]
@@ -304,39 +305,19 @@ def test_a_killed_run_resumes_exactly(world, tmp_path, scripted):
     train_block = {"iterations": 20, "crop": 16, "log_every": 4, "batch_size": 2, "decay_from": 0.5}
     full_dir, part_dir = tmp_path / "full", tmp_path / "part"
     full_dir.mkdir(), part_dir.mkdir()
-    full = train.train_translator(
-        "restormer",
-        [],
-        full_dir / "model",
-        TINY_RESTORMER,
-        train_block,
-        **_online_job(world, full_dir) | {"validation": {"every": 4, "patience": 0}},
-    )
-    job = train.setup_training(
-        "restormer",
-        [],
-        TINY_RESTORMER,
-        train_block,
-        seed=1,
-        checkpoint=part_dir / "ckpt.pt",
-        data=_online_job(world, part_dir)["data"],
-        validation={"every": 4, "patience": 0},
-    )
+    job = {"method": "restormer", "settings": TINY_RESTORMER, "train_block": train_block}
+    no_early_stop = {"validation": {"every": 4, "patience": 0}}
+    full = train.train_translator(_online_job(world, full_dir, **job, **no_early_stop))
+    part = _online_job(world, part_dir, **job, **no_early_stop)
+    setup = train.setup_training(part)
     with pytest.raises(Interrupted):
         run(
-            InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings, job.validator), 13),
+            InterruptAt(train.TranslatorTrainer(setup.model, setup.sampler, setup.settings, setup.validator), 13),
             20,
-            job.checkpoint,
+            setup.checkpoint,
             CheckpointPolicy(fraction=0.25, minutes=0),
         )
-    resumed = train.train_translator(
-        "restormer",
-        [],
-        part_dir / "model",
-        TINY_RESTORMER,
-        train_block,
-        **_online_job(world, part_dir) | {"validation": {"every": 4, "patience": 0}},
-    )
+    resumed = train.train_translator(part)
     assert resumed["checkpoint"]["resumed_from"] == 10 and resumed["checkpoint"]["discarded"] is None
     for key in ("validation", "final_losses", "data", "model_step", "stopped"):
         assert resumed[key] == full[key], key
@@ -352,17 +333,22 @@ def test_fixed_mode_counts_its_distinct_pairs(world, tmp_path):
     augment.augment_scene(
         world / "scenes" / "gallery", world / "spc" / "gallery", tmp_path / "aug", 5, AugmentSettings(), seed=0
     )
-    job = train.setup_training(
-        "restormer", [tmp_path / "aug"], TINY_RESTORMER, {"iterations": 3, "crop": 16, "batch_size": 2}
+    job = train.TranslatorJob(
+        "restormer",
+        train.training_data("fixed", [tmp_path / "aug"]),
+        tmp_path / "model",
+        TINY_RESTORMER,
+        {"iterations": 3, "crop": 16, "batch_size": 2},
     )
-    job.sampler(), job.sampler()
-    assert job.sampler.describe() == {
+    setup = train.setup_training(job)
+    setup.sampler(), setup.sampler()
+    assert setup.sampler.describe() == {
         "mode": "fixed",
         "pairs": 5,
         "samples": 4,
-        "distinct_samples": int(job.sampler.seen.sum()),
+        "distinct_samples": int(setup.sampler.seen.sum()),
     }
-    assert 1 <= job.sampler.describe()["distinct_samples"] <= 4 and job.validator is None
+    assert 1 <= setup.sampler.describe()["distinct_samples"] <= 4 and setup.validator is None
 
 
 @pytest.mark.parametrize(
@@ -395,14 +381,8 @@ def test_published_weights_without_training_are_validated_once(world, tmp_path):
     tiny = {**TINY_RESTORMER, "prior_sigma": 0.0}  # the published design, as published weights need
     published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
-    rec = train.train_translator(
-        "restormer",
-        [],
-        tmp_path / "model",
-        {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
-        {"iterations": 0, "crop": 16},
-        **_online_job(world, tmp_path),
-    )
+    settings = {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")}
+    rec = train.train_translator(_online_job(world, tmp_path, "restormer", settings, {"iterations": 0, "crop": 16}))
     assert [h["iteration"] for h in rec["validation"]["curve"]] == [0] and rec["model_step"] == 0
     assert rec["stopped"] == {"step": 0, "reason": "budget"} and rec["data"]["samples"] == 0
     _, loaded = model_io.load_translator(tmp_path / "model")

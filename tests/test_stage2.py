@@ -15,7 +15,7 @@ from spc3d.reconstruct import RECONSTRUCTORS, build_config
 from spc3d.reconstruct.gaussians import GaussianConfig
 from spc3d.reconstruct.objectives import BernoulliObjective
 from spc3d.reconstruct.sources import load_source
-from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 
 TINY_3DGS = {
     "iterations": 12,
@@ -93,23 +93,29 @@ def test_unknown_source_and_setting_are_named(scene):
 def test_reconstruct_writes_renders_and_resumes(scene, tmp_path):
     ckpt = tmp_path / "ckpt" / "checkpoint.pt"
     out = tmp_path / "recon"
-    rec = reconstruct(scene / "scenes" / "gallery", out, "gt", "3dgs", TINY_3DGS, seed=1, checkpoint=ckpt)
+    rec = reconstruct(
+        ReconstructJob(scene / "scenes" / "gallery", out, "gt", "3dgs", TINY_3DGS, seed=1, checkpoint=ckpt)
+    )
     train = io.read_json(out / "train.json")
     assert train["test_views"] == ["image000", "image008"] and train["seed"] == 1
     assert train["capacity"]["gaussians"] > 0 and train["settings"]["iterations"] == 12 and rec["train_s"] > 0
     assert io.read_rgb(out / "renders" / "image008.png").shape == (36, 48, 3)
     again = reconstruct(
-        scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs", TINY_3DGS, seed=1, checkpoint=ckpt
+        ReconstructJob(
+            scene / "scenes" / "gallery", tmp_path / "recon2", "gt", "3dgs", TINY_3DGS, seed=1, checkpoint=ckpt
+        )
     )
     assert again["resumed_from"] == 12 and again["checkpoint"]["discarded"] is None  # same job: resumed
     longer = reconstruct(
-        scene / "scenes" / "gallery",
-        tmp_path / "recon3",
-        "gt",
-        "3dgs",
-        {**TINY_3DGS, "iterations": 16},
-        seed=1,
-        checkpoint=ckpt,
+        ReconstructJob(
+            scene / "scenes" / "gallery",
+            tmp_path / "recon3",
+            "gt",
+            "3dgs",
+            {**TINY_3DGS, "iterations": 16},
+            seed=1,
+            checkpoint=ckpt,
+        )
     )
     assert longer["resumed_from"] == 0 and "settings.iterations: 12 -> 16" in longer["checkpoint"]["discarded"]
     assert io.read_json(tmp_path / "recon3" / "train.json")["checkpoint"]["resumed_from"] == 0
@@ -118,14 +124,16 @@ def test_reconstruct_writes_renders_and_resumes(scene, tmp_path):
 def test_grid_nerf_on_bernoulli_frames_runs(scene, tmp_path):
     settings = {"n_iters": 6, "batch_rays": 256, "n_samples": 16, "res_schedule": [[0, 12]], "chunk": 1024}
     rec = reconstruct(
-        scene / "scenes" / "gallery",
-        tmp_path / "r",
-        "bernoulli-k4",
-        "nerf-grid",
-        settings,
-        spc_dir=scene / "spc" / "gallery",
-        frames=4,
-        display_dir=scene / "mle" / "k4",
+        ReconstructJob(
+            scene / "scenes" / "gallery",
+            tmp_path / "r",
+            "bernoulli-k4",
+            "nerf-grid",
+            settings,
+            spc_dir=scene / "spc" / "gallery",
+            frames=4,
+            display_dir=scene / "mle" / "k4",
+        )
     )
     train = io.read_json(tmp_path / "r" / "train.json")
     assert train["objective"] == "bernoulli" and train["frames"] == 4 and rec["capacity"]["resolution"] == 12
@@ -224,20 +232,24 @@ def test_colmap_points_land_on_the_scene(colmap_scene):
 def test_reconstruct_starts_from_colmap_points(colmap_scene, tmp_path):
     settings = {**TINY_3DGS, "iterations": 2}
     reconstruct(
-        colmap_scene / "scene",
-        tmp_path / "r",
-        "gt",
-        "3dgs",
-        settings,
-        points_dir=colmap_scene / "colmap",
-        init_setting="colmap",
+        ReconstructJob(
+            colmap_scene / "scene",
+            tmp_path / "r",
+            "gt",
+            "3dgs",
+            settings,
+            points_dir=colmap_scene / "colmap",
+            init_setting="colmap",
+        )
     )
     init = io.read_json(tmp_path / "r" / "train.json")["init"]
     assert init["setting"] == "colmap" and init["used"].startswith("colmap sparse points")
     failed = tmp_path / "failed"
     io.write_json(failed / "pose_error.json", {"status": "failed: no image registered", "pose": {"aligned": False}})
     reconstruct(
-        colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed, init_setting="colmap"
+        ReconstructJob(
+            colmap_scene / "scene", tmp_path / "r2", "gt", "3dgs", settings, points_dir=failed, init_setting="colmap"
+        )
     )
     init = io.read_json(tmp_path / "r2" / "train.json")["init"]
     assert init["setting"] == "colmap" and init["used"].startswith("random (")  # the fall-back is recorded

@@ -176,16 +176,20 @@ def test_translate_pads_and_crops_back(tiny_registered):
 TINY_TRAIN = {"crop": 16, "log_every": 5, "decay_from": 1.0}
 
 
-def _train(world, out, ckpt, iterations, tiny):
-    return train.train_translator(
+def _job(world, out, ckpt, iterations, tiny):
+    return train.TranslatorJob(
         tiny,
-        [world / "augment" / "orchard"],
+        train.training_data("fixed", [world / "augment" / "orchard"]),
         out,
         {},
         {**TINY_TRAIN, "iterations": iterations},
         seed=3,
         checkpoint=ckpt,
     )
+
+
+def _train(world, out, ckpt, iterations, tiny):
+    return train.train_translator(_job(world, out, ckpt, iterations, tiny))
 
 
 def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_registered):
@@ -198,19 +202,12 @@ def test_training_learns_writes_its_folder_and_resumes(world, tmp_path, tiny_reg
     losses = np.loadtxt(tmp_path / "full" / "curve.csv", delimiter=",", skiprows=1)[:, 1]
     assert losses[-1] < losses[0]
     # killed at iteration 23 (checkpoints every 10), rerun: resumed from 20, the same losses and curve
-    job = train.setup_training(
-        tiny_registered,
-        [world / "augment" / "orchard"],
-        {},
-        {**TINY_TRAIN, "iterations": 40},
-        seed=3,
-        checkpoint=tmp_path / "resume.pt",
-    )
+    setup = train.setup_training(_job(world, tmp_path / "resumed", tmp_path / "resume.pt", 40, tiny_registered))
     with pytest.raises(Interrupted):
         run(
-            InterruptAt(train.TranslatorTrainer(job.model, job.sampler, job.settings), 23),
+            InterruptAt(train.TranslatorTrainer(setup.model, setup.sampler, setup.settings), 23),
             40,
-            job.checkpoint,
+            setup.checkpoint,
             CheckpointPolicy(fraction=0.25, minutes=0),
         )
     resumed = _train(world, tmp_path / "resumed", tmp_path / "resume.pt", 40, tiny_registered)
@@ -361,13 +358,16 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
     torch.manual_seed(5)
     published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
+    pairs = train.training_data("fixed", [world / "augment" / "orchard"])
     rec = train.train_translator(
-        "restormer",
-        [world / "augment" / "orchard"],
-        tmp_path / "model",
-        {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
-        {"iterations": 0, "crop": 16},
-        seed=0,
+        train.TranslatorJob(
+            "restormer",
+            pairs,
+            tmp_path / "model",
+            {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")},
+            {"iterations": 0, "crop": 16},
+            seed=0,
+        )
     )
     assert rec["pretrained"].endswith("real_denoising.pth") and rec["iterations"] == 0
     _, loaded = model_io.load_translator(tmp_path / "model")
@@ -375,9 +375,11 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
     assert torch.equal(loaded.translate(x), published.translate(x))
     with pytest.raises(ValueError, match="real_denoising.pth: checkpoint does not match"):
         train.train_translator(
-            "restormer",
-            [world / "augment" / "orchard"],
-            tmp_path / "model2",
-            {"dim": 16, "prior_sigma": 0.0, "checkpoint": str(tmp_path / "real_denoising.pth")},
-            {"iterations": 0},
+            train.TranslatorJob(
+                "restormer",
+                pairs,
+                tmp_path / "model2",
+                {"dim": 16, "prior_sigma": 0.0, "checkpoint": str(tmp_path / "real_denoising.pth")},
+                {"iterations": 0},
+            )
         )

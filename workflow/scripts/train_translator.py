@@ -1,27 +1,28 @@
-"""Adapter: rule train_translator -> spc3d.translate.train.train_translator."""
+"""Adapter: rule train_translator -> spc3d.translate.train.train_translator.
+
+The rule's inputs, params, output and threads become one TranslatorJob, built here and nowhere else;
+the perceptual loss's VGG weights (arrays, not settings) are passed beside it."""
 
 from spc3d.checkpoints import CheckpointPolicy
 from spc3d.evaluation.lpips_weights import load_npz
 from spc3d.jobs import logged
-from spc3d.translate.train import train_translator, training_data
+from spc3d.translate.train import TranslatorJob, train_translator, training_data
 
 with logged(snakemake.log[0]):
     p, inputs = snakemake.params, snakemake.input
-    data = training_data(
-        p.data, inputs.get("pairs", []), inputs.get("scenes", []), inputs.get("spc", []), p.augment, p.sensor
-    )
-    train_translator(
+    job = TranslatorJob(
         p.method,
-        data.augment_dirs,
+        training_data(
+            p.data, inputs.get("pairs", []), inputs.get("scenes", []), inputs.get("spc", []), p.augment, p.sensor
+        ),
         snakemake.output[0],
         p.settings,
         p.train,
         seed=p.seed,
         frames=p.frames,
-        checkpoint=p.checkpoint,
-        vgg_weights=load_npz(snakemake.input.vgg, "vgg"),
-        threads=snakemake.threads,
-        policy=CheckpointPolicy(**p.policy),
-        data=data,
         validation=p.validation,
+        checkpoint=p.checkpoint,
+        policy=CheckpointPolicy(**p.policy),
+        threads=snakemake.threads,
     )
+    train_translator(job, vgg_weights=load_npz(snakemake.input.vgg, "vgg"))

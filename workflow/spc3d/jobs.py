@@ -63,8 +63,8 @@ def write_benchmark(path: Path | None, wall_s: float, status: str) -> None:
 
     The job measures itself, exactly and for free (``getrusage``). Snakemake's ``benchmark:``
     directive instead samples the job from outside through ``/proc/{pid}/smaps`` (twice a second
-    for the first 15 s, then every 30 s): about 10 ms of kernel time a sample for a process with
-    torch loaded, a third of the system time of the default run, and it can miss a short peak.
+    for the first 15 s, then every 30 s): each sample of a process with torch loaded costs kernel
+    time (a large share of the default run's system time), and it can miss a short peak.
     """
     if path is None:
         return

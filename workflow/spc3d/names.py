@@ -47,6 +47,14 @@ LABELS = {
     "gt": "ground truth",
     "bernoulli": "SPAD likelihood on binary",
 }
+# The scores of every row: key -> (the tables' title, higher is better). spc3d.evaluation.evaluate
+# computes them (its SCORERS, one per key); the tables, findings and sweeps read these keys.
+METRICS = {
+    "psnr": ("PSNR↑", True),
+    "ssim": ("SSIM↑", True),
+    "lpips_alex": ("LPIPS-alex↓", False),
+    "lpips_vgg": ("LPIPS-vgg↓", False),
+}
 # What each source-name suffix means (after an optional "-k<K>", in this order), for labels and errors.
 SUFFIXES = {
     "-x1": "the frame at the working resolution (not the capture-resolution frame)",

@@ -4,22 +4,21 @@ Why: PyTorch on the CPU has no caching allocator; every tensor comes from glibc 
 serves blocks above its mmap threshold (128 KiB at first, 32 MiB at most) with a fresh ``mmap``
 and returns them with ``munmap`` on ``free``. A training step allocates and frees the same large
 activations every iteration, so each step faults in (and the kernel zero-fills) hundreds of MB
-of new pages: in the default run a grid-NeRF job spent 50 s in the kernel for 71 s of user time
-(26.7 million minor page faults; ``perf``: ``clear_page_erms``, ``exc_page_fault``,
-``unmap_page_range``), a Pix2Pix training 10 % of its CPU time. It was neither thread spinning
-nor oversubscription: Snakemake already sets ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` /
-``OPENBLAS_NUM_THREADS`` to the job's ``threads``, torch follows them, and every 1-thread job
-ran one compute thread.
+of new pages: in the default run the training jobs lost CPU time to minor page faults in the
+kernel, grid NeRF the most (``perf``: ``clear_page_erms``, ``exc_page_fault``,
+``unmap_page_range``). It was neither thread spinning nor oversubscription: Snakemake already
+sets ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` to the job's
+``threads``, torch follows them, and every 1-thread job ran one compute thread.
 
 What :func:`keep_freed_memory` does (glibc ``mallopt``, the same knobs as the
 ``MALLOC_MMAP_MAX_`` / ``MALLOC_TRIM_THRESHOLD_`` environment variables, but settable after the
 process started, so one call at the job's entry is enough): large blocks come from the heap
-instead of private mappings, and freed memory stays in the heap for the next allocation. The
-grid-NeRF job then took 2 s in the kernel instead of 50 s (0.34 million page faults). The price
-is memory: the heap never shrinks, and glibc leaves a few freed blocks as holes before it reuses
-them (torch asks for 64-byte aligned blocks, slightly larger than a freed one of the same size),
-so a job's peak resident size grows (grid NeRF 1.04 -> 1.42 GB; the 3DGS and translator jobs
-within +-0.1 GB). Results do not change: only where the bytes live does.
+instead of private mappings, and freed memory stays in the heap for the next allocation, so the
+page faults and their kernel time almost vanish. The price is memory: the heap never shrinks,
+and glibc leaves a few freed blocks as holes before it reuses them (torch asks for 64-byte
+aligned blocks, slightly larger than a freed one of the same size), so a job's peak resident
+size can grow (grid NeRF's did; the other jobs' hardly changed). Results do not change: only
+where the bytes live does. The measurements are in docs/benchmarks.md.
 """
 
 from __future__ import annotations

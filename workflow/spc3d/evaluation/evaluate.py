@@ -17,9 +17,9 @@ import numpy as np
 
 from spc3d import io, llff
 from spc3d.evaluation import metrics
+from spc3d.names import METRICS
 from spc3d.physics import sensors, spc
 
-METRICS = ("psnr", "ssim", "lpips_alex", "lpips_vgg")
 CONVENTIONS = {
     "psnr": "data range 1, mean of per-view dB",
     "ssim": "Wang et al.: Gaussian window 11, sigma 1.5, K1 0.01, K2 0.03, valid filtering",
@@ -48,12 +48,16 @@ def score_view(
     of a colourless sensor): of their luminance (:func:`spc3d.physics.sensors.luminance_srgb`)."""
     if not colour:
         pred, gt = sensors.luminance_srgb(pred), sensors.luminance_srgb(gt)
-    return {
-        "psnr": metrics.psnr(pred, gt),
-        "ssim": metrics.ssim(pred, gt),
-        "lpips_alex": metrics.lpips(pred, gt, net="alex", cache_dir=lpips_dir),
-        "lpips_vgg": metrics.lpips(pred, gt, net="vgg", cache_dir=lpips_dir),
-    }
+    return {key: SCORERS[key](pred, gt, lpips_dir) for key in METRICS}
+
+
+# One scorer per key of spc3d.names.METRICS: (render, ground truth, LPIPS weights folder) -> value.
+SCORERS = {
+    "psnr": lambda pred, gt, lpips_dir: metrics.psnr(pred, gt),
+    "ssim": lambda pred, gt, lpips_dir: metrics.ssim(pred, gt),
+    "lpips_alex": lambda pred, gt, lpips_dir: metrics.lpips(pred, gt, net="alex", cache_dir=lpips_dir),
+    "lpips_vgg": lambda pred, gt, lpips_dir: metrics.lpips(pred, gt, net="vgg", cache_dir=lpips_dir),
+}
 
 
 def mean_scores(per_view: list[dict]) -> dict[str, float]:

@@ -23,14 +23,8 @@ import numpy as np
 import pandas as pd
 
 from spc3d import io
-from spc3d.names import LABELS, TRAINED_METHODS, as_read, parse_source, source_label
+from spc3d.names import LABELS, METRICS, TRAINED_METHODS, as_read, parse_source, source_label
 
-METRICS = {
-    "psnr": ("PSNR↑", True),
-    "ssim": ("SSIM↑", True),
-    "lpips_alex": ("LPIPS-alex↓", False),
-    "lpips_vgg": ("LPIPS-vgg↓", False),
-}
 # What every caption says about the protocol (the rule for the physics rows' display gain included).
 PROTOCOL = (
     "K = binary frames per view a row consumed, and S x S sensor pixels behind each image pixel where a row read "

@@ -21,7 +21,7 @@ Modes (``SPCParams.mode``)
     bit ~ Bernoulli(1 - exp(-lam*T)). Sampled by comparing raw uint32 random words against a
     per-pixel threshold ``floor(p * 2**32)``: probabilities are resolved to 2**-32 (p < 2**-32
     never fires, p = 1 fires with probability 1 - 2**-32); no float conversion, which makes it
-    1.4-3x faster than ``rng.random(...) < p`` on the project's 2-core machine.
+    faster than ``rng.random(...) < p``.
 ``"paper"`` (the paper's simulator, section 3.1)
     N ~ Normal(E[N], Var[N]) from eqs. 1-2, rounded, clipped to [0, T/tau] (no upper clip when
     tau = 0: the Poisson limit), bit = N > 0. This fires with probability P(Normal > 1/2), which is

@@ -19,6 +19,7 @@ import dataclasses
 import logging
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -46,108 +47,102 @@ class RefinesCameras(Protocol):
     def heldout_cameras(self, train: Cameras, test: Cameras) -> Cameras: ...
 
 
-def reconstruct(
-    scene_dir: str | os.PathLike,
-    out_dir: str | os.PathLike,
-    source: str,
-    model: str,
-    settings: dict,
-    seed: int = 0,
-    spc_dir: str | os.PathLike | None = None,
-    image_dir: str | os.PathLike | None = None,
-    checkpoint: str | os.PathLike | None = None,
-    frames: int | None = 1,
-    threads: int | None = None,
-    points_dir: str | os.PathLike | None = None,
-    policy: CheckpointPolicy = CheckpointPolicy(),
-    input_digests: dict | None = None,
-    display_dir: str | os.PathLike | None = None,
-    init_setting: str | None = None,
-    poses_dir: str | os.PathLike | None = None,
-) -> dict:
-    """Train ``model`` on ``source`` images of a scene, render the test views; return the record.
+@dataclass(frozen=True)
+class ReconstructJob:
+    """One stage-2 job: what to fit, from which inputs, where. Built once from the config layer
+    (the ``reconstruct`` rule's adapter script, a test, a benchmark); its settings are recorded.
 
     ``frames``: binary frames per view the source consumes (its photon budget K, recorded; the
-    bernoulli source fits that many; None for the oracle ``gt``); ``capture_factor`` in the record
-    is the S of a source reading the capture-resolution frame (S x S sensor pixels per working
-    pixel; 1 otherwise): with K, the row's budget. ``display_dir``: the metered MLE
+    bernoulli source fits that many; None for the oracle ``gt``). ``display_dir``: the metered MLE
     folder of that budget (mle and bernoulli sources, :mod:`spc3d.inputs.exposure`).
-    ``init_setting``: the config's ``stage2.init``, recorded beside what was actually done.
-    ``poses_dir``: an ``estimate_poses`` folder (:mod:`spc3d.poses.estimate`): train on the training views
-    COLMAP posed, at their estimated cameras, instead of the scene's; the row's budget K is then
-    the larger of its source's and its pose source's. Too few posed views: the record says so and
-    nothing is rendered (evaluate scores no row).
-
-    ``points_dir``: a ``colmap_poses`` folder whose sparse points initialise 3DGS (random
-    initialisation when None, or when that run has no aligned reconstruction: logged and recorded).
-    ``policy``: when the checkpoint is written (every 10 % of the run or 10 minutes by default).
-    ``input_digests``: what identifies the inputs in the checkpoint's fingerprint, instead of digests
-    of the input folders (for a caller that rebuilds them identically on every attempt, as a sweep
-    point does: their records' timings differ each time).
+    ``poses_dir``: an ``estimate_poses`` folder (:mod:`spc3d.poses.estimate`): train on the training
+    views COLMAP posed, at their estimated cameras; the row's budget K is then the larger of its
+    source's and its pose source's. ``points_dir``: a ``colmap_poses`` folder whose sparse points
+    initialise a model that accepts them (random initialisation when None, or when that run has no
+    aligned reconstruction). ``init_setting``: the config's ``stage2.init``, recorded beside what
+    was done. ``checkpoint``: outside ``out_dir`` (Snakemake's clean-up of a failed job keeps it);
+    ``policy``: when it is written. ``input_digests``: what identifies the inputs in the
+    checkpoint's fingerprint instead of digests of the input folders.
     """
-    if model not in RECONSTRUCTORS:
-        raise ValueError(f"unknown stage-2 model {model!r}; choose one of {sorted(RECONSTRUCTORS)}")
-    if threads:
-        torch.set_num_threads(threads)
-    seed_everything(seed)
-    src = load_source(source, scene_dir, spc_dir, image_dir, frames or 1, display_dir)
-    poses = "ground truth (the scene's cameras)"
-    if poses_dir is not None:
-        poses = poses_summary(poses_dir)
+
+    scene_dir: str | os.PathLike
+    out_dir: str | os.PathLike
+    source: str
+    model: str
+    settings: dict
+    seed: int = 0
+    frames: int | None = 1
+    spc_dir: str | os.PathLike | None = None
+    image_dir: str | os.PathLike | None = None
+    display_dir: str | os.PathLike | None = None
+    points_dir: str | os.PathLike | None = None
+    poses_dir: str | os.PathLike | None = None
+    init_setting: str | None = None
+    checkpoint: str | os.PathLike | None = None
+    policy: CheckpointPolicy = CheckpointPolicy()
+    input_digests: dict | None = None
+    threads: int | None = None
+
+    def digests(self) -> dict:
+        """What identifies the inputs in the checkpoint's fingerprint."""
+        folders = {"scene": self.scene_dir, "spc": self.spc_dir, "images": self.image_dir}
+        folders |= {"points": self.points_dir, "display": self.display_dir, "poses": self.poses_dir}
+        return self.input_digests or {k: digest_path(v) for k, v in folders.items()}
+
+
+def reconstruct(job: ReconstructJob) -> dict:
+    """Train ``job.model`` on ``job.source`` images of a scene, render the held-out views into
+    ``job.out_dir``; return the record (``train.json``). Too few views posed by COLMAP
+    (``poses_dir``): the record says so and nothing is rendered (evaluate scores no row)."""
+    if job.model not in RECONSTRUCTORS:
+        raise ValueError(f"unknown stage-2 model {job.model!r}; choose one of {sorted(RECONSTRUCTORS)}")
+    if job.threads:
+        torch.set_num_threads(job.threads)
+    seed_everything(job.seed)
+    src = load_source(job.source, job.scene_dir, job.spc_dir, job.image_dir, job.frames or 1, job.display_dir)
+    frames, poses = job.frames, "ground truth (the scene's cameras)"
+    if job.poses_dir is not None:
+        poses = poses_summary(job.poses_dir)
         spent = [k for k in (frames, poses["frames"]) if k is not None]  # the frames that posed the views count
         frames = max(spent) if spent else None
         try:
-            src = with_estimated_poses(src, poses_dir)
+            src = with_estimated_poses(src, job.poses_dir)
         except NoPoses as e:
             log.warning("%s", e)
-            return write_unposed(
-                scene_dir,
-                out_dir,
-                {"model": model, "source": source, "seed": seed, "frames": frames, "poses": poses, "status": str(e)},
-            )
-    points, init = initial_points(points_dir)
-    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings, seed, points)
-    log.info("%s+%s on %s: %d training views", source, model, Path(scene_dir).name, len(src.views.names))
+            unposed = {"model": job.model, "source": job.source, "seed": job.seed, "frames": frames}
+            return write_unposed(job.scene_dir, job.out_dir, unposed | {"poses": poses, "status": str(e)})
+    points, init = initial_points(job.points_dir)
+    trainer, iterations, cfg = RECONSTRUCTORS[job.model](src.views, src.objective, job.settings, job.seed, points)
+    log.info("%s+%s on %s: %d training views", job.source, job.model, Path(job.scene_dir).name, len(src.views.names))
     meta = {
-        "model": model,
-        "source": source,
+        "model": job.model,
+        "source": job.source,
         "objective": getattr(src.objective, "name", "rgb"),
         "loss": "mse" if getattr(src.objective, "kind", None) == "mse" else "the model's own",
-        "seed": seed,
+        "seed": job.seed,
         "settings": dataclasses.asdict(cfg),
         "frames": frames,
         "capture_factor": src.capture_factor,
         "poses": poses,
         "train_views": len(src.views.names),
-        "init": {"setting": init_setting or ("colmap" if points_dir else "random"), "used": init},
-        "display": display_record(display_dir),
+        "init": {"setting": job.init_setting or ("colmap" if job.points_dir else "random"), "used": init},
+        "display": display_record(job.display_dir),
     }
-    ckpt = (
-        Checkpoint(
-            checkpoint,
-            fingerprint(
-                "reconstruct",
-                meta,
-                input_digests
-                or {
-                    "scene": digest_path(scene_dir),
-                    "spc": digest_path(spc_dir),
-                    "images": digest_path(image_dir),
-                    "points": digest_path(points_dir),
-                    "display": digest_path(display_dir),
-                    "poses": digest_path(poses_dir),
-                },
-            ),
-        )
-        if checkpoint
-        else None
-    )
+    record = train(trainer, iterations, job, meta)
+    render_s = write_renders(trainer, job.scene_dir, job.out_dir, record | meta)
+    return record | meta | {"render_s": render_s}
+
+
+def train(trainer, iterations: int, job: ReconstructJob, meta: dict) -> dict:
+    """Run the training loop (resuming the job's checkpoint when its fingerprint is this job's);
+    the training part of the record."""
+    ckpt = Checkpoint(job.checkpoint, fingerprint("reconstruct", meta, job.digests())) if job.checkpoint else None
     result = run(
         trainer,
         iterations,
         ckpt,
-        policy,
-        desc=f"{source}+{model}",
+        job.policy,
+        desc=f"{job.source}+{job.model}",
         postfix=lambda stats: {k: v for k, v in trainer.capacity().items() if isinstance(v, int)},
     )
     record = {
@@ -158,8 +153,7 @@ def reconstruct(
     }
     if getattr(trainer, "poses", None) is not None:
         record["pose_corrections"] = trainer.poses.magnitude()
-    render_s = write_renders(trainer, scene_dir, out_dir, record | meta)
-    return record | meta | {"render_s": render_s}
+    return record
 
 
 def write_unposed(scene_dir, out_dir, record: dict) -> dict:

@@ -48,7 +48,7 @@ from spc3d.inputs.augment import AugmentSettings, augment_scene
 from spc3d.inputs.build import prepare_scene, simulate_scene
 from spc3d.names import BUDGET_SOURCES, SOURCE_IMAGES
 from spc3d.physics.spc import SPCParams
-from spc3d.reconstruct.stage2 import reconstruct
+from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 from spc3d.sweeps.budget import resolve_point
 from spc3d.sweeps.plan import scene_inputs
 from spc3d.training import peak_rss_mb
@@ -126,18 +126,20 @@ def run_point(
     display_dir = meter_display(plan, work, times) if plan["source"] in BUDGET_SOURCES else None
     with timed(times, "reconstruct"):
         recon = reconstruct(
-            scene_dir,
-            out / "recon",
-            plan["source"],
-            plan["model"],
-            plan["stage2"],
-            plan["seed"],
-            spc_dir=spc_dir,
-            image_dir=image_dir,
-            frames=plan["frames"],
-            threads=threads,
-            display_dir=display_dir,
-            **resume.kwargs("reconstruct"),
+            ReconstructJob(
+                scene_dir,
+                out / "recon",
+                plan["source"],
+                plan["model"],
+                plan["stage2"],
+                plan["seed"],
+                spc_dir=spc_dir,
+                image_dir=image_dir,
+                frames=plan["frames"],
+                threads=threads,
+                display_dir=display_dir,
+                **resume.kwargs("reconstruct"),
+            )
         )
     with timed(times, "evaluate"):
         scores = evaluate(out / "recon", scene_dir, work / "eval.json", lpips_dir=lpips_dir)
@@ -203,7 +205,7 @@ def run_stage1(
     """Augment the training scenes, train the translator, translate the evaluation scene."""
     from spc3d.evaluation.lpips_weights import cache_file, load_npz
     from spc3d.translate.apply import translate_scene
-    from spc3d.translate.train import train_translator
+    from spc3d.translate.train import TranslatorJob, train_translator, training_data
 
     aug, tr = plan["augment"], plan["translator"]
     with timed(times, "augment"):
@@ -213,18 +215,18 @@ def run_stage1(
                 work / "scenes" / name, work / "spc" / name, work / "augment" / name, count, settings, plan["seed"]
             )
     with timed(times, "train"):
-        record = train_translator(
+        job = TranslatorJob(
             tr["method"],
-            [str(work / "augment" / n) for n in aug["counts"]],
+            training_data("fixed", [work / "augment" / n for n in aug["counts"]]),
             work / "model",
             tr["settings"],
             tr["train"],
             seed=plan["seed"],
             frames=plan["frames"],
-            vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"),
             threads=threads,
             **resume.kwargs("translator"),
         )
+        record = train_translator(job, vgg_weights=load_npz(cache_file("vgg", lpips_dir), "vgg"))
     eval_name = plan["scene_name"]
     with timed(times, "translate"):
         translate_scene(

@@ -1,10 +1,12 @@
 """Training a stage-1 model: the loop, linear learning-rate decay, validation, checkpoints and the record.
 
-``train_translator`` is the entry point of the workflow's ``train_translator`` rule. It trains on
-``stage1.data``: ``fixed`` cycles over the augmented pairs (:mod:`.data`), ``online`` draws every
-batch fresh from the training scenes (:mod:`.online`); with ``stage1.validation`` it validates on
-the training scenes' held-out views, keeps the best model and stops early (:mod:`.validate`). It
-writes (``results/models/{method}/``, atomically, with :func:`.model_io.write_model_folder`):
+``train_translator`` is the entry point of the workflow's ``train_translator`` rule; the rule's
+adapter describes the job once, as a :class:`TranslatorJob` (method, data, settings, seed, frames,
+validation, checkpoint, output folder), and passes it here. It trains on ``stage1.data``:
+``fixed`` cycles over the augmented pairs (:mod:`.data`), ``online`` draws every batch fresh from
+the training scenes (:mod:`.online`); with ``stage1.validation`` it validates on the training
+scenes' held-out views, keeps the best model and stops early (:mod:`.validate`). It writes
+(``results/models/{method}/``, atomically, with :func:`.model_io.write_model_folder`):
 
     model.pt      the kept networks (every module's state: the best validated step, else the last)
                   + method name + resolved Config
@@ -252,9 +254,44 @@ def make_validator(data: TrainingData, validation: dict | None, frames: int, ite
     return Validator(load_views(list(data.scene_dirs), list(data.spc_dirs), frames, data.sensor), v, iterations)
 
 
+@dataclass(frozen=True)
+class TranslatorJob:
+    """One stage-1 training as the ``train_translator`` rule describes it: what to train, on which
+    data, how, and where its model and checkpoint go.
+
+    Built once by the rule's adapter (``workflow/scripts/train_translator.py``) or a sweep point
+    (:func:`spc3d.sweeps.point.run_stage1`) and read by :func:`setup_training` and
+    :func:`train_translator`, so the two cannot disagree about a job. It holds the settings as the
+    config gives them; :func:`setup_training` resolves them (model Config, TrainSettings, validation
+    settings) into ``meta``, which is both train.json's description of the job and the checkpoint's
+    fingerprint. The perceptual loss's VGG weights are not part of the description (big arrays, not
+    settings): they travel beside the job and are fingerprinted by their digest.
+    """
+
+    method: str  # the stage-1 method (spc3d.translate.model_io.TRANSLATORS)
+    data: TrainingData  # where training samples and validation views come from (training_data())
+    out_dir: str | os.PathLike  # results/models/{method}: model.pt, train.json, curve.csv, curve.png
+    settings: dict  # stage1.{method}: the model's settings (checkpoint: published weights to start from)
+    train: dict  # stage1.train with the method's own train block
+    seed: int = 0
+    frames: int = 1  # SPC frames per binary input
+    validation: dict | None = None  # stage1.validation (None: no validation)
+    checkpoint: str | os.PathLike | None = None  # the resumable checkpoint's file (None: no checkpoint)
+    policy: CheckpointPolicy = CheckpointPolicy()  # when the checkpoint is saved
+    input_digests: dict | None = None  # identifies the inputs instead of digests of data's folders (sweeps)
+    threads: int | None = None  # torch threads (None: leave torch's setting)
+
+    def __post_init__(self):
+        if not isinstance(self.data, TrainingData):
+            raise TypeError(
+                f"TranslatorJob.data must be a TrainingData (see training_data()), got {type(self.data).__name__}"
+            )
+
+
 @dataclass
-class TrainingJob:
-    """Everything a stage-1 training needs, built from the rule's arguments (see :func:`setup_training`)."""
+class TrainingSetup:
+    """A :class:`TranslatorJob` made ready to train (see :func:`setup_training`): its model,
+    sampler, validator and checkpoint, and ``meta``, the job with its settings resolved."""
 
     model: object  # the Translator
     sampler: PairSampler | OnlineSampler
@@ -265,41 +302,29 @@ class TrainingJob:
     validator: Validator | None = None
 
 
-def setup_training(
-    method: str,
-    augment_dirs: list[str],
-    settings: dict,
-    train: dict,
-    seed: int = 0,
-    frames: int = 1,
-    checkpoint: str | os.PathLike | None = None,
-    vgg_weights: dict | None = None,
-    input_digests: dict | None = None,
-    data: TrainingData | None = None,
-    validation: dict | None = None,
-) -> TrainingJob:
+def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> TrainingSetup:
     """Seed, build the model, its sampler and validator, and the checkpoint with this job's fingerprint.
 
-    ``data`` (default: fixed pairs of ``augment_dirs``) says where samples come from; ``validation``
-    is ``stage1.validation`` (None: none); ``input_digests``, when given, identifies the inputs
-    instead of digests of their folders."""
-    seed_everything(seed)
-    data = data or TrainingData("fixed", tuple(map(str, augment_dirs)))
-    pretrained = settings.get("checkpoint")
-    cfg, s = model_config(method, settings), train_settings(train, method, pretrained)
-    model = build_translator(method, cfg, default_device(), vgg_weights)
+    ``vgg_weights``: the perceptual-loss network's weights (methods that use one), fingerprinted by
+    digest. The checkpoint's inputs are ``job.input_digests`` when given, else digests of the data's
+    folders. Separate from :func:`train_translator` so a test can drive the training loop itself."""
+    seed_everything(job.seed)
+    data = job.data
+    pretrained = job.settings.get("checkpoint")
+    cfg, s = model_config(job.method, job.settings), train_settings(job.train, job.method, pretrained)
+    model = build_translator(job.method, cfg, default_device(), vgg_weights)
     if not model.trainable:
         s = dataclasses.replace(s, iterations=0)  # the prior alone: its gain fit is all there is
     if pretrained:
         model.load_pretrained(pretrained)
-    sampler = make_sampler(data, s, frames, seed, model.paired)
+    sampler = make_sampler(data, s, job.frames, job.seed, model.paired)
     if model.prior is not None:
         model.prior.fit(sampler.calibration_pairs())  # the training data's gain (restored as it is on resume)
-    validator = make_validator(data, validation, frames, s.iterations)
+    validator = make_validator(data, job.validation, job.frames, s.iterations)
     meta = {
-        "method": method,
-        "seed": seed,
-        "frames": frames,
+        "method": job.method,
+        "seed": job.seed,
+        "frames": job.frames,
         "settings": dataclasses.asdict(cfg),
         "train": dataclasses.asdict(s),
         "pretrained": pretrained,
@@ -308,21 +333,21 @@ def setup_training(
         "sensor": data.sensor,
         "validation": dataclasses.asdict(validator.s) if validator else None,
     }
-    inputs = input_digests or data.digests()
+    inputs = job.input_digests or data.digests()
     ckpt = (
         Checkpoint(
-            checkpoint,
+            job.checkpoint,
             fingerprint(
                 "train_translator",
                 meta,
                 inputs | {"pretrained": digest_path(pretrained), "vgg": digest_arrays(vgg_weights)},
             ),
         )
-        if checkpoint
+        if job.checkpoint
         else None
     )
     pairs = len(sampler.binary) if isinstance(sampler, PairSampler) else None
-    return TrainingJob(model, sampler, s, ckpt, meta, pairs, validator)
+    return TrainingSetup(model, sampler, s, ckpt, meta, pairs, validator)
 
 
 def prior_record(model, validator: Validator | None) -> dict | None:
@@ -335,55 +360,34 @@ def prior_record(model, validator: Validator | None) -> dict | None:
     return {"sigma": prior.sigma, "gain": prior.gain.tolist(), **scores}
 
 
-def train_translator(
-    method: str,
-    augment_dirs: list[str],
-    out_dir: str | os.PathLike,
-    settings: dict,
-    train: dict,
-    seed: int = 0,
-    frames: int = 1,
-    checkpoint: str | os.PathLike | None = None,
-    vgg_weights: dict | None = None,
-    threads: int | None = None,
-    policy: CheckpointPolicy = CheckpointPolicy(),
-    input_digests: dict | None = None,
-    data: TrainingData | None = None,
-    validation: dict | None = None,
-) -> dict:
-    """Train ``method`` on ``data`` (default: the augmented pairs of ``augment_dirs``), validating per
-    ``validation``; write ``out_dir`` (see module doc). ``input_digests``: see
-    :func:`spc3d.reconstruct.stage2.reconstruct` (a sweep point rebuilds its pairs)."""
-    if threads:
-        torch.set_num_threads(threads)
-    data = data or TrainingData("fixed", tuple(map(str, augment_dirs)))
-    job = setup_training(
-        method,
-        data.augment_dirs,
-        settings,
-        train,
-        seed,
-        frames,
-        checkpoint,
-        vgg_weights,
-        input_digests,
-        data,
-        validation,
+def train_translator(job: TranslatorJob, vgg_weights: dict | None = None) -> dict:
+    """Train ``job.method`` on ``job.data``, validating per ``job.validation``; write ``job.out_dir``
+    (see module doc) and return its train.json record. ``vgg_weights``: see :func:`setup_training`."""
+    if job.threads:
+        torch.set_num_threads(job.threads)
+    setup = setup_training(job, vgg_weights)
+    result = fit(
+        setup.model,
+        setup.sampler,
+        setup.settings,
+        setup.checkpoint,
+        job.policy,
+        desc=job.method,
+        validator=setup.validator,
     )
-    result = fit(job.model, job.sampler, job.settings, job.checkpoint, policy, desc=method, validator=job.validator)
-    best = job.validator.best_modules() if job.validator else None
+    best = setup.validator.best_modules() if setup.validator else None
     record = {
-        **job.meta,
-        "prior": prior_record(job.model, job.validator),
-        "pairs": job.pairs,
-        "augment_dirs": list(data.augment_dirs),
-        "data": job.sampler.describe(),
-        "validation": job.validator.record() if job.validator else None,
-        "model_step": job.validator.best["step"] if best else result["stopped"]["step"],
-        "parameters": job.model.parameter_count(),
-        "device": str(job.model.device),
+        **setup.meta,
+        "prior": prior_record(setup.model, setup.validator),
+        "pairs": setup.pairs,
+        "augment_dirs": list(job.data.augment_dirs),
+        "data": setup.sampler.describe(),
+        "validation": setup.validator.record() if setup.validator else None,
+        "model_step": setup.validator.best["step"] if best else result["stopped"]["step"],
+        "parameters": setup.model.parameter_count(),
+        "device": str(setup.model.device),
         "peak_rss_mb": peak_rss_mb(),
         **{k: v for k, v in result.items() if k != "curve"},
     }
-    write_model_folder(out_dir, job.model, record, result["curve"], best)
+    write_model_folder(job.out_dir, setup.model, record, result["curve"], best)
     return record

@@ -9,7 +9,7 @@ Back-ends (plain registry ``BACKENDS``): ``native`` (numba kernels, hand-written
 default) and ``reference`` (pure PyTorch "exact pixel pairs", autograd). Both run on CPU; a CUDA
 back-end (gsplat) is not shipped, and asking for one says so.
 ``project_gaussians`` (pure PyTorch, the definition) and ``project_gaussians_native`` (numba,
-hand-written gradients, ~3x faster) are interchangeable.
+hand-written gradients, faster) are interchangeable.
 
 Densification (3DGS): call ``proj.means2d.retain_grad()`` before ``backward``; the view-space
 positional gradient is then ``proj.means2d.grad`` (pixels) with either projection and back-end.

@@ -28,26 +28,19 @@ Algorithm (the 3DGS CUDA rasterizer, mapped to CPU threads):
    kernels use a polynomial exp2 on exponents in log2 units (the backward reuses the forward's).
 
 Threads: ``torch.get_num_threads()`` workers. The float32 kernels take tiles from a shared atomic
-counter, longest tile lists first (a worker that starts late or runs slower takes fewer tiles:
-2-thread forward + backward regions ~10-15 % shorter than with a fixed round-robin deal), and
-write gradients per tile-list record, which ``native_simd.sum_records`` adds up per Gaussian in
-list order: no races, and the same bits for any thread count. The set-up and projection passes
-deal chunks of 256 Gaussians the same way. The float64 kernels deal tiles round-robin, each
-worker adding into its own gradient buffers, summed at the end. The workers are the threads of
-torch's own OpenMP team (:mod:`.native_threads`): separate threads competed with torch's
-spin-waiting OpenMP workers for the cores. ``parallel=True`` / ``prange`` is avoided on purpose:
-numba's OpenMP layer made every parallel region wait ~30 ms next to torch's pool here, and
-forcing numba's process-global threading layer would change other users.
+counter, longest tile lists first (a worker that starts late or runs slower takes fewer tiles,
+which beat a fixed round-robin deal), and write gradients per tile-list record, which
+``native_simd.sum_records`` adds up per Gaussian in list order: no races, and the same bits for
+any thread count. The set-up and projection passes deal chunks of 256 Gaussians the same way.
+The float64 kernels deal tiles round-robin, each worker adding into its own gradient buffers,
+summed at the end. The workers are the threads of torch's own OpenMP team
+(:mod:`.native_threads`): separate threads competed with torch's spin-waiting OpenMP workers for
+the cores. ``parallel=True`` / ``prange`` is avoided on purpose: numba's OpenMP layer made every
+parallel region wait for torch's pool, and forcing numba's process-global threading layer would
+change other users.
 
-Measured (10k Gaussians at 128x96, one training step of ``benchmarks/rasterizer.py``; this 2-core
-machine's speed drifts by ±15 % between runs, so ratios are taken within one run): native
-projection + rasterizer ~3.4-4.2 ms on 2 threads (~5.4-6.5 ms on 1) against ~85-115 ms
-(~135-170 ms) for the pure-PyTorch reference: 24-28x (~24x on 1 thread). Two threads, per
-step: set-up ~0.33 ms, forward region ~0.96 ms (with the per-tile sorts), backward ~1.05 ms,
-projection forward + backward ~0.5 ms, loss and autograd ~0.3 ms, each parallel region
-~10-50 us of overhead (the second thread to need the GIL waits for it). History: 22-27 ms per
-step with scalar float64 kernels, 11-15 ms with 16-lane row kernels, 4.2-5.0 ms before the
-G cache and the alias-check-free tile buffers of :mod:`.native_simd`.
+Speed: ``benchmarks/rasterizer.py`` times training steps against the PyTorch reference; the
+historical measurements (per region, per kernel generation) are in docs/benchmarks.md.
 
 Any input values (numba does not check bounds, so this is what keeps the kernels in bounds): the
 set-up draws a Gaussian only if its centre, conic, opacity, colour and depth are finite, its
@@ -65,11 +58,10 @@ Densification: the view-space positional gradient of 3DGS is ``means2d.grad`` (i
 Why numba rather than a C++/OpenMP torch extension: nothing to compile at install time (no
 compiler or matching torch headers on the user's machine), plain Python files, portable across
 platforms and torch versions, and ``cache=True`` stores the machine code next to the source.
-The costs: numba as a dependency and a first-call JIT compile, measured on this (loaded) 2-core
-machine at ~10 s for all splat kernels with an empty cache and ~0.4 s when loaded from the cache
-(``benchmarks/rasterizer.py`` measures both in fresh processes). Kernels use no fast-math
-except ``contract`` (fused multiply-add) in the float32 kernels: IEEE semantics otherwise, so
-NaN / inf and the clamps behave as in the reference.
+The costs: numba as a dependency and a first-call JIT compile of all splat kernels, far shorter
+when loaded from the cache (``benchmarks/rasterizer.py`` times both in fresh processes).
+Kernels use no fast-math except ``contract`` (fused multiply-add) in the float32 kernels: IEEE
+semantics otherwise, so NaN / inf and the clamps behave as in the reference.
 """
 
 from __future__ import annotations
@@ -93,8 +85,8 @@ def _row_step(a, b, c, decay, pmin, dx, dy, g_next, e_next, in_run):
     of the Gaussian at offset (dx, dy) = pixel centre - mean, or 0 where the pair is skipped.
 
     Along a row, G(dx + 1) = G(dx) · E(dx) and E(dx + 1) = E(dx) · exp(-a) (``decay``), so exp is
-    evaluated twice per run of pixels instead of once per pixel: exp dominated both kernels
-    (~2x their time). Relative error ~1e-15 over a run (runs stay inside one 16-px tile). The
+    evaluated twice per run of pixels instead of once per pixel: exp dominated both kernels.
+    Relative error ~1e-15 over a run (runs stay inside one 16-px tile). The
     forward and backward kernels walk identical pixel sequences, so they get identical G.
     """
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy

@@ -1,8 +1,8 @@
 """Per-step set-up of the native rasterizer in numba: records, tight boxes, tile lists in depth order.
 
-``prepare_tiles`` replaces ~20 small numpy calls and a numpy stable argsort (together ~1.5 ms per
-10k-Gaussian step, as much as the forward kernel on two threads) by two passes over the
-Gaussians, both split over torch's threads, and a sort per tile:
+``prepare_tiles`` replaces ~20 small numpy calls and a numpy stable argsort (together as costly as
+the forward kernel) by two passes over the Gaussians, both split over torch's threads, and a
+sort per tile (faster than a serial global sort and binning):
 
 1. record + box per Gaussian (vectorised over local column chunks). The box is the 3-sigma
    square of :func:`.reference.pixel_boxes` intersected with the bounding box of the ellipse
@@ -25,8 +25,7 @@ Gaussians, both split over torch's threads, and a sort per tile:
    ``torch.argsort(stable)``): done here, or by the float32 forward kernel for the tiles it
    takes, so that it runs in parallel.
 
-Measured (10k Gaussians at 128x96 on 2 threads, inside a training step): set-up ~0.57 ms as a
-serial global sort + binning, ~0.25 ms as passes 1-2 on both threads + per-tile sorts.
+The measured set-up times are in docs/benchmarks.md.
 """
 
 from __future__ import annotations
@@ -67,7 +66,7 @@ def gather_columns(a, c0, n, buf, row):
     """Rows c0..c0+n-1 of a (N, k) array into rows row..row+k-1, columns 0..n-1, of buf; returns
     row + k. Kernels compute on such local column buffers: LLVM vectorises a loop only when it
     can tell its loads and stores apart, which it cannot for strided rows of argument arrays
-    (measured: the projection's forward 3x, its backward 2x faster)."""
+    (it made the projection's forward and backward much faster)."""
     for k in range(a.shape[1]):
         for j in range(n):
             buf[row + k, j] = a[c0 + j, k]
@@ -91,8 +90,8 @@ def _all_finite(flat, lo, hi):
 
 @njit(cache=True, nogil=True)
 def all_finite(a, b):
-    """Neither 1-D array holds a NaN or ±inf (one vectorised pass: ~6 us for 30k RGB colours and
-    depths, where the same test per 256-Gaussian chunk took ~60 us)."""
+    """Neither 1-D array holds a NaN or ±inf (one vectorised pass over each array: much faster
+    than the same test per 256-Gaussian chunk)."""
     return _all_finite(a, 0, len(a)) & _all_finite(b, 0, len(b))
 
 

@@ -1,18 +1,18 @@
-"""``project_gaussians`` with hand-written gradients in numba: same contract, ~10x less time.
+"""``project_gaussians`` with hand-written gradients in numba: same contract, less time.
 
 The pure-PyTorch :func:`.project.project_gaussians` is the readable definition and stays the
-reference; autograd through its ~100 small tensor ops costs ~9 ms per forward+backward for 10k
-Gaussians on 2 CPU cores, as much as a whole native training step. This module evaluates the
-same formulas per Gaussian in float64 and back-propagates them by hand; radii follow project.py's
+reference; autograd through its ~100 small tensor ops costs more than the native rasterizer's
+own set-up, forward and backward (docs/benchmarks.md has the measurements). This module evaluates
+the same formulas per Gaussian in float64 and back-propagates them by hand; radii follow project.py's
 ``_radii`` formula in float64 (identical for float64 inputs, for float32 inputs an occasional
 radius can differ by 1 px where float32 rounding crosses an integer). Keeping every per-Gaussian
 step out of torch also avoids torch's intra-op overhead on tiny tensor ops.
 
 Speed: the per-Gaussian code uses only scalars and tuples, no branches (selects) and no divisions
 it can share, and runs on chunks of 256 Gaussians gathered into local column buffers, so LLVM
-vectorises it (8 float64 lanes); the chunks are split over torch's threads. Measured, 10k
-Gaussians, one thread: forward 0.23 ms, backward ~0.45 ms (0.5 / 1.25 ms as a scalar loop with
-scratch arrays, 0.45 / 1.0 ms before that with array views per Gaussian).
+vectorises it (8 float64 lanes); the chunks are split over torch's threads (a scalar loop
+with scratch arrays or array views per Gaussian was slower).
+
 The derivation follows the forward step by step (names as in ``_core``):
 
 * conic = (c, -b, a) / det,  det = |r0 x r1|² + lp (a0 + c0) + lp²  (Cauchy-Binet, see project.py)

@@ -1,7 +1,7 @@
 """float32 tile kernels for :mod:`.native`, written so that LLVM vectorises them (SIMD).
 
 The float64 kernels of :mod:`.native` walk each pixel row with data-dependent branches and a
-sequential exp recurrence: ~25 cycles per Gaussian-pixel pair, mostly mispredicted branches.
+sequential exp recurrence, and spend most of their time on mispredicted branches.
 Here a Gaussian updates 4x4-pixel blocks of the tile, 16 lanes at once: every lane computes its
 pair branch-free (the tests become masks and selects), exp is a short polynomial instead of a
 libm call, and all loops run over the 16 lanes of fixed-size per-tile buffers, so each block is
@@ -9,10 +9,10 @@ a few dozen vector instructions (AVX2 / AVX-512). Lanes outside the Gaussian's b
 off, so the semantics are exactly those of :mod:`.reference` (same tests, same order, float32).
 
 Why 4x4 blocks: the boxes are small (radii 2-10 px) and tightened to the visible ellipse
-(:mod:`.native_prep`); 16-pixel tile rows used 42 % of their lanes on the benchmark scene and
-needed 128k row visits per forward, 4x4 blocks 62k visits (2x2 blocks of 8-pixel half rows
-would take 68k). Per-tile state (transmittance, colour behind, last contributor, dL/dimage) is
-copied into contiguous [block, lane] buffers at the start of a tile and back at its end.
+(:mod:`.native_prep`), so 16-pixel tile rows left most lanes idle; on the benchmark scene 4x4
+blocks need fewer visits per forward than 16-pixel rows or 2x2 blocks of 8-pixel half rows.
+Per-tile state (transmittance, colour behind, last contributor, dL/dimage) is copied into
+contiguous [block, lane] buffers at the start of a tile and back at its end.
 Per-Gaussian gradient sums are kept per lane (``acc``) and reduced once per Gaussian and tile.
 The forward stores each visited pair's G = exp(power) (0 where the pair is skipped or outside
 the box) in a cache, one 16-lane row per record and block; the backward reads it instead of
@@ -20,23 +20,20 @@ evaluating the exponent and the box tests again, so its alpha is the forward's, 
 RGB only (3 channels written out, so that one loop carries everything): other channel counts
 use native.py's kernels.
 
-What it takes for LLVM to vectorise (each measured; without it the code ran 2-10x *slower*):
+What it takes for LLVM to vectorise (each checked: without it the code ran much slower):
 ``error_model="numpy"`` (the default "python" model tests every float division for zero and
 raises), no array views created in the hot loops (``T[r]`` or ``acc[:] = 0`` cost atomic
 reference counts; index ``T[b, j]``), one loop holding the channels, lane indices that LLVM can
 prove non-negative (numba's wraparound of negative indices otherwise makes every address
-data-dependent), and a constant trip count of 16. What makes it fast (A/B, one process): record
-parameters loaded once per record (LLVM cannot hoist them past stores to the tile buffers),
-fused multiply-adds (``fastmath={"contract"}`` only: 10-20 %), exponents in log2 units (exp2
-needs no Cody-Waite reduction: 7 % of the forward), one flat loop over a record's blocks (one
-loop exit to predict instead of one per block row: 3-8 %), all float tile state as views of
-one buffer indexed by unsigned block and row numbers (separate allocations made LLVM test at
-run time, before every block, whether any two of them overlap: ~20 compare-and-branch pairs
-per block; backward 3.3 -> 2.0 ms together with the G cache), and the finished-pixel count
-added in int32 (numba widened it to int64, and LLVM then vectorised 8 lanes wide: forward
-2.0 -> 1.7 ms). Measured, 10k Gaussians at 128x96, one thread: forward ~1.7 ms (+ ~0.2 ms of
-per-tile depth sorts), backward ~2.0 ms (16-lane row kernels: 4.5 / 6.5 ms; scalar float64
-kernels: 7.2 / 10.5 ms).
+data-dependent), and a constant trip count of 16. What makes it fast: record parameters
+loaded once per record (LLVM cannot hoist them past stores to the tile buffers), fused
+multiply-adds (``fastmath={"contract"}`` only), exponents in log2 units (exp2 needs no
+Cody-Waite reduction), one flat loop over a record's blocks (one loop exit to predict instead of
+one per block row), all float tile state as views of one buffer indexed by unsigned block and
+row numbers (separate allocations made LLVM test at run time, before every block, whether any
+two of them overlap), and the finished-pixel count added in int32 (numba widened it to int64,
+and LLVM then vectorised only 8 lanes wide). The measurements behind these choices are in
+docs/benchmarks.md.
 """
 
 from __future__ import annotations

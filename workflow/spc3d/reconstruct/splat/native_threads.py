@@ -1,12 +1,12 @@
 """Worker threads for the native splat kernels: torch's own OpenMP team where possible.
 
 After every parallel torch op, torch's OpenMP (libgomp) workers spin-wait for the next parallel
-region (GOMP_SPINCOUNT, ~15 ms here) before they sleep. In a training step torch ops (loss,
-projection glue) run between the numba kernels, so separate kernel threads always competed with
-a spinning OpenMP thread for the cores: on 2 cores a 10k-Gaussian step took 16 ms instead of
-11 ms (``OMP_WAIT_POLICY=PASSIVE``). Running the kernels *inside* an OpenMP parallel region of
-torch's libgomp hands the work to exactly those spinning threads instead; nothing global is
-changed (no environment variable, no thread count).
+region (GOMP_SPINCOUNT) before they sleep. In a training step torch ops (loss, projection glue)
+run between the numba kernels, so separate kernel threads always competed with a spinning
+OpenMP thread for the cores, and a step took markedly longer than with torch's workers passive
+(``OMP_WAIT_POLICY=PASSIVE``; the numbers are in docs/benchmarks.md). Running the kernels
+*inside* an OpenMP parallel region of torch's libgomp hands the work to exactly those spinning
+threads instead; nothing global is changed (no environment variable, no thread count).
 
 How: ``GOMP_parallel(fn, data, n, 0)`` of the libgomp that torch loaded, called through ctypes
 (which releases the GIL); ``fn`` is a ctypes callback that takes the GIL for a moment, asks
@@ -88,7 +88,7 @@ def in_chunks(kernel, n: int, inputs: tuple, outputs: tuple, grain: int = 2048) 
     """``kernel(*inputs, counter, n, *outputs)`` on every worker (at most one per ``grain`` items:
     smaller shares are not worth a thread); the kernel takes chunks of the n items with
     ``next_chunk(counter, n, size)`` until none is left, so a worker that starts late takes fewer
-    (the first OpenMP thread to enter a region can run ~30 us before the others get the GIL),
+    (the first OpenMP thread to enter a region can run for a while before the others get the GIL),
     and writes only the outputs of its chunks."""
     counter = np.zeros(1, np.int64)
     run_parallel(lambda w: kernel(*inputs, counter, n, *outputs), n_workers(max(1, n // grain)))
@@ -131,9 +131,9 @@ def _keep_thread_state() -> None:
     """Keep this OpenMP worker thread's Python thread state alive between regions.
 
     A ctypes callback on a thread Python did not create makes a new thread state on entry
-    (PyGILState_Ensure) and deletes it on exit: ~20 us of a ~22 us two-thread region here (3 us
-    with the state kept; ~5 such regions per training step). One extra PyGILState_Ensure, never
-    released, keeps it: the callback's own release then only gives back the GIL. The states
+    (PyGILState_Ensure) and deletes it on exit, which took most of a two-thread region's time
+    (~5 such regions per training step). One extra PyGILState_Ensure, never released,
+    keeps it: the callback's own release then only gives back the GIL. The states
     belong to torch's OpenMP threads, which live as long as the process."""
     ident = threading.get_ident()
     if ident not in _KEPT:
