@@ -1,12 +1,18 @@
 """Shared fixtures: paths to the repository and to the real LLFF scenes (skipped when absent)."""
 
+import contextlib
+import dataclasses
+import fcntl
+import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from spc3d.evaluation import lpips_weights
 
@@ -76,11 +82,12 @@ def one_torch_thread():
     torch.set_num_threads(before)
 
 
-def run_snakemake(workdir, *args, timeout=600, path_prefix=None):
+def run_snakemake(workdir, *args, timeout=600, path_prefix=None, env=None):
     """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process.
-    ``path_prefix``: a folder put first on PATH (e.g. a stand-in ``conda``)."""
+    ``path_prefix``: a folder put first on PATH (e.g. a stand-in ``conda``); ``env``: variables
+    added to the environment (e.g. ``SPC3D_PLUGINS``)."""
     cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     if path_prefix:
         env["PATH"] = f"{path_prefix}{os.pathsep}{env.get('PATH', '')}"
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
@@ -113,6 +120,75 @@ class InterruptAt:
 
 
 # --- killing and resuming runs (tests/test_reliability.py) ---------------------------------------
+
+
+@contextlib.contextmanager
+def exclusive(path):
+    """A blocking lock file shared by the pytest-xdist workers (one builds, the others wait)."""
+    with open(path, "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield
+
+
+def session_folder(tmp_path_factory, name: str) -> Path:
+    """One folder per test session shared by its xdist workers (their common tmp root)."""
+    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    root = tmp_path_factory.getbasetemp().parent / f"{name}-{run_id}" if run_id else tmp_path_factory.mktemp(name)
+    root.mkdir(exist_ok=True)
+    return root
+
+
+SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
+# The toy models of tests/test_toy_models.py, registered as a plugin (spc3d.models), join the smoke
+# run: a model added outside the package goes through the same DAG into the tables.
+TOY_ENV = {"SPC3D_PLUGINS": str(REPO / "tests" / "test_toy_models.py")}
+TOY_COMBINATIONS = ["toy+toy-mean", "gt+toy-mean", "toy+3dgs"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SmokeRun:
+    """The session's smoke run (:func:`smoke_run`): its configs, environment and build outcome."""
+
+    work: Path
+    configs: list
+    env: dict
+    built: dict
+
+    def copy(self, dest: Path) -> Path:
+        """A copy to change or add to (mtimes kept: nothing reruns); the shared run stays as built."""
+        shutil.copytree(self.work, dest, symlinks=True)
+        return dest
+
+
+@pytest.fixture(scope="session")
+def smoke_run(tmp_path_factory, lpips_cache) -> SmokeRun:
+    """The smoke preset (plus the toy models), run once per test session for the end-to-end, report
+    and toy-model tests: first one target alone (``results/spc/courtyard``), then the whole DAG."""
+    root = session_folder(tmp_path_factory, "smoke")
+    work, local = root / "work", root / "local.yaml"
+    smoke = yaml.safe_load(SMOKE.read_text())
+    local.write_text(
+        yaml.safe_dump(
+            {
+                "metrics": {"lpips_source": str(lpips_cache)},  # the weights the session already fetched
+                "stage1": {"toy": {"width": 3}},
+                "stage2": {"combinations": smoke["stage2"]["combinations"] + TOY_COMBINATIONS, "toy-mean": {}},
+            }
+        )
+    )
+    configs = ["--configfile", str(SMOKE), str(local)]
+    with exclusive(root / "build.lock"):
+        if not (root / "built.json").exists():
+            single = run_snakemake(work, "results/spc/courtyard", "--cores", "2", *configs, env=TOY_ENV)
+            built = {
+                "single_rc": single.returncode,
+                "single_err": single.stderr[-3000:],
+                "single_only_target": not (work / "results" / "scenes" / "tabletop").exists(),
+            }
+            full = run_snakemake(work, "--cores", "2", *configs, env=TOY_ENV, timeout=1200)
+            built |= {"full_rc": full.returncode, "full_err": (full.stdout + full.stderr)[-4000:]}
+            (root / "built.json").write_text(json.dumps(built))
+    return SmokeRun(work, configs, TOY_ENV, json.loads((root / "built.json").read_text()))
 
 
 def snakemake_process(workdir, *args, log_name="snakemake.out"):

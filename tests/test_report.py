@@ -11,7 +11,6 @@ import warnings
 
 import numpy as np
 import pytest
-import yaml
 from matplotlib.image import imread
 
 from conftest import REPO, run_snakemake
@@ -80,15 +79,12 @@ def test_screenshot_tool_names_what_a_page_never_finished(tmp_path):
 
 
 @pytest.mark.slow
-def test_report_of_a_smoke_run(tmp_path, lpips_cache):
-    """One smoke run, then the report: every table, figure and caption embedded; a browser renders it."""
-    local = tmp_path / "local.yaml"  # the LPIPS weights the test session already fetched
-    local.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
-    configs = ["--configfile", str(SMOKE), str(local)]
-    run = snakemake(tmp_path, "--cores", "2", *configs)
-    assert run.returncode == 0, run.stderr[-4000:]
+def test_report_of_a_smoke_run(tmp_path, smoke_run):
+    """The session's smoke run, then the report: every table, figure and caption embedded; a browser renders it."""
+    assert smoke_run.built["full_rc"] == 0, smoke_run.built["full_err"]
+    work = smoke_run.copy(tmp_path / "work")
     report = tmp_path / "report.html"
-    proc = snakemake(tmp_path, "--report", str(report), *configs, timeout=300)
+    proc = snakemake(work, "--report", str(report), *smoke_run.configs, timeout=300, env=smoke_run.env)
     assert proc.returncode == 0, proc.stderr[-4000:]
 
     html = report.read_text(encoding="utf-8")
@@ -122,7 +118,7 @@ def test_report_of_a_smoke_run(tmp_path, lpips_cache):
     assert "LPIPS v0.1" in html and "spc3d: binary SPC frames to colour novel views" in html  # workflow.rst
     # Files are embedded as data URIs: the figure decodes to the PNG on disk.
     uri = results["results/figures/qualitative_courtyard.png"]["data_uri"]
-    figure = tmp_path / "results" / "figures" / "qualitative_courtyard.png"
+    figure = work / "results" / "figures" / "qualitative_courtyard.png"
     assert base64.b64decode(uri.split(",", 1)[1]) == figure.read_bytes()
     runtimes = embedded_json(html, "runtimes_spec")["data"]["values"]
     assert {"train_translator", "reconstruct", "evaluate"} <= {r["rule"] for r in runtimes}

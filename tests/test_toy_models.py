@@ -10,6 +10,7 @@ renders through the same contract as 3DGS).
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from dataclasses import dataclass
@@ -178,36 +179,20 @@ def test_register_refuses_a_clash_and_a_bad_name():
 
 
 @pytest.mark.slow
-def test_toy_models_run_through_the_smoke_dag(tmp_path, lpips_cache):
-    import yaml
+def test_toy_models_run_through_the_smoke_dag(smoke_run):
+    """The session's smoke run carries the toys (conftest.TOY_COMBINATIONS): trained, reconstructed,
+    scored and in the tables, beside the built-in models."""
+    from conftest import TOY_COMBINATIONS
 
-    from conftest import REPO
-
-    combos = [f"{TOY_TRANSLATOR}+{TOY_RECONSTRUCTOR}", f"gt+{TOY_RECONSTRUCTOR}", f"{TOY_TRANSLATOR}+3dgs"]
-    local = tmp_path / "toy.yaml"
-    local.write_text(
-        yaml.safe_dump(
-            {
-                "metrics": {"lpips_source": str(lpips_cache)},
-                "colmap": {"inputs": []},
-                "stage1": {TOY_TRANSLATOR: {"width": 3}},
-                "stage2": {"combinations": combos, TOY_RECONSTRUCTOR: {"iterations": 20}},
-            }
-        )
-    )
-    smoke = REPO / "workflow" / "presets" / "smoke.yaml"
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(tmp_path)]
-    cmd += ["--cores", "2", "--configfile", str(smoke), str(local)]
-    import subprocess
-
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900, env=plugin_env())
-    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
-    res = tmp_path / "results"
-    for combo in combos:
-        metrics = yaml.safe_load((res / "eval" / "courtyard" / combo / "metrics.json").read_text())
+    assert smoke_run.built["full_rc"] == 0, smoke_run.built["full_err"]
+    res = smoke_run.work / "results"
+    for combo in TOY_COMBINATIONS:
+        metrics = json.loads((res / "eval" / "courtyard" / combo / "metrics.json").read_text())
         assert metrics["mean"]["psnr"] > 5.0, (combo, metrics["mean"])
-    record = yaml.safe_load((res / "recon" / "courtyard" / combos[0] / "train.json").read_text())
-    assert record["capacity"]["parameters"] == 48 * 64 * 3 and record["iterations"] == 20
+    record = json.loads((res / "recon" / "courtyard" / "toy+toy-mean" / "train.json").read_text())
+    assert record["capacity"]["parameters"] == 48 * 64 * 3 and record["iterations"] == MeanConfig().iterations
+    model = json.loads((res / "models" / TOY_TRANSLATOR / "train.json").read_text())
+    assert model["iterations"] == 4 and model["settings"]["width"] == 3  # stage1.train of the smoke preset
     two_stage = (res / "tables" / "two_stage.csv").read_text()
-    assert all(combo in two_stage for combo in combos)
+    assert all(combo in two_stage for combo in TOY_COMBINATIONS)
     assert "Toy (3x3 conv)" in (res / "tables" / "stage1.csv").read_text()

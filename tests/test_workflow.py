@@ -69,18 +69,16 @@ def test_dry_run_lists_the_dag(tmp_path):
 
 
 @pytest.mark.slow
-def test_smoke_run_end_to_end(tmp_path, lpips_cache):
-    """One output path alone, then the whole DAG on the smoke preset, then a no-op rerun."""
-    res = tmp_path / "results"
-    local = tmp_path / "local.yaml"  # the LPIPS weights the test session already fetched
-    local.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
-    configs = ["--configfile", str(SMOKE), str(local)]
-    single = snakemake(tmp_path, "results/spc/courtyard", "--cores", "2", *configs)
-    assert single.returncode == 0, single.stderr[-3000:]
+def test_smoke_run_end_to_end(tmp_path, smoke_run):
+    """One output path alone, then the whole DAG on the smoke preset (the session's smoke run, with
+    the toy plugin models), then a no-op rerun and the tables rewritten from the metrics."""
+    built = smoke_run.built
+    assert built["single_rc"] == 0, built["single_err"]
+    assert built["single_only_target"]  # the first target built only what it needs
+    assert built["full_rc"] == 0, built["full_err"]
+    work = smoke_run.copy(tmp_path / "work")
+    res, configs = work / "results", smoke_run.configs
     assert (res / "spc" / "courtyard" / "spc.json").exists()
-    assert not (res / "scenes" / "tabletop").exists()  # only what the target needs
-    proc = snakemake(tmp_path, "--cores", "2", *configs)
-    assert proc.returncode == 0, proc.stderr[-4000:]
     table = pd.read_csv(res / "summary" / "data_summary.csv", index_col=0)
     assert list(table.index) == ["tabletop", "courtyard"]
     assert table.loc["courtyard", "detection_rate"] == pytest.approx(0.5, abs=0.05)  # calibrated exposure
@@ -94,8 +92,8 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     assert pose["total"] == 9 and "status" in pose
     assert len(list((res / "augment" / "tabletop" / "rgb").glob("*.png"))) == 4
     assert np.load(res / "scenes" / "tabletop" / "poses_bounds.npy").shape == (9, 17)
-    assert (tmp_path / "logs" / "simulate_scene" / "courtyard.log").read_text().strip()
-    assert (tmp_path / "benchmarks" / "simulate_scene" / "courtyard.tsv").exists()
+    assert (work / "logs" / "simulate_scene" / "courtyard.log").read_text().strip()
+    assert (work / "benchmarks" / "simulate_scene" / "courtyard.tsv").exists()
     # Stage 2: every combination evaluated, the table in the paper's layout.
     metrics = io.read_json(res / "eval" / "courtyard" / "bernoulli+3dgs" / "metrics.json")
     assert set(metrics["mean"]) == {"psnr", "ssim", "lpips_alex", "lpips_vgg"} and metrics["seed"] == 0
@@ -113,7 +111,7 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     assert len(list((res / "translate" / "courtyard" / "diffusion" / "images").glob("*.png"))) == 9
     s1 = pd.read_csv(res / "tables" / "stage1.csv").set_index("combination")
     # smoke runs no mle row; "prior": the translators' physics prior alone, a method of its own
-    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "prior", "none", "none-x1"}
+    assert set(s1.index) == {"pix2pixhd", "restormer", "diffusion", "prior", "toy", "none", "none-x1"}
     assert s1.loc["none", "S"] == 4 and s1.loc["none-x1", "S"] == 1  # the capture frame: 4 x 4 px per pixel
     prior = io.read_json(res / "eval" / "courtyard" / "prior+3dgs" / "metrics.json")
     assert prior["frames"] == 1 and np.isfinite(prior["mean"]["psnr"])
@@ -129,11 +127,11 @@ def test_smoke_run_end_to_end(tmp_path, lpips_cache):
     assert posed["total"] == 7 and posed["source"] == "gt"  # 9 views, 2 held out: never given to COLMAP
     est = pd.read_csv(res / "tables" / "estimated_poses.csv").set_index("combination")
     assert list(est.index) == ["gt+3dgs", "gt+3dgs@gt"] and est.loc["gt+3dgs@gt", "poses"].startswith("COLMAP on gt")
-    again = snakemake(tmp_path, "-n", "--cores", "2", *configs)
+    again = snakemake(work, "-n", "--cores", "2", *configs, env=smoke_run.env)
     assert "Nothing to be done" in again.stdout + again.stderr
     # `tables` rewrites the tables from the metrics on disk and runs nothing else.
     (res / "tables" / "two_stage.md").unlink()
-    tables = snakemake(tmp_path, "tables", "--cores", "2", *configs)
+    tables = snakemake(work, "tables", "--cores", "2", *configs, env=smoke_run.env)
     assert tables.returncode == 0, tables.stderr[-3000:]
     assert (res / "tables" / "two_stage.md").exists()
     assert re.search(r"^tables\s+1$", tables.stdout + tables.stderr, re.M) and "reconstruct" not in tables.stderr
