@@ -1,7 +1,7 @@
 """Reliability: ``kill -9`` in the middle of every kind of training, then the same command again.
 
 Each row of KINDS trains one kind (3DGS, grid NeRF, MLP NeRF, a GAN, Restormer, diffusion, a
-trade-off point) just long enough to be killed after its first checkpoint, in one of three ways:
+trade-off point's reconstruction) just long enough to be killed after its first checkpoint, in one of three ways:
 
     job        SIGKILL of the training job alone (as the OOM killer does): Snakemake reports the failure
     group      SIGKILL of Snakemake and its job together (their process group: a crash, `kill -9 -PGID`)
@@ -147,11 +147,11 @@ KINDS = {
         100,
         "snakemake",
     ),
-    "tradeoff": Kind(
-        f"results/tradeoff/gt+3dgs/{POINT}/metrics.json",
-        "tradeoff_point",
-        f"results/tradeoff/gt+3dgs/{POINT}/recon",
-        f"results/checkpoints/tradeoff/gt+3dgs/{POINT}/reconstruct.pt",
+    "tradeoff": Kind(  # a trade-off point: the reconstruct job under its settings overlay
+        f"results/sweeps/tradeoff/{POINT}/eval/courtyard/gt+3dgs/metrics.json",
+        "reconstruct",
+        f"results/sweeps/tradeoff/{POINT}/recon/courtyard/gt+3dgs",
+        f"results/sweeps/tradeoff/{POINT}/checkpoints/courtyard/gt+3dgs/checkpoint.pt",
         100,
         "job",
     ),
@@ -235,7 +235,7 @@ def test_killed_training_resumes_where_it_stopped(name, upstream, tmp_path, lpip
     configs = _copy(upstream, killed, lpips_cache)
     command = ["--cores", "1", kind.target, *configs]  # the same command, before and after the kill
     _kill(snakemake_process(killed, *command), kind, killed / kind.checkpoint)
-    log = killed / "logs" / ("tradeoff" if kind.script == "tradeoff_point" else kind.script)
+    log = killed / "logs" / kind.script
     if kind.kill == "snakemake":
         assert "is gone: stopping" in "".join(p.read_text() for p in log.rglob("*.log"))
     assert not (killed / kind.record).exists()  # nothing half-written that looks complete
@@ -252,9 +252,9 @@ def test_killed_training_resumes_where_it_stopped(name, upstream, tmp_path, lpip
     assert rec["resumed_from"] % every == 0 and rec["checkpoint"]["discarded"] is None
     assert "resuming from" in "".join(p.read_text() for p in log.rglob("*.log"))
     assert _scores(killed / kind.target) == _scores(ref / kind.target)  # bit for bit
-    if name == "tradeoff":
-        assert io.read_json(killed / kind.target)["resumed_from"] == {"train": None, "reconstruct": rec["resumed_from"]}
-        assert not (killed / kind.checkpoint).parent.exists()  # a finished point removes its checkpoints
+    if name == "tradeoff":  # the point's own job, logged and benchmarked under its overlay
+        assert (killed / "benchmarks" / "reconstruct" / "sweeps" / "tradeoff" / POINT / "courtyard").is_dir()
+        assert not (killed / "results" / "recon").exists()  # nothing of the grid ran
     leftovers = [p for p in (killed / "results").rglob("*") if p.name.endswith((".tmp", ".lock"))]
     assert not leftovers, leftovers
     print(f"{name}: killed ({kind.kill}) and resumed from iteration {rec['resumed_from']} of {kind.iterations}")

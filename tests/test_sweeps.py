@@ -1,4 +1,5 @@
-"""Budget sweeps: Pareto fronts, knobs and tables, a point's mini pipeline end to end, reports, the rules."""
+"""Budget sweeps: Pareto fronts, knobs and tables, a point's settings overlay, a tiny sweep through
+Snakemake end to end (the grid's rules under the overlay), reports, the rules."""
 
 import re
 import subprocess
@@ -11,44 +12,39 @@ import yaml
 from snakemake.utils import Paramspace
 
 from spc3d import io, names
+from spc3d.jobs import BENCHMARK_COLUMNS
 from spc3d.sweeps import knobs, plan
-from spc3d.sweeps.budget import WIDTH_KEYS, resolve_point
+from spc3d.sweeps.budget import WIDTH_KEYS
 from spc3d.sweeps.pareto import front_steps, pareto_mask
-from spc3d.sweeps.report import photon_level_report, tradeoff_report
 
-from conftest import REPO
+from conftest import REPO, run_snakemake
 
 TABLE = REPO / "workflow" / "tradeoff.tsv"
-SPEC = {"kind": "builtin", "height": 36, "width": 48, "views": 9, "supersample": 1, "seed": 0}
-SPC = {
-    "mode": "bernoulli",
-    "q": 0.45,
-    "tau_d": 1.5e-7,
-    "exposure_s": 1e-4,
-    "dark_count_rate": 100.0,
-    "frames": 4,
-    "flux_scale": None,
-    "target_detection": 0.5,
-}
+SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
 TINY_3DGS = {"iterations": 12, "densify_from": 4, "densify_until": 10, "densify_every": 4, "init_points": 300}
-TINY_PIX2PIX = {
-    "settings": {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2},
-    "train": {"iterations": 2, "batch_size": 2, "crop": 16, "log_every": 1},
-    "frames": 1,
+SPEC = {"kind": "builtin", "height": 36, "width": 48, "views": 9, "supersample": 1, "seed": 0}
+CONFIG = {  # the config values PointSettings reads
+    "seed": 0,
+    "spc": {
+        "mode": "bernoulli",
+        "q": 0.45,
+        "tau_d": 1.5e-7,
+        "exposure_s": 1e-4,
+        "dark_count_rate": 100.0,
+        "frames": 4,
+        "flux_scale": None,
+        "target_detection": 0.5,
+        "capture_factor": 4,
+    },
+    "augment": {"count": 4},
+    "stage1": {"frames": 1},
+    "stage2": {"frames": 1},
 }
 
 
-def base(translator=None, model_settings=TINY_3DGS):
-    return {
-        "seed": 0,
-        "scene_name": "courtyard",
-        "scene": SPEC | {"layout": "courtyard"},
-        "train_scenes": {"tabletop": SPEC | {"layout": "tabletop"}},
-        "spc": SPC,
-        "augment": {"count": 4, "zoom": [0.8, 1.25], "rotation_deg": 15.0, "shear_deg": 10.0, "flip_prob": 0.5},
-        "translator": translator,
-        "stage2": {"settings": model_settings, "frames": 1},
-    }
+def point_settings(budget=None):
+    specs = {"courtyard": SPEC | {"layout": "courtyard"}, "tabletop": SPEC | {"layout": "tabletop"}}
+    return plan.PointSettings(CONFIG, specs, "courtyard", ["tabletop"], budget or {})
 
 
 # ---- Pareto front ----------------------------------------------------------------------------------
@@ -128,100 +124,70 @@ def test_bad_tables_settings_and_combinations_are_named(tmp_path):
         plan.sweep_scenes("mars", None, ["courtyard"], ["tabletop"], ["courtyard", "tabletop"])
 
 
-# ---- a point's settings ------------------------------------------------------------------------------
-def test_knobs_reach_every_stage():
-    p = resolve_point(
-        base(TINY_PIX2PIX), {"iters": 6, "res": 64, "K": 2, "width": 12, "steps": 3, "cap": 100}, "pix2pix+3dgs"
-    )
-    assert p["scene"]["width"] == 64 and p["scene"]["height"] == 48  # 4:3 kept
-    assert p["train_scenes"]["tabletop"]["height"] == 48 and p["spc"]["physics"]["frames"] == 2 and p["frames"] == 2
-    assert p["translator"]["settings"]["ngf"] == 12 and p["translator"]["train"]["iterations"] == 3
-    assert p["translator"]["train"]["crop"] == 16
-    s = p["stage2"]
+# ---- a point's settings overlay -----------------------------------------------------------------------
+def test_overlay_names_the_sweep_and_its_setting():
+    value = plan.overlay("tradeoff", "iters~300/res~64/detection~0.05")
+    assert value == "sweeps/tradeoff/iters~300/res~64/detection~0.05/"
+    assert plan.parse_overlay(value) == ("tradeoff", {"iters": 300, "res": 64, "detection": 0.05})
+    assert plan.parse_overlay("") == ("", {})
+    assert re.fullmatch(plan.OVERLAY_PATTERN, "") and re.fullmatch(plan.OVERLAY_PATTERN, value)
+    for bad in ("sweeps/grid/iters~3/", "sweeps/tradeoff/", "sweeps/tradeoff/speed~3/", "scenes/"):
+        assert not re.fullmatch(plan.OVERLAY_PATTERN, bad)
+        with pytest.raises(ValueError, match="is not a sweep overlay"):
+            plan.parse_overlay(bad)
+    with pytest.raises(ValueError, match="knob res='0' must be a positive integer"):
+        plan.parse_overlay("sweeps/tradeoff/res~0/")
+    for pattern in Paramspace(knobs.read_table(TABLE)).instance_patterns:  # every table row is an overlay
+        assert re.fullmatch(plan.OVERLAY_PATTERN, plan.overlay("tradeoff", pattern))
+
+
+def test_knobs_reach_every_rule():
+    points = point_settings()
+    value = plan.overlay("tradeoff", "iters~6/res~64/K~2/width~12/steps~3/cap~100/detection~0.1")
+    assert points.scene(value, "courtyard")["width"] == 64 and points.scene(value, "tabletop")["height"] == 48
+    spc = points.spc(value)
+    assert spc["physics"]["frames"] == 2 and spc["target_detection"] == 0.1 and spc["flux_scale"] is None
+    assert spc["capture_factor"] == 1  # a point simulates no finer capture frame
+    assert points.frames(value, "pix2pix") == 2 and points.frames(value, "gt") is None
+    assert points.frames(value, "none") == 1 and points.augment_count("tabletop") == 4
+    settings, train = points.translator(value, "pix2pix", {"ngf": 8}, {"iterations": 50, "crop": 256})
+    assert settings["ngf"] == 12 and train["iterations"] == 3 and train["crop"] == 48  # the 48-px-high images
+    s = points.stage2(value, "3dgs", TINY_3DGS)
     assert s["iterations"] == 6 and s["densify_until"] == 5 and s["densify_every"] == 2  # schedules scale 6/12
     assert s["max_gaussians"] == 100 and s["init_points"] == 100
-    grid = resolve_point(
-        base(model_settings={"n_iters": 200, "res_schedule": [[0, 32], [70, 64], [140, 96]]}),
-        {"iters": 100, "grid": 48, "detection": 0.1},
-        "mle+nerf-grid",
+    grid = points.stage2(
+        plan.overlay("tradeoff", "iters~100/grid~48"),
+        "nerf-grid",
+        {"n_iters": 200, "res_schedule": [[0, 32], [70, 64], [140, 96]]},
     )
-    assert grid["stage2"]["res_schedule"] == [[0, 16], [35, 32], [70, 48]] and grid["stage2"]["n_iters"] == 100
-    assert grid["spc"]["target_detection"] == 0.1 and grid["spc"]["flux_scale"] is None and grid["frames"] == 1
-    assert list(grid["train_scenes"]) == ["tabletop"] and grid["augment"]["counts"] == {}  # display level only
-    with pytest.raises(ValueError, match="no translator settings"):
-        resolve_point(base(), {}, "pix2pix+3dgs")
+    assert grid["res_schedule"] == [[0, 16], [35, 32], [70, 48]] and grid["n_iters"] == 100
+    photon = point_settings({"iters": 10, "res": 48})
+    value = plan.overlay("photon_level", "detection~0.02/K~16")
+    assert photon.setting(value) == {"iters": 10, "res": 48, "detection": 0.02, "K": 16}
+    assert photon.frames(value, "mle") == 16 and point_settings().frames(plan.overlay("tradeoff", "res~48"), "mle") == 1
     with pytest.raises(ValueError, match="res=12: images are too small"):
-        resolve_point(base(TINY_PIX2PIX), {"res": 12}, "pix2pix+3dgs")
+        points.translator(plan.overlay("tradeoff", "res~12"), "pix2pix", {}, {})
 
 
-# ---- the mini pipeline end to end --------------------------------------------------------------------
-@pytest.fixture(scope="module")
-def points(tmp_path_factory, lpips_cache, one_torch_thread):
-    from spc3d.sweeps.point import run_point
-
-    root = tmp_path_factory.mktemp("sweeps")
-    runs = {
-        "gt+3dgs": (base(), {"iters": 10, "res": 48, "cap": 400}),
-        "pix2pix+3dgs": (base(TINY_PIX2PIX), {"iters": 10, "res": 48, "K": 1, "width": 8, "steps": 2, "cap": 400}),
-    }
-    for combo, (b, setting) in runs.items():
-        run_point(root / combo, combo, setting, b, lpips_dir=lpips_cache)
-    return root
-
-
-def test_point_writes_metrics_with_every_field(points):
-    for combo in ("gt+3dgs", "pix2pix+3dgs"):
-        rec = io.read_json(points / combo / "metrics.json")
-        assert rec["combination"] == combo and rec["seed"] == 0 and rec["scene"] == "courtyard"
-        assert set(rec["mean"]) == {"psnr", "ssim", "lpips_alex", "lpips_vgg"} and len(rec["per_view"]) == 2
-        assert set(rec["times_s"]) == {
-            "prepare",
-            "simulate",
-            "augment",
-            "train",
-            "translate",
-            "reconstruct",
-            "evaluate",
-        }
-        assert rec["wall_s"] + 0.01 >= sum(rec["times_s"].values()) > 0 and rec["cpu_s"] > 0 and rec["peak_rss_mb"] > 50
-        assert rec["iterations"] == 10 and rec["capacity"]["gaussians"] > 0
-        assert rec["resolved"]["scene"]["width"] == 48 and rec["resolved"]["stage2"]["iterations"] == 10
-        assert (points / combo / "recon" / "renders" / "image000.png").exists()
-        assert not (points / combo / "work").exists()  # intermediate data removed
-    gt = io.read_json(points / "gt+3dgs" / "metrics.json")
-    assert gt["stage1"] is None and gt["times_s"]["train"] == 0 and gt["used_knobs"] == ["iters", "res", "cap"]
-    assert gt["resolved"]["stage2"]["max_gaussians"] == 400
-    p2p = io.read_json(points / "pix2pix+3dgs" / "metrics.json")
-    assert p2p["times_s"]["train"] > 0 and p2p["times_s"]["augment"] > 0 and np.isfinite(p2p["stage1"]["psnr"])
-    assert p2p["translator"]["settings"]["ngf"] == 8 and p2p["translator"]["train"]["iterations"] == 2
-    assert p2p["spc_record"]["params"]["frames"] == 1
-
-
-def test_reports_write_tables_and_figures(points, tmp_path):
-    paths = [points / "gt+3dgs" / "metrics.json", points / "pix2pix+3dgs" / "metrics.json"]
-    table = tradeoff_report(paths, ["pix2pix+3dgs", "gt+3dgs"], tmp_path / "t.csv", tmp_path / "t.png")
-    csv = pd.read_csv(tmp_path / "t.csv")
-    assert list(csv["combination"]) == ["pix2pix+3dgs", "gt+3dgs"] and csv["pareto"].all()
-    assert csv["setting"].tolist() == [2, 1]  # settings numbered in input order, shown in the figure's legend
-    for column in ("iters", "res", "cap", "wall_time_s", "peak_memory_mb", "psnr", "ssim", "lpips_alex", "lpips_vgg"):
-        assert csv[column].notna().all(), column
-    assert table.loc[0, "label"] == "10it 48px K1 w8 2st cap400"
-    assert (tmp_path / "t.png").stat().st_size > 10_000
-    photon = []  # the same point at several exposures and K (the report only reads the records)
-    rec = io.read_json(paths[0])
-    for i, (d, k) in enumerate([(0.1, 1), (0.5, 1), (0.1, 4), (0.5, 4)]):
-        rec.update(
-            combination="mle+3dgs",
-            setting={"detection": d, "K": k},
-            used_knobs=["detection", "K"],
-            stage1={"psnr": 10.0 + i},
-            mean=rec["mean"] | {"psnr": 12.0 + i},
-        )
-        io.write_json(tmp_path / f"p{i}.json", rec)
-        photon.append(tmp_path / f"p{i}.json")
-    out = photon_level_report(photon, ["mle+3dgs"], tmp_path / "p.csv", tmp_path / "p.png")
-    assert out[["K", "detection"]].values.tolist() == [[1, 0.1], [1, 0.5], [4, 0.1], [4, 0.5]]
-    assert (tmp_path / "p.png").stat().st_size > 10_000
+def test_a_point_lists_its_jobs():
+    value = plan.overlay("tradeoff", "iters~10")
+    rules = lambda combo: [r for r, _ in plan.point_jobs(combo, value, "courtyard", ["tabletop"], 4)]  # noqa: E731
+    assert rules("gt+3dgs") == ["prepare_scene", "reconstruct", "evaluate"]
+    assert rules("pix2pix+3dgs") == [
+        *["prepare_scene"] * 2,
+        *["simulate_scene"] * 2,
+        "augment_scene",
+        "train_translator",
+        "translate_scene",
+        "score_images",
+        "reconstruct",
+        "evaluate",
+    ]
+    jobs = dict(plan.point_jobs("mle+3dgs", value, "courtyard", ["tabletop"], 4)[4:6])
+    assert jobs["calibrate_display"]["budget"] == "k4" and jobs["write_display"]["overlay"] == value
+    assert "score_images" not in rules("bernoulli+3dgs")
+    with pytest.raises(ValueError, match="needs training scenes"):
+        plan.point_jobs("mle+3dgs", value, "courtyard", [], 1)
 
 
 def test_rule_side_modules_import_without_torch():
@@ -232,10 +198,84 @@ def test_rule_side_modules_import_without_torch():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+# ---- a tiny sweep through Snakemake, end to end ----------------------------------------------------------
+TRADEOFF_ROW = "iters~10/res~48/K~1/width~8/steps~2/cap~400"
+PHOTON_ROWS = ("detection~0.2/K~2", "detection~0.6/K~2")
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory, lpips_cache):
+    """`snakemake tradeoff photon_level` on the smoke preset: gt+3dgs and pix2pix+3dgs at one
+    budget, mle+3dgs at two exposures (K = 2)."""
+    root = tmp_path_factory.mktemp("sweep")
+    (root / "t.tsv").write_text("iters\tres\tK\twidth\tsteps\tcap\n10\t48\t1\t8\t2\t400\n")
+    config = {
+        "metrics": {"lpips_source": str(lpips_cache)},
+        "tradeoff": {"combinations": ["gt+3dgs", "pix2pix+3dgs"], "table": str(root / "t.tsv")},
+        "photon_level": {
+            "combinations": ["mle+3dgs"],
+            "detection": [0.2, 0.6],
+            "frames": [2],
+            "budget": {"iters": 10, "res": 48, "cap": 400},
+        },
+    }
+    (root / "sweep.yaml").write_text(yaml.safe_dump(config))
+    proc = run_snakemake(
+        root, "--cores", "2", "tradeoff", "photon_level", "--configfile", str(SMOKE), str(root / "sweep.yaml")
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return root
+
+
+def test_a_sweep_runs_the_grid_rules_under_its_overlay(sweep):
+    point = sweep / "results" / "sweeps" / "tradeoff" / TRADEOFF_ROW
+    for combo in ("gt+3dgs", "pix2pix+3dgs"):
+        rec = io.read_json(point / "eval" / "courtyard" / combo / "metrics.json")
+        assert rec["combination"] == combo and rec["iterations"] == 10 and rec["capacity"]["gaussians"] > 0
+        assert rec["settings"]["max_gaussians"] == 400 and len(rec["per_view"]) == 2
+    assert io.read_rgb(next((point / "scenes" / "courtyard" / "images").glob("*.png"))).shape[1] == 48
+    model = io.read_json(point / "models" / "pix2pix" / "train.json")
+    assert model["settings"]["ngf"] == 8 and model["iterations"] == 2 and model["validation"] is None
+    assert io.read_json(point / "spc" / "courtyard" / "spc.json")["params"]["frames"] == 1
+    assert not (sweep / "results" / "eval").exists()  # nothing of the grid ran
+    for value in PHOTON_ROWS:
+        photon = sweep / "results" / "sweeps" / "photon_level" / value
+        spc = io.read_json(photon / "spc" / "courtyard" / "spc.json")
+        assert spc["params"]["frames"] == 2 and (photon / "mle" / "courtyard" / "k2").is_dir()
+        assert io.read_json(photon / "eval" / "courtyard" / "mle+3dgs" / "metrics.json")["frames"] == 2
+        assert io.read_json(photon / "stage1" / "courtyard" / "mle.json")["mean"]["psnr"] > 0
+    benchmarks = list((sweep / "benchmarks").rglob("*.tsv"))
+    jobs = {b.relative_to(sweep / "benchmarks").parts[1] for b in benchmarks}  # every job under its overlay
+    assert jobs == {"sweeps", "lpips_weights.tsv", "tradeoff_report.tsv", "photon_level_report.tsv"}
+
+
+def test_reports_sum_the_benchmarks_of_each_points_jobs(sweep):
+    table = pd.read_csv(sweep / "results" / "tables" / "tradeoff.csv")
+    assert list(table["combination"]) == ["gt+3dgs", "pix2pix+3dgs"] and table["pareto"].all()
+    for column in ("iters", "res", "cap", "wall_time_s", "peak_memory_mb", "psnr", "ssim", "lpips_alex", "cpu_time_s"):
+        assert table[column].notna().all(), column
+    point = f"sweeps/tradeoff/{TRADEOFF_ROW}"
+    gt = [f"prepare_scene/{point}/courtyard", f"reconstruct/{point}/courtyard/gt+3dgs"]
+    gt.append(f"evaluate/{point}/courtyard/gt+3dgs")
+    rows = [pd.read_csv(sweep / "benchmarks" / f"{job}.tsv", sep="\t") for job in gt]
+    assert all(list(r.columns) == list(BENCHMARK_COLUMNS) for r in rows)
+    row = table.iloc[0]
+    assert row["wall_time_s"] == pytest.approx(sum(r["s"].iloc[0] for r in rows), rel=1e-3)
+    assert row["cpu_time_s"] == pytest.approx(sum(r["user_s"].iloc[0] + r["sys_s"].iloc[0] for r in rows), rel=1e-3)
+    assert row["peak_memory_mb"] == pytest.approx(max(r["max_rss_mb"].iloc[0] for r in rows), rel=1e-3)
+    scores = io.read_json(sweep / "results" / point / "eval" / "courtyard" / "gt+3dgs" / "metrics.json")["mean"]
+    assert row["psnr"] == pytest.approx(scores["psnr"], rel=1e-3)
+    p2p = table.iloc[1]  # its own ten jobs: the scenes, SPC, pairs, translator, translation, scores before 3D
+    assert p2p["wall_time_s"] > row["wall_time_s"] and np.isfinite(p2p["stage1_psnr"]) and p2p["label"] != ""
+    photon = pd.read_csv(sweep / "results" / "tables" / "photon_level.csv")
+    assert photon[["K", "detection"]].values.tolist() == [[2, 0.2], [2, 0.6]]
+    assert photon["stage1_psnr"].notna().all() and photon["measured_detection"].between(0, 1).all()
+    for png in ("tradeoff.png", "photon_level.png"):
+        assert (sweep / "results" / "figures" / png).stat().st_size > 10_000
+
+
 # ---- the rules ---------------------------------------------------------------------------------------
 def test_dry_run_of_both_sweeps(tmp_path):
-    if "tradeoff.smk" not in (REPO / "Snakefile").read_text():
-        pytest.skip("the Snakefile does not include workflow/rules/tradeoff.smk yet")
     from test_workflow import snakemake
 
     table = tmp_path / "t.tsv"  # rows 1 and 2 differ only in width: one point for gt, two for pix2pix
@@ -254,10 +294,19 @@ def test_dry_run_of_both_sweeps(tmp_path):
     )
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-3000:]
-    assert "results/tradeoff/pix2pix+nerf-grid/iters~100/res~64/width~16/metrics.json" in out
-    assert "results/tradeoff/gt+3dgs/iters~100/res~64/width~16/metrics.json" not in out
+    assert "results/sweeps/tradeoff/iters~100/res~64/width~16/eval/courtyard/pix2pix+nerf-grid/metrics.json" in out
+    assert "results/sweeps/tradeoff/iters~100/res~64/width~16/eval/courtyard/gt+3dgs/metrics.json" not in out
     counts = {m[0]: int(m[1]) for m in re.findall(r"^(\w+)\s+(\d+)$", out, re.M)}
-    assert counts["tradeoff_point"] == 5 and counts["photon_level_point"] == 8 and counts["tradeoff"] == 1
+    # 5 trade-off points + 8 photon-level points (mle+3dgs, bernoulli+3dgs at 4 settings), one stage 2 each;
+    # a setting's scenes are shared by its combinations: 3 trade-off + 4 photon-level settings x 4 scenes
+    assert counts["reconstruct"] == 13 and counts["evaluate"] == 13 and counts["tradeoff"] == 1
+    assert counts["prepare_scene"] == 7 * 4 and counts["train_translator"] == 3 and counts["calibrate_display"] == 4
+    assert "tradeoff_point" not in counts and "photon_level_point" not in counts
+    point = "results/sweeps/photon_level/detection~0.1/K~4/eval/courtyard/bernoulli+3dgs/metrics.json"
+    one = snakemake(tmp_path, "-n", point, "--configfile", str(REPO / "config.yaml"), str(cfg), timeout=120)
+    counts = {m[0]: int(m[1]) for m in re.findall(r"^(\w+)\s+(\d+)$", one.stdout + one.stderr, re.M)}
+    # a point as a file target: 4 scenes and their SPC data, the display, stage 2, scores, LPIPS weights
+    assert one.returncode == 0 and counts["total"] == 13, one.stdout[-3000:]
     cfg.write_text(yaml.safe_dump({"tradeoff": {"combinations": ["sketch+3dgs"]}}))
     bad = snakemake(tmp_path, "-n", "tradeoff", "--configfile", str(REPO / "config.yaml"), str(cfg), timeout=120)
     assert bad.returncode != 0 and "tradeoff.combinations: 'sketch+3dgs' has unknown source" in bad.stdout + bad.stderr

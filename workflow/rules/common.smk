@@ -14,8 +14,11 @@ resolve_paths(config, workflow.basedir)
 from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
-from spc3d.names import PLAIN_SOURCES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation
-from spc3d.jobs import folder_files, llff_input_files, scene_specs
+from spc3d.names import PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation
+from snakemake.io import apply_wildcards
+
+from spc3d.jobs import benchmark_path, folder_files, llff_input_files, scene_specs
+from spc3d.sweeps.plan import OVERLAY_PATTERN, PointSettings, photon_budget, sweep_scenes
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
@@ -40,10 +43,17 @@ REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
 # (the binary frame always; MLE and binary variants as the rows use them, without their stage-2 loss).
 STAGE1_SCORED = STAGE1_USED + sorted({parse_source(parse_combination(c)[0]).images for c in COMBINATIONS
                                       if parse_source(parse_combination(c)[0]).base in ("mle", "none")} | {"none"})
+# Sweep points (tradeoff.smk) are these rules' jobs under a settings overlay: the {overlay} wildcard
+# after results/ ("" for the grid, "sweeps/tradeoff/iters~300/res~64/" for a point: spc3d.sweeps.plan).
+# A get_* helper below returns the grid's value for "" and POINTS' for a point.
+SWEEP_SCENE, SWEEP_TRAIN = sweep_scenes(config["tradeoff"]["scene"], config["tradeoff"]["train_scenes"], EVAL_SCENES,
+                                        TRAIN_SCENES, sorted(LAYOUTS) + sorted(config["llff_scenes"]))
+SWEEP_SPECS = scene_specs(config | {"scenes": {"train": SWEEP_TRAIN, "eval": [SWEEP_SCENE]}}, sorted(LAYOUTS))
+POINTS = PointSettings(config, SWEEP_SPECS, SWEEP_SCENE, SWEEP_TRAIN, photon_budget(config["photon_level"]["budget"]))
 
 
 wildcard_constraints:
-    scene="|".join(ALL_SCENES) or "(?!)",
+    scene="|".join(ALL_SCENES + [s for s in SWEEP_SPECS if s not in ALL_SCENES]) or "(?!)",
     images="rgb|binary|average",
     source="[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.names.SourceName
     poses="(@[a-z0-9]+(-k[0-9]+)?)?",  # "@mle-k16": poses COLMAP estimated from that source's images
@@ -52,6 +62,12 @@ wildcard_constraints:
     rep="(-seed[0-9]+)?",
     budget="k[0-9]+|capture",  # a metered display: the first K frames, or the capture-resolution frame
     sensor=f"({'|'.join(SENSORS)})?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
+    overlay=OVERLAY_PATTERN,  # "" (the grid) or a sweep point's settings, "sweeps/tradeoff/iters~300/.../"
+
+
+def overlay_of(wildcards):
+    """The job's settings overlay ("" for the grid and for the rules without the wildcard: colmap, poses)."""
+    return getattr(wildcards, "overlay", "")
 
 
 def get_final_output():
@@ -96,19 +112,26 @@ def get_seed(wildcards):
 
 def get_source_frames(wildcards):
     """Binary frames per view (K) the row's source consumes; None for the oracle."""
+    if overlay_of(wildcards):
+        return POINTS.frames(overlay_of(wildcards), wildcards.source)
     return source_frames(wildcards.source, config["stage1"]["frames"], config["stage2"]["frames"])
 
 
 def get_capture_factor(wildcards):
     """S of a source's images (S x S sensor pixels per working pixel): spc.capture_factor for the
-    capture-resolution frame of a simulated scene (a capture has no finer frame), else 1."""
+    capture-resolution frame of a simulated scene (a capture has no finer frame), else 1; a sweep
+    point simulates no finer frame (S = 1)."""
+    if overlay_of(wildcards):
+        return 1
     simulated = SCENE_SPECS[wildcards.scene]["kind"] != "capture"
     return config["spc"]["capture_factor"] if simulated and reads_capture_frame(wildcards.source, config["stage2"]["frames"]) else 1
 
 
 def display_folder(wildcards):
     """The metered MLE images of the row's frame budget (mle / bernoulli rows); a capture has no
-    finer frame (S = 1), so its capture-frame rows read frame 0's display."""
+    finer frame (S = 1), so its capture-frame rows read frame 0's display. A sweep point's: its K."""
+    if overlay_of(wildcards):
+        return f"results/{overlay_of(wildcards)}mle/{wildcards.scene}/k{get_source_frames(wildcards)}"
     budget = display_budget(wildcards.source, config["stage2"]["frames"])
     if budget == "capture" and SCENE_SPECS[wildcards.scene]["kind"] == "capture":
         budget = "k1"
@@ -127,49 +150,60 @@ def get_display_capture(wildcards):
 
 def get_reconstruct_inputs(wildcards):
     """The scene, its SPC folder for the SPC-derived sources, the stage-1 images or the metered MLE
-    display (mle: its images; bernoulli: its gain), COLMAP's points for a 3DGS init."""
-    name = parse_source(wildcards.source)
-    inputs = {"scene": f"results/scenes/{wildcards.scene}"}
+    display (mle: its images; bernoulli: its gain), COLMAP's points for a 3DGS init (not a sweep point's)."""
+    name, root = parse_source(wildcards.source), f"results/{overlay_of(wildcards)}"
+    inputs = {"scene": f"{root}scenes/{wildcards.scene}"}
     if name.base != "gt":
-        inputs["spc"] = f"results/spc/{wildcards.scene}{wildcards.rep}"
+        inputs["spc"] = f"{root}spc/{wildcards.scene}{wildcards.rep}"
     if name.method:
-        inputs["translated"] = f"results/translate/{wildcards.scene}/{name.method}{wildcards.rep}"
+        inputs["translated"] = f"{root}translate/{wildcards.scene}/{name.method}{wildcards.rep}"
     if name.base in ("mle", "bernoulli"):
         inputs["display"] = display_folder(wildcards)
-    if MODELS[wildcards.model].accepts_points and config["stage2"]["init"] == "colmap":
+    if MODELS[wildcards.model].accepts_points and get_stage2_init(wildcards) == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     if wildcards.poses:
         inputs["poses"] = f"results/poses/{wildcards.scene}/{wildcards.poses[1:]}{wildcards.rep}"
     return inputs
 
 
+def get_stage2_init(wildcards):
+    """stage2.init; a sweep point starts from random points, as every source alike (None: recorded so)."""
+    return None if overlay_of(wildcards) else config["stage2"]["init"]
+
+
 def get_eval_frames(wildcards):
     """A scene without reference views is scored on its held-out frames (spc3d.evaluation.heldout); others need none."""
-    return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE else []
+    return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE and not overlay_of(wildcards) else []
 
 
 def get_model_settings(wildcards):
     """The config's settings of the stage-2 model (overrides of its dataclass defaults); a 3DGS row
     refines its cameras per stage2.refine_poses (by default: the rows on estimated poses)."""
-    settings, refine = dict(config["stage2"][wildcards.model]), config["stage2"]["refine_poses"]
+    settings, refine = dict(config["stage2"].get(wildcards.model, {})), config["stage2"]["refine_poses"]
     if MODELS[wildcards.model].refines_poses and "pose_refine" not in settings:
         settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(wildcards.poses))
-    return settings
+    return POINTS.stage2(overlay_of(wildcards), wildcards.model, settings) if overlay_of(wildcards) else settings
 
 
 def get_checkpoint_path(wildcards):
     """Outside the rule's output folder, so Snakemake's clean-up of a failed job keeps it."""
     combo = f"{wildcards.source}+{wildcards.model}{wildcards.poses}"
-    return f"results/checkpoints/{wildcards.scene}/{combo}{wildcards.rep}/checkpoint.pt"
+    return f"results/{overlay_of(wildcards)}checkpoints/{wildcards.scene}/{combo}{wildcards.rep}/checkpoint.pt"
+
+
+def scene_spec(wildcards):
+    """The scene's spec as configured (a sweep point's: the sweeps' scenes, tradeoff.scene / train_scenes)."""
+    return (SWEEP_SPECS if overlay_of(wildcards) else SCENE_SPECS)[wildcards.scene]
 
 
 def get_scene_spec(wildcards):
-    return SCENE_SPECS[wildcards.scene]
+    """The scene's spec (a sweep point's: at its width, knob res)."""
+    return POINTS.scene(overlay_of(wildcards), wildcards.scene) if overlay_of(wildcards) else SCENE_SPECS[wildcards.scene]
 
 
 def get_scene_source(wildcards):
     """The files of a real scene or capture (every one read: an edit reruns it); none for built-ins."""
-    spec = SCENE_SPECS[wildcards.scene]
+    spec = scene_spec(wildcards)
     if spec["kind"] == "llff":
         return llff_input_files(spec["path"], spec["factor"])
     hot = [spec["overrides"]["hot_pixels"]] if spec.get("overrides", {}).get("hot_pixels") else []
@@ -183,7 +217,10 @@ def scene_sensor(scene):
 
 
 def get_spc_settings(wildcards):
-    """A simulated scene's physics and seed; a capture's folder (its frames are read, one measurement for every seed)."""
+    """A simulated scene's physics and seed; a capture's folder (its frames are read, one measurement for
+    every seed); a sweep point's K frames and calibration target (knobs K, detection)."""
+    if overlay_of(wildcards):
+        return POINTS.spc(overlay_of(wildcards))
     spec = SCENE_SPECS[wildcards.scene]
     if spec["kind"] == "capture":
         return {"capture": spec["path"], "overrides": spec["overrides"]}
@@ -191,13 +228,16 @@ def get_spc_settings(wildcards):
 
 
 def get_augment_count(wildcards):
+    if overlay_of(wildcards):
+        return POINTS.augment_count(wildcards.scene)
     return split_count(config["augment"]["count"], len(TRAIN_SCENES), TRAIN_SCENES.index(wildcards.scene))
 
 
 def get_display_training(wildcards):
     """Scene and SPC folders of the training scenes the display level is fitted on."""
-    return {"scenes": expand("results/scenes/{scene}", scene=TRAIN_SCENES),
-            "spc": expand("results/spc/{scene}{rep}", scene=TRAIN_SCENES, rep=wildcards.rep)}
+    root, scenes = f"results/{overlay_of(wildcards)}", POINTS.train if overlay_of(wildcards) else TRAIN_SCENES
+    return {"scenes": expand(f"{root}scenes/{{scene}}", scene=scenes),
+            "spc": expand(f"{root}spc/{{scene}}{{rep}}", scene=scenes, rep=wildcards.rep)}
 
 
 def get_colmap_images(wildcards):
@@ -227,13 +267,25 @@ def get_translator_base(wildcards):
 
 
 def get_translator_settings(wildcards):
-    """The method's model overrides (its config block without the 'train' block)."""
-    return translator_settings(config["stage1"], wildcards.method)[0]
+    """The method's model overrides (its config block without the 'train' block; a sweep point's width)."""
+    settings, train = translator_settings(config["stage1"], wildcards.method)
+    return POINTS.translator(overlay_of(wildcards), wildcards.method, settings, train)[0] if overlay_of(wildcards) else settings
 
 
 def get_translator_train(wildcards):
-    """stage1.train, overridden by the method's own 'train' block."""
-    return translator_settings(config["stage1"], wildcards.method)[1]
+    """stage1.train, overridden by the method's own 'train' block (a sweep point's steps and a crop that fits)."""
+    settings, train = translator_settings(config["stage1"], wildcards.method)
+    return POINTS.translator(overlay_of(wildcards), wildcards.method, settings, train)[1] if overlay_of(wildcards) else train
+
+
+def get_translator_frames(wildcards):
+    """stage1.frames: the binary frames a translator reads (a sweep point's K)."""
+    return POINTS.frames(overlay_of(wildcards), wildcards.method) if overlay_of(wildcards) else config["stage1"]["frames"]
+
+
+def get_translator_data_kind(wildcards):
+    """stage1.data; a sweep point trains on its fixed augmented pairs."""
+    return "fixed" if overlay_of(wildcards) else config["stage1"]["data"]
 
 
 def get_translator_pretrained(wildcards):
@@ -245,18 +297,19 @@ def get_translator_pretrained(wildcards):
 def get_translator_data(wildcards):
     """The training data of a translator: the augmented pairs (stage1.data: fixed) and, for online
     samples or validation (on their held-out views), the training scenes and their SPC folders."""
-    stage1, inputs = config["stage1"], {}
-    if stage1["data"] == "fixed":
-        inputs["pairs"] = expand("results/augment/{scene}{rep}", scene=TRAIN_SCENES, rep=wildcards.rep)
-    if stage1["data"] == "online" or get_translator_validation(wildcards)["every"] > 0:
-        inputs["scenes"] = expand("results/scenes/{scene}", scene=TRAIN_SCENES)
-        inputs["spc"] = expand("results/spc/{scene}{rep}", scene=TRAIN_SCENES, rep=wildcards.rep)
+    data, inputs = get_translator_data_kind(wildcards), {}
+    root, scenes = f"results/{overlay_of(wildcards)}", POINTS.train if overlay_of(wildcards) else TRAIN_SCENES
+    if data == "fixed":
+        inputs["pairs"] = expand(f"{root}augment/{{scene}}{{rep}}", scene=scenes, rep=wildcards.rep)
+    if data == "online" or get_translator_validation(wildcards)["every"] > 0:
+        inputs["scenes"] = expand(f"{root}scenes/{{scene}}", scene=scenes)
+        inputs["spc"] = expand(f"{root}spc/{{scene}}{{rep}}", scene=scenes, rep=wildcards.rep)
     return inputs
 
 
 def get_translator_validation(wildcards):
-    """stage1.validation, overridden by the method's own 'validation' block."""
-    return translator_validation(config["stage1"], wildcards.method)
+    """stage1.validation, overridden by the method's own 'validation' block; a sweep point validates nothing."""
+    return {"every": 0} if overlay_of(wildcards) else translator_validation(config["stage1"], wildcards.method)
 
 
 def get_augment_ranges(wildcards):
@@ -265,7 +318,7 @@ def get_augment_ranges(wildcards):
 
 
 def get_translator_checkpoint(wildcards):
-    return f"results/checkpoints/models{wildcards.sensor}/{wildcards.method}{wildcards.rep}/checkpoint.pt"
+    return f"results/{overlay_of(wildcards)}checkpoints/models{wildcards.sensor}/{wildcards.method}{wildcards.rep}/checkpoint.pt"
 
 
 def get_translator_sensor(wildcards):
@@ -275,29 +328,45 @@ def get_translator_sensor(wildcards):
 
 def get_translator_model(wildcards):
     """The model trained for the scene's sensor."""
-    return f"results/models{scene_sensor(wildcards.scene)}/{wildcards.method}{wildcards.rep}"
+    sensor = "" if overlay_of(wildcards) else scene_sensor(wildcards.scene)
+    return f"results/{overlay_of(wildcards)}models{sensor}/{wildcards.method}{wildcards.rep}"
 
 
 def get_stage1_images(wildcards):
     """The folder holding a source's images of a scene (stage-1 output, metered MLE, binary frame, ground truth)."""
-    kind = source_images(wildcards.source, config["stage2"]["frames"])[0]
+    kind, root = get_stage1_kind(wildcards)[0], f"results/{overlay_of(wildcards)}"
     if kind == "translated":
-        return f"results/translate/{wildcards.scene}/{parse_source(wildcards.source).method}{wildcards.rep}"
+        return f"{root}translate/{wildcards.scene}/{parse_source(wildcards.source).method}{wildcards.rep}"
     if kind == "display":
         return display_folder(wildcards)
     if kind == "scene":
-        return f"results/scenes/{wildcards.scene}"
-    return f"results/spc/{wildcards.scene}{wildcards.rep}"
+        return f"{root}scenes/{wildcards.scene}"
+    return f"{root}spc/{wildcards.scene}{wildcards.rep}"
+
+
+def get_stage1_kind(wildcards):
+    """(folder kind, subfolder) of the source's images; a sweep point's binary frame is frame 0 (S = 1)."""
+    if overlay_of(wildcards):
+        return SOURCE_IMAGES[parse_source(wildcards.source).base]
+    return source_images(wildcards.source, config["stage2"]["frames"])
 
 
 def get_stage1_subdir(wildcards):
-    return source_images(wildcards.source, config["stage2"]["frames"])[1]
+    return get_stage1_kind(wildcards)[1]
 
 
 def get_qualitative_inputs(wildcards):
     """The scene, its SPC folder and the reconstruction of every configured combination (first seed)."""
     return {"scene": f"results/scenes/{wildcards.scene}", "spc": f"results/spc/{wildcards.scene}",
             "recons": expand("results/recon/{scene}/{combo}", scene=wildcards.scene, combo=COMBINATIONS)}
+
+
+def point_benchmarks(points):
+    """Each point with the benchmark files of its jobs (spc3d.jobs.logged writes one beside each log)."""
+    return [{k: v for k, v in p.items() if k != "jobs"}
+            | {"benchmarks": [str(benchmark_path(apply_wildcards(workflow.get_rule(rule).log[0], wildcards)))
+                              for rule, wildcards in p["jobs"]]}
+            for p in points]
 
 
 def get_stage2_gpus(wildcards):

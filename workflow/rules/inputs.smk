@@ -7,11 +7,11 @@ rule prepare_scene:
     input:
         get_scene_source,
     output:
-        directory("results/scenes/{scene}"),
+        directory("results/{overlay}scenes/{scene}"),
     params:
         spec=get_scene_spec,
     log:
-        "logs/prepare_scene/{scene}.log",
+        "logs/prepare_scene/{overlay}{scene}.log",
     threads: 1
     priority: 10  # upstream of every translator: first, so training starts early
     conda:
@@ -23,13 +23,13 @@ rule prepare_scene:
 rule simulate_scene:
     """K binary SPC frames per view (one draw per seed), with the binary, average and MLE flux derived."""
     input:
-        "results/scenes/{scene}",
+        "results/{overlay}scenes/{scene}",
     output:
-        directory("results/spc/{scene}{rep}"),
+        directory("results/{overlay}spc/{scene}{rep}"),
     params:
         settings=get_spc_settings,
     log:
-        "logs/simulate_scene/{scene}{rep}.log",
+        "logs/simulate_scene/{overlay}{scene}{rep}.log",
     threads: 1
     priority: 10
     conda:
@@ -44,12 +44,12 @@ rule calibrate_display:
     input:
         unpack(get_display_training),
     output:
-        "results/calibration/display-{budget}{rep}.json",
+        "results/{overlay}calibration/display-{budget}{rep}.json",
     params:
         frames=get_display_frames,
         capture=get_display_capture,
     log:
-        "logs/calibrate_display/{budget}{rep}.log",
+        "logs/calibrate_display/{overlay}{budget}{rep}.log",
     threads: 1
     priority: 10
     conda:
@@ -62,15 +62,15 @@ rule write_display:
     """A scene's MLE images of one budget (first K frames, or the capture-resolution frame) at the
     gain metered on its training views (no ground truth: spc3d.inputs.exposure)."""
     input:
-        spc="results/spc/{scene}{rep}",
-        calibration="results/calibration/display-{budget}{rep}.json",
+        spc="results/{overlay}spc/{scene}{rep}",
+        calibration="results/{overlay}calibration/display-{budget}{rep}.json",
     output:
-        directory("results/mle/{scene}/{budget}{rep}"),
+        directory("results/{overlay}mle/{scene}/{budget}{rep}"),
     params:
         frames=get_display_frames,
         capture=get_display_capture,
     log:
-        "logs/write_display/{scene}/{budget}{rep}.log",
+        "logs/write_display/{overlay}{scene}/{budget}{rep}.log",
     threads: 1
     priority: 10
     conda:
@@ -82,16 +82,16 @@ rule write_display:
 rule augment_scene:
     """Zoom / rotation / shear / flip training pairs (RGB + SPC frames) of one training scene."""
     input:
-        scene="results/scenes/{scene}",
-        spc="results/spc/{scene}{rep}",
+        scene="results/{overlay}scenes/{scene}",
+        spc="results/{overlay}spc/{scene}{rep}",
     output:
-        directory("results/augment/{scene}{rep}"),
+        directory("results/{overlay}augment/{scene}{rep}"),
     params:
         n_pairs=get_augment_count,
         settings=config["augment"],
         seed=get_seed,
     log:
-        "logs/augment_scene/{scene}{rep}.log",
+        "logs/augment_scene/{overlay}{scene}{rep}.log",
     threads: 1
     priority: 10
     conda:

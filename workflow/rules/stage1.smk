@@ -11,7 +11,7 @@ rule train_translator:
         pretrained=get_translator_pretrained,
     output:
         report(
-            directory("results/models{sensor}/{method}{rep}"),
+            directory("results/{overlay}models{sensor}/{method}{rep}"),
             patterns=["{figure,curve}.png"],
             caption="../report/curve.rst",
             category="4. Stage 1 training",
@@ -21,8 +21,8 @@ rule train_translator:
         method=get_translator_base,
         settings=get_translator_settings,
         train=get_translator_train,
-        frames=config["stage1"]["frames"],
-        data=config["stage1"]["data"],
+        frames=get_translator_frames,
+        data=get_translator_data_kind,
         augment=get_augment_ranges,
         sensor=get_translator_sensor,
         validation=get_translator_validation,
@@ -30,7 +30,7 @@ rule train_translator:
         checkpoint=get_translator_checkpoint,
         policy=config["checkpoints"],
     log:
-        "logs/train_translator/{method}{sensor}{rep}.log",
+        "logs/train_translator/{overlay}{method}{sensor}{rep}.log",
     threads: 1
     resources:
         gpu=1,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
@@ -45,15 +45,15 @@ rule translate_scene:
     """Every view of a scene through a trained stage-1 method (stage 2 reads these as a source)."""
     input:
         model=get_translator_model,
-        spc="results/spc/{scene}{rep}",
-        scene="results/scenes/{scene}",
+        spc="results/{overlay}spc/{scene}{rep}",
+        scene="results/{overlay}scenes/{scene}",
     output:
-        directory("results/translate/{scene}/{method}{rep}"),
+        directory("results/{overlay}translate/{scene}/{method}{rep}"),
     params:
-        frames=config["stage1"]["frames"],
+        frames=get_translator_frames,
         ensemble=config["stage1"]["ensemble"],
     log:
-        "logs/translate_scene/{scene}/{method}{rep}.log",
+        "logs/translate_scene/{overlay}{scene}/{method}{rep}.log",
     threads: 1
     priority: 10
     conda:
@@ -66,17 +66,17 @@ rule score_images:
     """PSNR / SSIM / LPIPS of a source's held-out views before 3D (stage-1 error alone)."""
     input:
         images=get_stage1_images,
-        scene="results/scenes/{scene}",
+        scene="results/{overlay}scenes/{scene}",
         lpips=list(LPIPS_WEIGHTS.values()),
     output:
-        "results/stage1/{scene}/{source}{rep}.json",
+        "results/{overlay}stage1/{scene}/{source}{rep}.json",
     params:
         subdir=get_stage1_subdir,
         frames=get_source_frames,
         capture_factor=get_capture_factor,
         seed=get_seed,
     log:
-        "logs/score_images/{scene}/{source}{rep}.log",
+        "logs/score_images/{overlay}{scene}/{source}{rep}.log",
     threads: 1
     conda:
         ENV

@@ -19,16 +19,16 @@ rule reconstruct:
     input:
         unpack(get_reconstruct_inputs),
     output:
-        directory("results/recon/{scene}/{source}+{model}{poses}{rep}"),
+        directory("results/{overlay}recon/{scene}/{source}+{model}{poses}{rep}"),
     params:
         settings=get_model_settings,
         seed=get_seed,
         frames=get_source_frames,
-        init=config["stage2"]["init"],
+        init=get_stage2_init,
         checkpoint=get_checkpoint_path,
         policy=config["checkpoints"],
     log:
-        "logs/reconstruct/{scene}/{source}+{model}{poses}{rep}.log",
+        "logs/reconstruct/{overlay}{scene}/{source}+{model}{poses}{rep}.log",
     threads: 1
     resources:
         gpu=get_stage2_gpus,
@@ -42,14 +42,14 @@ rule evaluate:
     """PSNR / SSIM / LPIPS (alex, vgg) of the held-out renders against the ground truth; on a capture
     without reference views, how well the renders explain the held-out views' photons instead."""
     input:
-        recon="results/recon/{scene}/{source}+{model}{poses}{rep}",
-        scene="results/scenes/{scene}",
+        recon="results/{overlay}recon/{scene}/{source}+{model}{poses}{rep}",
+        scene="results/{overlay}scenes/{scene}",
         lpips=rules.lpips_weights.output,
         spc=get_eval_frames,
     output:
-        "results/eval/{scene}/{source}+{model}{poses}{rep}/metrics.json",
+        "results/{overlay}eval/{scene}/{source}+{model}{poses}{rep}/metrics.json",
     log:
-        "logs/evaluate/{scene}/{source}+{model}{poses}{rep}.log",
+        "logs/evaluate/{overlay}{scene}/{source}+{model}{poses}{rep}.log",
     threads: 1
     conda:
         ENV

@@ -6,4 +6,4 @@ from spc3d.sweeps.report import photon_level_report
 
 with logged(snakemake.log[0]):
     out = snakemake.output
-    photon_level_report(list(snakemake.input), snakemake.params.combos, out.csv, out.png, labels=LABELS)
+    photon_level_report(snakemake.params.points, snakemake.params.combos, out.csv, out.png, labels=LABELS)

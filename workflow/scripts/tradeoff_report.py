@@ -7,5 +7,5 @@ from spc3d.sweeps.report import tradeoff_report
 with logged(snakemake.log[0]):
     out = snakemake.output
     tradeoff_report(
-        list(snakemake.input), snakemake.params.combos, out.csv, out.png, labels=LABELS, clock=snakemake.params.clock
+        snakemake.params.points, snakemake.params.combos, out.csv, out.png, labels=LABELS, clock=snakemake.params.clock
     )

@@ -2,21 +2,21 @@
 
 A *point* is one combination (``source+model``, as in stage 2) at one *setting*: values of the
 budget knobs in :data:`knobs.KNOBS` (stage-2 iterations, image width, K frames, translator width
-and steps, Gaussian cap, grid resolution, mean detection probability). ``point.run_point`` runs
-the whole pipeline for it in one folder with the library's own stage functions (prepare, simulate,
-augment + train + translate for a stage-1 source, reconstruct, evaluate) and writes
-``metrics.json`` with the wall time of every stage, peak memory, the scores and the resolved
-settings. ``pareto`` gathers points into tables and finds each combination's Pareto front (best
-quality for the least time); ``report`` draws the figures and writes the tables.
+and steps, Gaussian cap, grid resolution, mean detection probability). The workflow's own rules
+build it (prepare, simulate, meter the display, augment + train + translate for a stage-1 source,
+score the source's images, reconstruct, evaluate) under a *settings overlay*: the ``{overlay}``
+wildcard after ``results/``, ``sweeps/{sweep}/{knob~value/...}/`` (``plan``). ``pareto`` reads each
+point's scores and the benchmarks of its jobs into tables and finds each combination's Pareto
+front (best quality for the least time); ``report`` draws the figures and writes the tables.
 
 Modules
 -------
 knobs    the knobs, which knobs a combination uses, sweep tables, combinations (no torch)
-plan     the sweeps' config turned into what the rules pass on: scenes, bases, point paths (no torch)
-budget   a point's resolved settings of every stage: the config's values with the knobs applied
-point    the mini pipeline of one point -> metrics.json
-pareto   Pareto fronts and tables of the trade-off and photon-level sweeps (no torch)
+plan     the overlay: its paths, a point's settings per rule, its jobs and files (no torch)
+budget   one stage's settings with the knobs applied (scene width, translator, stage-2 model)
+pareto   a point's record from its files, Pareto fronts, the tables of both sweeps (no torch)
 report   figures and report files (CSV + PNG) of the trade-off and photon-level sweeps (no torch)
 
-``knobs``, ``plan``, ``pareto`` and ``report`` import neither torch nor Snakemake, so the workflow parses quickly.
+``knobs``, ``plan``, ``pareto`` and ``report`` import neither torch nor Snakemake, so the workflow parses
+quickly (``plan`` imports ``budget`` only when a job under an overlay asks for its settings).
 """

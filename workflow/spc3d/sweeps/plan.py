@@ -1,22 +1,110 @@
-"""The sweeps' config, checked, turned into what the sweep rules pass on (imports neither torch nor Snakemake).
+"""The sweeps' config, checked, turned into what the rules pass on (imports neither torch nor Snakemake).
 
-``workflow/rules/tradeoff.smk`` calls these once while parsing; ``ByCombination`` maps a point's
-``{combo}`` wildcard to its values, so a rule can use it directly as an input or params function.
+A sweep point is an ordinary set of DAG jobs: the grid's own rules (prepare_scene, simulate_scene,
+calibrate_display, write_display, augment_scene, train_translator, translate_scene, score_images,
+reconstruct, evaluate) with a *settings overlay* in their paths, the ``{overlay}`` wildcard right
+after ``results/`` (and after ``logs/{rule}/``, ``benchmarks/{rule}/``)::
+
+    results/eval/courtyard/gt+3dgs/metrics.json                                   (the grid: overlay "")
+    results/sweeps/tradeoff/iters~300/res~64/eval/courtyard/gt+3dgs/metrics.json  (a trade-off point)
+    results/sweeps/photon_level/detection~0.02/K~1/eval/courtyard/mle+3dgs/metrics.json
+
+The overlay names the sweep and one setting (its Paramspace path: ``knob~value`` segments), so a
+rule's ``get_*`` helper resolves the point's settings from the wildcard alone
+(:class:`PointSettings`, with :mod:`.budget`); the empty overlay leaves every path and param of the
+grid unchanged. A setting's jobs are shared by every combination swept at it (one scene, one SPC
+folder, one translator of a method at that setting), as the grid shares them between its rows.
+:func:`sweep_points` lists each point's files and jobs for the report rules.
 """
 
 from __future__ import annotations
 
+import re
+
 import pandas as pd
 
-from spc3d.names import BUDGET_SOURCES
-from spc3d.sweeps.knobs import check_setting, distinct_rows, split_combination
+from spc3d.names import BUDGET_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, spc_settings
+from spc3d.sweeps.knobs import KNOBS, check_setting, distinct_rows, split_combination, used_knobs
+
+SWEEPS = ("tradeoff", "photon_level")
+# The overlay wildcard: "" (the grid) or sweeps/<sweep>/<knob>~<value>/... (one setting of a sweep).
+OVERLAY_PATTERN = rf"(sweeps/({'|'.join(SWEEPS)})/(({'|'.join(KNOBS)})~[0-9.e+-]+/)+)?"
 
 
-class ByCombination(dict):
-    """combination -> value; called with a rule's wildcards it returns the value of ``wildcards.combo``."""
+def overlay(sweep: str, pattern: str) -> str:
+    """The overlay of one setting: ``sweeps/{sweep}/{pattern}/`` (``pattern``: a Paramspace path)."""
+    if sweep not in SWEEPS:
+        raise ValueError(f"unknown sweep {sweep!r}; use one of {list(SWEEPS)}")
+    return f"sweeps/{sweep}/{pattern.strip('/')}/"
 
-    def __call__(self, wildcards):
-        return self[wildcards.combo]
+
+def parse_overlay(value: str) -> tuple[str, dict]:
+    """``"sweeps/tradeoff/iters~300/res~64/"`` -> ``("tradeoff", {"iters": 300, "res": 64})``;
+    ``""`` (the grid) -> ``("", {})``."""
+    if not value:
+        return "", {}
+    if not re.fullmatch(OVERLAY_PATTERN, value):
+        raise ValueError(f"{value!r} is not a sweep overlay (sweeps/<sweep>/<knob>~<value>/...)")
+    _, sweep, *parts = value.strip("/").split("/")
+    return sweep, check_setting(dict(p.split("~", 1) for p in parts), f"overlay {value}")
+
+
+class PointSettings:
+    """The settings a rule's job runs with under an overlay: the config's values with the point's knobs
+    applied, as :mod:`.budget` resolves them (the same functions for every rule, so the stages agree).
+
+    ``specs``: the sweeps' scene specs (name -> spec); ``scene`` and ``train``: the sweeps'
+    evaluation and training scenes;
+    ``photon_budget``: the knobs every photon-level point shares (``photon_level.budget``).
+    """
+
+    def __init__(self, config: dict, specs: dict[str, dict], scene: str, train: list[str], photon_budget: dict):
+        self.config, self.specs, self.photon_budget = config, specs, photon_budget
+        self.scene_name, self.train = scene, list(train)
+
+    def setting(self, value: str) -> dict:
+        """The knobs of an overlay (a photon-level point's shared budget under its own K and detection)."""
+        sweep, knobs = parse_overlay(value)
+        return {**self.photon_budget, **knobs} if sweep == "photon_level" else knobs
+
+    def scene(self, value: str, scene: str) -> dict:
+        """The scene's spec at the point's width (``res``)."""
+        from spc3d.sweeps.budget import scale_spec
+
+        return scale_spec(self.specs[scene], self.setting(value).get("res"))
+
+    def spc(self, value: str) -> dict:
+        """simulate_scene's settings: K frames per view and the calibration target ``detection``;
+        no finer capture frame (S = 1: the capture frame is frame 0)."""
+        knobs = self.setting(value)
+        settings = spc_settings(self.config["spc"], self.config["seed"], knobs.get("K"), knobs.get("detection"))
+        return settings | {"capture_factor": 1}
+
+    def frames(self, value: str, source: str) -> int | None:
+        """Binary frames per view the source uses: K if the point sets it, else the config's value
+        (None for the oracle ``gt``, 1 for the binary frame ``none``)."""
+        if source in ("gt", "none"):
+            return None if source == "gt" else 1
+        knobs, config = self.setting(value), self.config
+        return knobs.get("K", config["stage2"]["frames"] if source in BUDGET_SOURCES else config["stage1"]["frames"])
+
+    def augment_count(self, scene: str) -> int:
+        from spc3d.inputs.augment import split_count
+
+        return split_count(self.config["augment"]["count"], len(self.train), self.train.index(scene))
+
+    def translator(self, value: str, method: str, settings: dict, train: dict) -> tuple[dict, dict]:
+        """(model overrides, training settings) of ``method`` with ``width`` and ``steps`` applied
+        and a training crop that fits the point's evaluation images."""
+        from spc3d.sweeps.budget import translator_settings
+
+        return translator_settings(settings, train, method, self.setting(value), self.scene(value, self.scene_name))
+
+    def stage2(self, value: str, model: str, settings: dict) -> dict:
+        """Every setting of the stage-2 model with ``iters``, ``cap`` and ``grid`` applied."""
+        from spc3d.sweeps.budget import stage2_settings
+
+        return stage2_settings(settings, model, self.setting(value))
 
 
 def sweep_scenes(
@@ -49,54 +137,69 @@ def photon_budget(budget: dict) -> dict:
     return budget
 
 
-def point_base(
-    combo: str,
-    config: dict,
-    scene: str,
-    train: list[str],
-    specs: dict[str, dict],
-    translators: dict[str, tuple[dict, dict]],
-) -> dict:
-    """The config's values a point of ``combo`` starts from (the ``base`` of :mod:`.budget`).
-
-    ``specs``: scene name -> spec; ``translators``: stage-1 method -> (model overrides, training
-    settings), as ``spc3d.names.translator_settings`` resolves them.
-    """
+def point_jobs(combo: str, value: str, scene: str, train: list[str], frames: int | None) -> list[tuple[str, dict]]:
+    """(rule, wildcards) of every job a point needs under overlay ``value`` (not the shared LPIPS
+    weights): the evaluation scene's, the training scenes' for a translator or a metered display
+    (``frames``: the source's K), the translator's, the source's scores before 3D, stage 2."""
     source, model = split_combination(combo)
-    translator = None
-    if source in translators:
-        settings, train_settings = translators[source]
-        translator = {
-            "settings": settings,
-            "train": train_settings,
-            "frames": config["stage1"]["frames"],
-            "ensemble": config["stage1"]["ensemble"],
-        }
-    return {
-        "seed": config["seed"],
-        "scene_name": scene,
-        "scene": specs[scene],
-        "train_scenes": {name: specs[name] for name in train} if translator or source in BUDGET_SOURCES else {},
-        "spc": dict(config["spc"]),
-        "augment": dict(config["augment"]),
-        "translator": translator,
-        "stage2": {"settings": dict(config["stage2"][model]), "frames": config["stage2"]["frames"]},
-    }
+    stage1, trained = source not in PLAIN_SOURCES, source not in PLAIN_SOURCES or source in BUDGET_SOURCES
+    if trained and not train:
+        raise ValueError(f"{combo}: source {source!r} needs training scenes (tradeoff.train_scenes is empty)")
+    scenes = [scene, *train] if trained else [scene]
+    common = {"overlay": value, "rep": "", "sensor": "", "poses": ""}
+    jobs = [("prepare_scene", {"scene": s}) for s in scenes]
+    if source != "gt":
+        jobs += [("simulate_scene", {"scene": s}) for s in scenes]
+    if source in BUDGET_SOURCES:
+        display = {"scene": scene, "budget": f"k{frames}"}  # the metered MLE of the point's K
+        jobs += [("calibrate_display", display), ("write_display", display)]
+    if stage1:
+        jobs += [("augment_scene", {"scene": s}) for s in train]
+        jobs += [("train_translator", {"method": source}), ("translate_scene", {"scene": scene, "method": source})]
+    if source_scored(source):
+        jobs.append(("score_images", {"scene": scene, "source": source}))
+    row = {"scene": scene, "source": source, "model": model}
+    return [(rule, common | wildcards) for rule, wildcards in jobs + [("reconstruct", row), ("evaluate", row)]]
 
 
-def scene_inputs(base: dict) -> list[str]:
-    """The files of the real LLFF scenes a point reads (poses and images: editing one reruns it)."""
-    from spc3d.jobs import llff_input_files
-
-    specs = [base["scene"], *base["train_scenes"].values()]
-    return [f for s in specs if s["kind"] == "llff" for f in llff_input_files(s["path"], s["factor"])]
+def source_scored(source: str) -> bool:
+    """Whether a point scores its source's images before 3D (translated, MLE, binary; not gt, bernoulli)."""
+    return SOURCE_IMAGES.get(source, (None,))[0] in ("translated", "display", "spc")
 
 
-def point_paths(folder: str, table: pd.DataFrame, patterns: list[str], combos: list[str]) -> list[str]:
-    """``{folder}/{combo}/{pattern}/metrics.json`` of every combination and table row (``patterns``:
-    the rows' Paramspace paths), skipping rows that repeat a point of that combination."""
-    paths = []
+def sweep_points(
+    sweep: str, space_table: pd.DataFrame, patterns: list[str], combos: list[str], points: PointSettings, scene: str
+) -> list[dict]:
+    """Every point of a sweep (combination x table row, skipping rows that repeat a point of that
+    combination): its combination, setting, overlay, the files the report reads (``metrics``,
+    ``stage1``, ``recon``, ``model``, ``spc``: paths, or None where the point has none) and its jobs
+    (:func:`point_jobs`)."""
+    out = []
     for combo in combos:
-        keep = distinct_rows(table, combo)
-        paths += [f"{folder}/{combo}/{p}/metrics.json" for p, k in zip(patterns, keep, strict=True) if k]
-    return paths
+        source, model = split_combination(combo)
+        for pattern, keep in zip(patterns, distinct_rows(space_table, combo), strict=True):
+            if not keep:
+                continue
+            value = overlay(sweep, pattern)
+            root = f"results/{value}"
+            out.append(
+                {
+                    "combination": combo,
+                    "setting": points.setting(value),
+                    "used_knobs": [k for k in used_knobs(combo) if k in points.setting(value)],
+                    "overlay": value,
+                    "metrics": f"{root}eval/{scene}/{combo}/metrics.json",
+                    "stage1": f"{root}stage1/{scene}/{source}.json" if source_scored(source) else None,
+                    "recon": f"{root}recon/{scene}/{combo}",
+                    "model": f"{root}models/{source}" if source not in PLAIN_SOURCES else None,
+                    "spc": f"{root}spc/{scene}" if source != "gt" else None,
+                    "jobs": point_jobs(combo, value, scene, points.train, points.frames(value, source)),
+                }
+            )
+    return out
+
+
+def point_inputs(points: list[dict]) -> list[str]:
+    """The files of the points a report reads (its rule's inputs)."""
+    keys = ("metrics", "stage1", "recon", "model", "spc")
+    return list(dict.fromkeys(p[k] for p in points for k in keys if p[k]))

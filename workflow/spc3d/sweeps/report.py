@@ -1,5 +1,12 @@
 """Figures and report files of the sweeps (no torch); the tables and Pareto fronts come from :mod:`.pareto`.
 
+Both reports take the sweep's points (:func:`spc3d.sweeps.plan.sweep_points`, each with the
+benchmark TSVs of its jobs). A point's wall (CPU) time is the sum of the wall (user + system CPU)
+times of every job it needs, its peak memory the largest of theirs; a job shared by several points
+(the scene and SPC data of a setting, shared by the combinations swept at it) counts in each
+point that needs it, so each point's time is what it would cost run alone
+(:func:`spc3d.sweeps.pareto.point_record`).
+
 ``tradeoff_report``: ``tradeoff.csv`` (the table of :func:`spc3d.sweeps.pareto.tradeoff_table`: one
 row per point with its knobs, times, memory, scores and whether it is on its combination's
 PSNR-time Pareto front) and the figure: PSNR and LPIPS-alex against wall (or CPU) time, one colour
@@ -139,7 +146,7 @@ def _combo_label(combo: str, labels: dict[str, str] | None) -> str:
 
 
 def tradeoff_report(
-    paths: list[str | os.PathLike],
+    points: list[dict],
     combos: list[str],
     out_csv: str | os.PathLike,
     out_png: str | os.PathLike,
@@ -147,21 +154,21 @@ def tradeoff_report(
     clock: str = "wall",
 ) -> pd.DataFrame:
     """Write the trade-off table and figure (Pareto front against ``clock``); return the table."""
-    table = tradeoff_table(paths, combos, clock)
+    table = tradeoff_table(points, combos, clock)
     io.write_text(out_csv, table.to_csv(index=False, float_format="%.4g"))
     tradeoff_figure(table, out_png, labels, clock)
     return table
 
 
 def photon_level_report(
-    paths: list[str | os.PathLike],
+    points: list[dict],
     combos: list[str],
     out_csv: str | os.PathLike,
     out_png: str | os.PathLike,
     labels: dict[str, str] | None = None,
 ) -> pd.DataFrame:
     """Write the photon-level table and figure; return the table."""
-    table = photon_table(paths, combos)
+    table = photon_table(points, combos)
     io.write_text(out_csv, table.to_csv(index=False, float_format="%.4g"))
     photon_figure(table, out_png, labels)
     return table
