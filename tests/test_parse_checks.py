@@ -15,17 +15,8 @@ import torch
 from snakemake.utils import update_config, validate
 
 from spc3d import config as spc_config
-from spc3d import llff
-from spc3d.config import (
-    CROP_HALVINGS,
-    check_config,
-    check_settings,
-    crop_multiple,
-    non_finite,
-    read_yaml,
-    resolve_paths,
-    training_image_sizes,
-)
+from spc3d import llff, models
+from spc3d.config import check_config, check_settings, non_finite, read_yaml, resolve_paths, training_image_sizes
 from spc3d.inputs.augment import AugmentSettings
 from spc3d.inputs.scenes import LAYOUTS, write_builtin_scene
 from spc3d.jobs import scene_specs
@@ -218,17 +209,17 @@ def test_pix2pixhd_counts_its_local_enhancers():
     ],
 )
 def test_the_crop_multiples_are_the_networks_own(method, changes):
-    """CROP_HALVINGS restates each network's ``multiple``: the built models must agree."""
+    """The specs' crop_halvings restate each network's ``multiple``: the built models must agree."""
     for change in changes:
         cfg = model_config(method, {**TINY_TRANSLATORS[method], **change})
-        assert crop_multiple(method, cfg) == build_translator(method, cfg, torch.device("cpu")).multiple
+        assert models.crop_multiple(method, cfg) == build_translator(method, cfg, torch.device("cpu")).multiple
 
 
 def test_only_the_networks_that_check_their_crops_are_listed():
-    """The built-in translators whose train_step checks its crops are those of CROP_HALVINGS."""
+    """The built-in translators whose train_step checks its crops are those with crop_halvings."""
     builtin = {m: module for m, module in TRANSLATORS.items() if module.__name__.startswith("spc3d.translate.")}
     checked = {m for m, module in builtin.items() if "check_multiple(" in inspect.getsource(module)}
-    assert checked == set(CROP_HALVINGS)
+    assert checked == {m for m in builtin if models.TRANSLATORS[m].crop_halvings}
 
 
 # --- the grid schedule ------------------------------------------------------------------------------

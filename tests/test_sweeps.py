@@ -150,8 +150,10 @@ def test_knobs_reach_every_rule():
     assert spc["capture_factor"] == 1  # a point simulates no finer capture frame
     assert points.frames(value, "pix2pix") == 2 and points.frames(value, "gt") is None
     assert points.frames(value, "none") == 1 and points.augment_count("tabletop") == 4
-    settings, train = points.translator(value, "pix2pix", {"ngf": 8}, {"iterations": 50, "crop": 256})
+    settings, train = points.translator(value, "pix2pix", {"ngf": 8, "num_downs": 3}, {"iterations": 50, "crop": 256})
     assert settings["ngf"] == 12 and train["iterations"] == 3 and train["crop"] == 48  # the 48-px-high images
+    with pytest.raises(ValueError, match="64-pixel crops"):  # 6 halvings: no 64-px crop fits a 64x48 image
+        points.translator(value, "pix2pix", {"num_downs": 6}, {})
     s = points.stage2(value, "3dgs", TINY_3DGS)
     assert s["iterations"] == 6 and s["densify_until"] == 5 and s["densify_every"] == 2  # schedules scale 6/12
     assert s["max_gaussians"] == 100 and s["init_points"] == 100
@@ -285,6 +287,7 @@ def test_dry_run_of_both_sweeps(tmp_path):
         yaml.safe_dump(
             {
                 "tradeoff": {"combinations": ["gt+3dgs", "pix2pix+nerf"], "table": str(table)},
+                "stage1": {"pix2pix": {"num_downs": 3}},  # 8-px multiples: crops fit the 64x48 images
                 "photon_level": {"detection": [0.1, 0.9], "frames": [1, 4]},
             }
         )

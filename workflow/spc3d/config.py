@@ -236,23 +236,6 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     check_consistency(config, methods, combinations)
 
 
-# Sides a translator's training crops must be multiples of, as 2 ** (the sum of these Config
-# fields): each Translator's ``multiple``, which its train_step checks on every batch
-# (spc3d.translate.networks.check_multiple), so that skips and residuals line up. Restormer and
-# the diffusion restorer pad their crops; the prior has no network. tests/test_parse_checks.py
-# compares these with the built networks' ``multiple``.
-CROP_HALVINGS = {
-    "pix2pix": ("num_downs",),
-    "pix2pixhd": ("n_downsample_global", "n_local_enhancers"),
-    "cyclegan": ("n_downsampling",),
-}
-
-
-def crop_multiple(method: str, cfg) -> int:
-    """The side a training crop of ``method`` (Config ``cfg``) must be a multiple of (1: any)."""
-    return 2 ** sum(getattr(cfg, name) for name in CROP_HALVINGS.get(method, ()))
-
-
 def crop_key(config: dict, method: str) -> str:
     """The key a translator's crop comes from: its own ``train`` block's, else ``stage1.train``'s."""
     own = (config["stage1"].get(method) or {}).get("train") or {}
@@ -285,8 +268,9 @@ def training_image_sizes(config: dict) -> dict[str, tuple[int | None, int]]:
 def check_crops(config: dict, trainings: list[tuple]) -> None:
     """Every trained translator's crop fits the smallest training image (the condition of the
     samplers, spc3d.translate.data.PairSampler and .online.OnlineSampler) and, for a network
-    that does not pad, is a multiple of its :func:`crop_multiple` (checked when it trains a step).
+    that does not pad, is a multiple of its :func:`spc3d.models.crop_multiple` (checked when it trains a step).
     ``trainings``: (method, model Config, TrainSettings) of each translator the run trains."""
+    from spc3d import models
     from spc3d.names import parse_source
 
     sizes = training_image_sizes(config) if trainings else {}
@@ -305,9 +289,9 @@ def check_crops(config: dict, trainings: list[tuple]) -> None:
                 f"{scene!r} is {shown} at resolution.width = {config['resolution']['width']}); {base} "
                 f"trains on {s.crop}x{s.crop} crops of those images: use {key} <= {smallest}"
             )
-        multiple = crop_multiple(base, cfg)
+        multiple = models.crop_multiple(base, cfg)
         if s.iterations and s.crop % multiple:
-            halvings = CROP_HALVINGS[base]
+            halvings = models.TRANSLATORS[base].crop_halvings
             values = " + ".join(str(getattr(cfg, name)) for name in halvings)
             fit = max(multiple, s.crop // multiple * multiple)
             hint = f" (e.g. {fit})" if fit <= smallest else f" (at most {smallest} px fit the training images)"

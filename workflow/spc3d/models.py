@@ -36,6 +36,10 @@ class TranslatorSpec:
     module: str
     width_field: str | None = None  # the Config field the sweeps' width knob sets (None: no network)
     trained: bool = True  # False: nothing to train (the prior), so no published (-pub) form either
+    # Config fields whose sum n makes the Translator's ``multiple`` 2**n: its training crops' sides
+    # must be multiples of it (checked at parse time, spc3d.config.check_crops); () for a network
+    # that pads its input (Restormer, the diffusion restorer) or has none (the prior).
+    crop_halvings: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -77,9 +81,15 @@ def register(spec: TranslatorSpec | ReconstructorSpec) -> None:
 
 
 for _spec in (
-    TranslatorSpec("pix2pixhd", "Pix2PixHD", "spc3d.translate.pix2pixhd", "ngf"),
-    TranslatorSpec("pix2pix", "Pix2Pix", "spc3d.translate.pix2pix", "ngf"),
-    TranslatorSpec("cyclegan", "CycleGAN", "spc3d.translate.cyclegan", "ngf"),
+    TranslatorSpec(
+        "pix2pixhd",
+        "Pix2PixHD",
+        "spc3d.translate.pix2pixhd",
+        "ngf",
+        crop_halvings=("n_downsample_global", "n_local_enhancers"),
+    ),
+    TranslatorSpec("pix2pix", "Pix2Pix", "spc3d.translate.pix2pix", "ngf", crop_halvings=("num_downs",)),
+    TranslatorSpec("cyclegan", "CycleGAN", "spc3d.translate.cyclegan", "ngf", crop_halvings=("n_downsampling",)),
     TranslatorSpec("restormer", "Restormer", "spc3d.translate.restormer", "dim"),
     TranslatorSpec("diffusion", "Diffusion (DiffBIR stand-in)", "spc3d.translate.diffusion", "base_channels"),
     TranslatorSpec(
@@ -109,6 +119,12 @@ for _spec in (
     ),
 ):
     register(_spec)
+
+
+def crop_multiple(method: str, cfg) -> int:
+    """The side a training crop of translator ``method`` (its Config ``cfg``) must be a multiple
+    of: 2 ** the sum of its spec's ``crop_halvings`` fields (1: any side)."""
+    return 2 ** sum(getattr(cfg, name) for name in TRANSLATORS[method].crop_halvings)
 
 
 def import_module(module: str) -> ModuleType:

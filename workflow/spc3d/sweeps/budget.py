@@ -23,7 +23,7 @@ from spc3d.training import build_config
 WIDTH_KEYS = {name: spec.width_field for name, spec in models.TRANSLATORS.items() if spec.width_field}
 ITERATION_FIELD = {name: spec.iteration_field for name, spec in models.RECONSTRUCTORS.items()}
 SCHEDULE_FIELDS = {name: spec.schedule_fields for name, spec in models.RECONSTRUCTORS.items()}
-CROP_MULTIPLE = 16  # translator training crops: a multiple of every default network's stride
+CROP_MULTIPLE = 16  # translator training crops: at least a multiple of this (and of the network's own)
 
 
 def scale_spec(spec: dict, res: int | None) -> dict:
@@ -40,6 +40,7 @@ def scale_spec(spec: dict, res: int | None) -> dict:
 def translator_settings(settings: dict, train: dict, method: str, knobs: dict, scene: dict) -> tuple[dict, dict]:
     """(the method's model overrides with ``width``, its training settings with ``steps`` and a crop
     that fits ``scene``'s images)."""
+    from spc3d.translate.model_io import model_config
     from spc3d.translate.train import TrainSettings
 
     if method not in STAGE1_METHODS:
@@ -50,33 +51,27 @@ def translator_settings(settings: dict, train: dict, method: str, knobs: dict, s
     train = dataclasses.asdict(build_config(TrainSettings, dict(train), "stage1.train"))
     if "steps" in knobs:
         train["iterations"] = knobs["steps"]
-    train["crop"] = fit_crop(train["crop"], scene)
+    multiple = max(CROP_MULTIPLE, models.crop_multiple(method, model_config(method, settings)))
+    train["crop"] = fit_crop(train["crop"], scene, multiple)
     return settings, train
 
 
-def fit_crop(crop: int, scene: dict) -> int:
-    """The largest multiple of 16 at most ``crop`` and the image's shorter side (at least 16)."""
+def fit_crop(crop: int, scene: dict, multiple: int = CROP_MULTIPLE) -> int:
+    """The largest multiple of ``multiple`` (the network's crop multiple) at most ``crop`` and the
+    image's shorter side; an error naming the resolution when not even one fits."""
     side = min(crop, scene["width"], scene.get("height", scene["width"]))
-    fitted = side // CROP_MULTIPLE * CROP_MULTIPLE
-    if fitted < CROP_MULTIPLE:
-        raise ValueError(f"res={scene['width']}: images are too small for {CROP_MULTIPLE}-pixel translator crops")
+    fitted = side // multiple * multiple
+    if fitted < multiple:
+        raise ValueError(
+            f"res={scene['width']}: images are too small for the translator's {multiple}-pixel crops "
+            f"(its crop sides must be multiples of {multiple}; use a larger res or a network with fewer halvings)"
+        )
     return fitted
 
 
 def stage2_config(model: str, settings: dict):
-    """The model's resolved config dataclass (as spc3d.reconstruct.RECONSTRUCTORS builds it)."""
-    if model == "3dgs":
-        from spc3d.reconstruct.gaussians import GaussianConfig
-
-        return build_config(GaussianConfig, settings, "stage2.3dgs")
-    if model == "nerf-grid":
-        from spc3d.reconstruct.nerf_grid import GridConfig
-
-        return build_config(GridConfig, settings, "stage2.nerf-grid")
-    from spc3d.reconstruct.nerf import NerfConfig, nerf_preset
-
-    settings = dict(settings)
-    return build_config(NerfConfig, settings, "stage2.nerf", nerf_preset(settings.pop("preset", "paper")))
+    """The model's resolved config dataclass (its spec's config builder, :mod:`spc3d.models`)."""
+    return models.load(models.RECONSTRUCTORS[model].config)(settings)
 
 
 def stage2_settings(settings: dict, model: str, knobs: dict) -> dict:
