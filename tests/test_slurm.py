@@ -37,7 +37,9 @@ TOOLS = ("munged", "slurmctld", "slurmd", "sbatch", "srun", "squeue", "scancel",
 TABLES = [f"results/tables/{name}.csv" for name in ("two_stage", "single_stage", "stage1")]
 LONG = 200  # Restormer iterations: long enough to cancel it mid-way (a checkpoint every 20)
 # The plugin's job comment: the wildcards sensor ("" for the simulator's RGB), method, rep joined by "_".
-RESTORMER = "rule_train_translator_wildcards__restormer"
+# The Restormer training's SLURM comment: "rule_train_translator_wildcards_" + its wildcard values
+# joined by "_" (the empty overlay and sensor first, then the method).
+RESTORMER = re.compile(r"rule_train_translator_wildcards_+restormer(_|$)")
 
 
 def _free_port_pair() -> int:
@@ -120,7 +122,7 @@ def _cancel_when_checkpointed(env, proc, work: Path, log: Path) -> tuple[str, in
         time.sleep(0.2)
         if ckpt.exists():
             jobs = _jobs(env, re.search(r"SLURM run ID: (\S+)", log.read_text()).group(1))
-            running = [i for i, j in jobs.items() if j["comment"].startswith(RESTORMER) and j["state"] == "RUNNING"]
+            running = [i for i, j in jobs.items() if RESTORMER.match(j["comment"]) and j["state"] == "RUNNING"]
     assert proc.poll() is None, "the SLURM run ended before the training could be cancelled"
     subprocess.run(["scancel", running[0]], env=env, check=True)
     return running[0], int(torch.load(ckpt, weights_only=True)["iteration"])
@@ -168,7 +170,7 @@ def test_smoke_preset_on_slurm_with_a_cancelled_training(cluster, tmp_path, lpip
     assert jobs[cancelled]["state"] == "CANCELLED"
 
     # Snakemake's retry resubmitted the training with the attempt-scaled memory...
-    restormer = sorted((i for i, j in jobs.items() if j["comment"].startswith(RESTORMER)), key=int)
+    restormer = sorted((i for i, j in jobs.items() if RESTORMER.match(j["comment"])), key=int)
     assert restormer[0] == cancelled and len(restormer) == 2, restormer
     assert [jobs[i]["mem"] for i in restormer] == ["1000M", "2000M"]
     # ...and it resumed from the checkpoint the cancelled job left, mid-way.

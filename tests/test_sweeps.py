@@ -47,6 +47,20 @@ def point_settings(budget=None):
     return plan.PointSettings(CONFIG, specs, "courtyard", ["tabletop"], budget or {})
 
 
+def test_a_sweep_that_cannot_run_stops_only_when_its_report_is_asked_for():
+    """No training scene (an LLFF-only config): the Snakefile still parses, planning its sweeps;
+    asking for the translator's points names why they cannot run."""
+    specs = {"courtyard": SPEC | {"layout": "courtyard"}}
+    points = plan.PointSettings(CONFIG, specs, "courtyard", [], {})
+    table = pd.DataFrame({"iters": [10]})
+    planned = plan.sweep_points("tradeoff", table, ["iters~10"], ["gt+3dgs", "pix2pix+3dgs"], points, "courtyard")
+    assert planned[0]["jobs"] and "error" not in planned[0]
+    assert planned[1]["jobs"] == [] and "needs training scenes" in planned[1]["error"]
+    assert plan.point_inputs(planned[:1])  # the gt point alone is fine
+    with pytest.raises(ValueError, match=r"sweeps/tradeoff/iters~10/: pix2pix\+3dgs: source 'pix2pix' needs training"):
+        plan.point_inputs(planned)
+
+
 # ---- Pareto front ----------------------------------------------------------------------------------
 def test_pareto_front_drops_dominated_points():
     t = [10, 20, 15, 30, 5]

@@ -173,7 +173,9 @@ def sweep_points(
     """Every point of a sweep (combination x table row, skipping rows that repeat a point of that
     combination): its combination, setting, overlay, the files the report reads (``metrics``,
     ``stage1``, ``recon``, ``model``, ``spc``: paths, or None where the point has none) and its jobs
-    (:func:`point_jobs`)."""
+    (:func:`point_jobs`). A point that cannot run (e.g. a translator without training scenes)
+    carries its ``error`` instead of jobs: the sweep is planned whenever the Snakefile is parsed,
+    but the error is raised only when its report is asked for (:func:`point_inputs`)."""
     out = []
     for combo in combos:
         source, model = split_combination(combo)
@@ -193,13 +195,25 @@ def sweep_points(
                     "recon": f"{root}recon/{scene}/{combo}",
                     "model": f"{root}models/{source}" if source not in PLAIN_SOURCES else None,
                     "spc": f"{root}spc/{scene}" if source != "gt" else None,
-                    "jobs": point_jobs(combo, value, scene, points.train, points.frames(value, source)),
+                    **planned_jobs(combo, value, scene, points.train, points.frames(value, source)),
                 }
             )
     return out
 
 
+def planned_jobs(combo: str, value: str, scene: str, train: list[str], frames: int | None) -> dict:
+    """``{"jobs": ...}`` of a point, or ``{"jobs": [], "error": why}`` when it cannot run."""
+    try:
+        return {"jobs": point_jobs(combo, value, scene, train, frames)}
+    except ValueError as e:
+        return {"jobs": [], "error": str(e)}
+
+
 def point_inputs(points: list[dict]) -> list[str]:
-    """The files of the points a report reads (its rule's inputs)."""
+    """The files of the points a report reads (its rule's inputs); the first point that cannot run
+    stops here, naming why."""
+    for p in points:
+        if p.get("error"):
+            raise ValueError(f"{p['overlay']}: {p['error']}")
     keys = ("metrics", "stage1", "recon", "model", "spc")
     return list(dict.fromkeys(p[k] for p in points for k in keys if p[k]))
