@@ -61,8 +61,7 @@ class ReconstructJob:
     initialise a model that accepts them (random initialisation when None, or when that run has no
     aligned reconstruction). ``init_setting``: the config's ``stage2.init``, recorded beside what
     was done. ``checkpoint``: outside ``out_dir`` (Snakemake's clean-up of a failed job keeps it);
-    ``policy``: when it is written. ``input_digests``: what identifies the inputs in the
-    checkpoint's fingerprint instead of digests of the input folders.
+    ``policy``: when it is written.
     """
 
     scene_dir: str | os.PathLike
@@ -80,14 +79,13 @@ class ReconstructJob:
     init_setting: str | None = None
     checkpoint: str | os.PathLike | None = None
     policy: CheckpointPolicy = CheckpointPolicy()
-    input_digests: dict | None = None
     threads: int | None = None
 
     def digests(self) -> dict:
-        """What identifies the inputs in the checkpoint's fingerprint."""
+        """What identifies the inputs in the checkpoint's fingerprint: digests of the input folders."""
         folders = {"scene": self.scene_dir, "spc": self.spc_dir, "images": self.image_dir}
         folders |= {"points": self.points_dir, "display": self.display_dir, "poses": self.poses_dir}
-        return self.input_digests or {k: digest_path(v) for k, v in folders.items()}
+        return {k: digest_path(v) for k, v in folders.items()}
 
 
 def reconstruct(job: ReconstructJob) -> dict:

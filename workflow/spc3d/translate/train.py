@@ -259,13 +259,13 @@ class TranslatorJob:
     """One stage-1 training as the ``train_translator`` rule describes it: what to train, on which
     data, how, and where its model and checkpoint go.
 
-    Built once by the rule's adapter (``workflow/scripts/train_translator.py``) or a sweep point
-    (:func:`spc3d.sweeps.point.run_stage1`) and read by :func:`setup_training` and
-    :func:`train_translator`, so the two cannot disagree about a job. It holds the settings as the
-    config gives them; :func:`setup_training` resolves them (model Config, TrainSettings, validation
-    settings) into ``meta``, which is both train.json's description of the job and the checkpoint's
-    fingerprint. The perceptual loss's VGG weights are not part of the description (big arrays, not
-    settings): they travel beside the job and are fingerprinted by their digest.
+    Built once by the rule's adapter (``workflow/scripts/train_translator.py``) and read by
+    :func:`setup_training` and :func:`train_translator`, so the two cannot disagree about a job.
+    It holds the settings as the config gives them; :func:`setup_training` resolves them (model
+    Config, TrainSettings, validation settings) into ``meta``, which is both train.json's
+    description of the job and the checkpoint's fingerprint. The perceptual loss's VGG weights are
+    not part of the description (big arrays, not settings): they travel beside the job and are
+    fingerprinted by their digest.
     """
 
     method: str  # the stage-1 method (spc3d.translate.model_io.TRANSLATORS)
@@ -278,7 +278,6 @@ class TranslatorJob:
     validation: dict | None = None  # stage1.validation (None: no validation)
     checkpoint: str | os.PathLike | None = None  # the resumable checkpoint's file (None: no checkpoint)
     policy: CheckpointPolicy = CheckpointPolicy()  # when the checkpoint is saved
-    input_digests: dict | None = None  # identifies the inputs instead of digests of data's folders (sweeps)
     threads: int | None = None  # torch threads (None: leave torch's setting)
 
     def __post_init__(self):
@@ -306,8 +305,8 @@ def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> Train
     """Seed, build the model, its sampler and validator, and the checkpoint with this job's fingerprint.
 
     ``vgg_weights``: the perceptual-loss network's weights (methods that use one), fingerprinted by
-    digest. The checkpoint's inputs are ``job.input_digests`` when given, else digests of the data's
-    folders. Separate from :func:`train_translator` so a test can drive the training loop itself."""
+    digest. The checkpoint's inputs are digests of the data's folders. Separate from
+    :func:`train_translator` so a test can drive the training loop itself."""
     seed_everything(job.seed)
     data = job.data
     pretrained = job.settings.get("checkpoint")
@@ -333,7 +332,7 @@ def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> Train
         "sensor": data.sensor,
         "validation": dataclasses.asdict(validator.s) if validator else None,
     }
-    inputs = job.input_digests or data.digests()
+    inputs = data.digests()
     ckpt = (
         Checkpoint(
             job.checkpoint,
