@@ -81,7 +81,7 @@ def get_final_output():
 
 def get_table_outputs():
     return expand("results/tables/{table}.{ext}",
-                  table=["single_stage", "two_stage", "stage1", "estimated_poses", "no_reference"],
+                  table=["single_stage", "two_stage", "stage1", "estimated_poses", "no_reference", "stopping"],
                   ext=["csv", "md", "tex", "html"]) + expand("results/tables/findings.{ext}", ext=["md", "json", "html"])
 
 

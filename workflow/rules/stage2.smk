@@ -25,6 +25,7 @@ rule reconstruct:
         seed=get_seed,
         frames=get_source_frames,
         init=get_stage2_init,
+        observe=config["stage2"]["observe_plateau"],
         checkpoint=get_checkpoint_path,
         policy=config["checkpoints"],
     log:
@@ -94,12 +95,18 @@ rule write_all_tables:
             labels={"table": "Captures without reference views: held-out photons"},
         ),
         report(
+            "results/tables/stopping.html",
+            caption="../report/stopping.rst",
+            category="1. Paper tables",
+            labels={"table": "Adaptive budgets: where each row stopped"},
+        ),
+        report(
             "results/tables/findings.html",
             caption="../report/findings.rst",
             category="1. Paper tables",
             labels={"table": "Findings: each claim with its interval"},
         ),
-        expand("results/tables/{table}.{ext}", table=["two_stage", "single_stage", "stage1", "estimated_poses", "no_reference"],
+        expand("results/tables/{table}.{ext}", table=["two_stage", "single_stage", "stage1", "estimated_poses", "no_reference", "stopping"],
                ext=["csv", "md", "tex"]),
         expand("results/tables/findings.{ext}", ext=["md", "json"]),
     params:

@@ -23,6 +23,7 @@ with logged(snakemake.log[0]):
         points_dir=inp.get("colmap"),
         poses_dir=inp.get("poses"),
         init_setting=p.init,
+        observe_plateau=p.observe,
         checkpoint=p.checkpoint,
         policy=CheckpointPolicy(**p.policy),
         threads=snakemake.threads,

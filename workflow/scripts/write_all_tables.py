@@ -1,4 +1,5 @@
-"""Adapter: rules write_all_tables and tables -> spc3d.evaluation.tables.write_all_tables.
+"""Adapter: rules write_all_tables and tables -> spc3d.evaluation.tables.write_all_tables and
+spc3d.evaluation.stopping.stopping_table (where each stage-2 row stopped).
 
 write_all_tables gets its metrics as inputs (built first); tables reads whichever of the configured
 metrics files exist already, so `snakemake tables` regenerates the tables without training.
@@ -7,6 +8,7 @@ metrics files exist already, so `snakemake tables` regenerates the tables withou
 import logging
 from pathlib import Path
 
+from spc3d.evaluation.stopping import stopping_table
 from spc3d.evaluation.tables import write_all_tables
 from spc3d.jobs import logged
 from spc3d.names import LABELS
@@ -28,3 +30,4 @@ with logged(snakemake.log[0]):
         metrics, stage1 = list(snakemake.input.metrics), list(snakemake.input.stage1)
         folder = Path(snakemake.output[0]).parent
     write_all_tables(metrics, stage1, folder, p.nerf_variant, LABELS)
+    stopping_table(metrics, Path(folder) / "stopping")

@@ -1,6 +1,7 @@
 """Training utilities shared by stage 1 (:mod:`spc3d.translate`) and stage 2 (:mod:`spc3d.reconstruct`).
 
     seed_everything, default_device, peak_rss_mb, build_config    small helpers both stages use
+    Plateau                                                        the stage-2 stopping rule
     run                                                            the one training loop
 
 Checkpoints (fingerprints, when to save, the lock, the Snakemake watch) are :mod:`spc3d.checkpoints`.
@@ -26,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import difflib
+import math
 import random
 import resource
 import time
@@ -109,6 +111,71 @@ def _check_type(where: str, key: str, value, default) -> None:
 def _tuples(v):
     """YAML lists -> tuples, so frozen configs stay hashable."""
     return tuple(_tuples(x) for x in v) if isinstance(v, list) else v
+
+
+# --- the stopping rule ---------------------------------------------------------------------------
+
+
+class Plateau:
+    """Stops a training once its own objective has stopped improving (the stage-2 trainers' rule).
+
+    Every ``window`` steps the objective (above its floor: a likelihood's data entropy, 0 for an
+    image loss) is averaged per training view and then over the views seen, so a window's value does
+    not depend on which views the random draw happened to pick. A window counts as progress when
+    that value is at least ``min_gain`` (relative) below the best window so far; ``patience``
+    windows in a row without progress stop the training, never before step ``start`` (while a
+    schedule still changes the model: coarse-to-fine grids). ``patience`` 0 never stops. Only
+    training views are read: the scored views play no part in when a training ends.
+    """
+
+    def __init__(self, window: int, patience: int, min_gain: float, start: int = 0):
+        if window < 1 or patience < 0 or not 0.0 <= min_gain < 1.0:
+            raise ValueError(
+                f"plateau rule: need window >= 1, patience >= 0 and 0 <= min_gain < 1 "
+                f"(got window = {window}, patience = {patience}, min_gain = {min_gain})"
+            )
+        self.window, self.patience, self.min_gain, self.start = window, patience, min_gain, start
+        self.sums: dict[int, list[float]] = {}  # view -> [sum, count] in the current window
+        self.curve: list[tuple[int, float]] = []  # (last step of a window, its value)
+        self.best, self.since_best, self.stopped_at = math.inf, 0, None
+
+    def update(self, it: int, value: float, view: int = 0) -> None:
+        """Add step ``it``'s objective (above its floor) on training view ``view``."""
+        acc = self.sums.setdefault(view, [0.0, 0])
+        acc[0], acc[1] = acc[0] + value, acc[1] + 1
+        if it % self.window:
+            return
+        mean = float(np.mean([s / n for s, n in self.sums.values()]))
+        self.sums, self.curve = {}, self.curve + [(it, mean)]
+        if mean < self.best * (1.0 - self.min_gain):
+            self.best, self.since_best = mean, 0
+        else:
+            self.best, self.since_best = min(self.best, mean), self.since_best + 1
+        if self.patience and self.since_best >= self.patience and it >= self.start:
+            self.stopped_at = it
+
+    def should_stop(self) -> bool:
+        return self.stopped_at is not None
+
+    def record(self, iterations: int, steps: int) -> dict:
+        """Where and why the training stopped, with the rule and its curve (for ``train.json``)."""
+        reason = "plateau" if self.stopped_at is not None else "budget"
+        rule = {"window": self.window, "patience": self.patience, "min_gain": self.min_gain, "start": self.start}
+        return {"step": steps, "of": iterations, "reason": reason, "rule": rule, "curve": self.curve}
+
+    def state(self) -> dict:
+        return {
+            "sums": [[v, s, n] for v, (s, n) in self.sums.items()],
+            "curve": [list(c) for c in self.curve],
+            "best": self.best,
+            "since_best": self.since_best,
+            "stopped_at": self.stopped_at,
+        }
+
+    def load(self, state: dict) -> None:
+        self.sums = {int(v): [float(s), int(n)] for v, s, n in state["sums"]}
+        self.curve = [(int(i), float(m)) for i, m in state["curve"]]
+        self.best, self.since_best, self.stopped_at = state["best"], state["since_best"], state["stopped_at"]
 
 
 # --- the loop -----------------------------------------------------------------------------------

@@ -5,7 +5,8 @@ sigma 1.5, Wang et al.: see :mod:`spc3d.evaluation.metrics`), LPIPS with the Ale
 (named in every key). On a scene captured by a colourless sensor (mono) both images are first
 reduced to their luminance (``scored_on`` says which). The record also carries what the
 reconstruction wrote in ``train.json``: model, source, seed, resolved settings, iterations, training
-and rendering time, capacity.
+and rendering time, capacity, where and why training stopped; a reconstruction trained in observe mode
+also gets the PSNR and SSIM of its renders at the plateau stop (``at_stop``: the trade table's pair).
 """
 
 from __future__ import annotations
@@ -96,6 +97,9 @@ def evaluate(
     for name in train["test_views"]:
         pred = io.read_rgb(recon_dir / "renders" / f"{name}.png")
         per_view.append({"view": name, **score_view(pred, scene.images[index[name]], lpips_dir, colour)})
+    if (recon_dir / "renders_at_stop").is_dir():  # observe mode: the same fit where its plateau rule stopped
+        images = {n: scene.images[index[n]] for n in train["test_views"]}
+        train = train | {"at_stop": train["at_stop"] | at_stop_scores(recon_dir / "renders_at_stop", images, colour)}
     record = {
         **row_record(scene_dir, train),
         "mean": mean_scores(per_view),
@@ -105,6 +109,17 @@ def evaluate(
     }
     io.write_json(out_json, record)
     return record
+
+
+def at_stop_scores(folder: Path, references: dict[str, np.ndarray], colour: bool) -> dict[str, float]:
+    """Mean PSNR and SSIM of the renders in ``folder`` (view name -> reference image)."""
+    if not colour:
+        references = {n: sensors.luminance_srgb(g) for n, g in references.items()}
+    preds = {n: io.read_rgb(folder / f"{n}.png") for n in references}
+    if not colour:
+        preds = {n: sensors.luminance_srgb(p) for n, p in preds.items()}
+    scores = {k: [SCORERS[k](preds[n], references[n], None) for n in references] for k in ("psnr", "ssim")}
+    return {k: float(np.mean(v)) for k, v in scores.items()}
 
 
 ROW_KEYS = (
@@ -123,6 +138,8 @@ ROW_KEYS = (
     "poses",
     "init",
     "display",
+    "stopped",
+    "at_stop",
 )
 
 

@@ -16,6 +16,7 @@ Outputs: ``{stem}.csv`` (numbers), ``{stem}.md``, ``{stem}.tex`` and ``{stem}.ht
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -483,6 +484,26 @@ def no_reference_table(metrics_files: list[str], stem: str) -> pd.DataFrame:
     html = HTML_PAGE.format(caption=caption, table=plain.to_html(index=False), protocol=protocol)
     io.write_text(stem.with_suffix(".html"), html)
     return df
+
+
+LATEX = {"%": "\\%", "Δ": "$\\Delta$", "–": "--", "−": "$-$"}
+
+
+def to_latex(text: str) -> str:
+    """A display string with the characters LaTeX needs spelled out."""
+    return functools.reduce(lambda t, kv: t.replace(*kv), LATEX.items(), text)
+
+
+def write_plain_table(text: pd.DataFrame, numbers: pd.DataFrame, stem, caption: str, protocol: str) -> None:
+    """``stem``.csv (``numbers``) and .md / .tex / .html (``text``: display strings), atomically."""
+    stem = Path(stem)
+    io.write_text(stem.with_suffix(".csv"), numbers.to_csv(index=False, float_format="%.6g"))
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + text.to_markdown(index=False) + f"\n\n{protocol}\n")
+    tex = text.map(lambda s: to_latex(s) if isinstance(s, str) else s)
+    tex.columns = [to_latex(c) for c in tex.columns]
+    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {protocol}", escape=False))
+    html = text.to_html(index=False, escape=True)
+    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
 
 
 def write_text_table(stem: str | os.PathLike, text: str) -> None:

@@ -32,6 +32,7 @@ class DensityControl:
     def __init__(self, model: GaussianModel, cfg: GaussianConfig, extent: float, seed: int = 0):
         self.cfg, self.extent = cfg, extent
         self.generator = torch.Generator().manual_seed(seed)  # own stream: checkpoints restore it
+        self.history: list[list[int]] = []  # [iteration, Gaussians before, cloned, split, pruned, after]
         self.reset_stats(len(model))
 
     def reset_stats(self, n: int) -> None:
@@ -51,11 +52,14 @@ class DensityControl:
         """Run the schedule for iteration ``it`` (1-based)."""
         c = self.cfg
         if c.densify_from < it <= c.densify_until and it % c.densify_every == 0:
-            self.densify_and_prune(model, opt, prune_big=it > c.opacity_reset_every)
+            before = len(model)
+            cloned, split = self.densify_and_prune(model, opt, prune_big=it > c.opacity_reset_every)
+            self.history.append([it, before, cloned, split, before + cloned + split - len(model), len(model)])
         if it <= c.densify_until and it % c.opacity_reset_every == 0:
             reset_opacity(model, opt)
 
-    def densify_and_prune(self, model: GaussianModel, opt: torch.optim.Optimizer, prune_big: bool) -> None:
+    def densify_and_prune(self, model: GaussianModel, opt: torch.optim.Optimizer, prune_big: bool) -> tuple[int, int]:
+        """One density-control pass; returns (Gaussians cloned, Gaussians split)."""
         grads = self.grad_sum / self.count.clamp_min(1)  # clamp: never-seen Gaussians have 0 / 0
         big = model.scales.detach().max(1).values > self.cfg.percent_dense * self.extent
         cand = grads >= self.cfg.densify_grad
@@ -75,6 +79,7 @@ class DensityControl:
             keep[model.opacities.detach().argmax()] = True  # never prune to an empty model
         select(model, opt, keep)
         self.reset_stats(len(model))
+        return int(clone.sum()), int(split.sum())
 
 
 def cap_candidates(cand: Tensor, grads: Tensor, room: int) -> Tensor:

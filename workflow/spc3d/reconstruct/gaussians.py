@@ -60,11 +60,16 @@ class GaussianConfig:
     pose_lr: float = 5e-4  # Adam lr of the corrections (radians; translation in scene extents), at pose_from
     pose_lr_final: float = 5e-6  # their lr at the last iteration (exponential decay: they settle, not drift)
     pose_from: int = 300  # iteration from which the corrections move (the Gaussians fit roughly first)
+    plateau_window: int = 100  # steps averaged into one value of the stopping rule (spc3d.training.Plateau)
+    plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
+    plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
     backend: str = "native"  # rasterizer back-end
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour behind the last Gaussian (render space)
 
     def __post_init__(self):
-        require_positive(self, "iterations", "sh_interval", "densify_every", "max_gaussians", "init_points")
+        require_positive(
+            self, "iterations", "sh_interval", "densify_every", "max_gaussians", "init_points", "plateau_window"
+        )
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"sh_degree = {self.sh_degree}: the rasterizer evaluates degrees 0..3")
 

@@ -36,9 +36,12 @@ class NerfConfig:
     n_iters: int = 200_000  # iteration budget the learning rate decays over
     batch_rays: int = 1024  # rays per training step (N_rand)
     chunk: int = 4096  # rays per forward pass when rendering whole images
+    plateau_window: int = 50  # steps averaged into one value of the stopping rule (spc3d.training.Plateau)
+    plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
+    plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
 
     def __post_init__(self):
-        require_positive(self, "depth", "width", "n_coarse", "n_iters", "batch_rays", "chunk")
+        require_positive(self, "depth", "width", "n_coarse", "n_iters", "batch_rays", "chunk", "plateau_window")
 
 
 def nerf_preset(name: str) -> NerfConfig:

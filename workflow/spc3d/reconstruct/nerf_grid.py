@@ -64,9 +64,14 @@ class GridConfig:
     occupancy_every: int = 100  # trainer: call ``update_occupancy`` this often ...
     occupancy_warmup: int = 200  # ... from this iteration on (before it every cell is kept)
     chunk: int = 8192  # rays per forward pass when rendering whole images
+    plateau_window: int = 50  # steps averaged into one value of the stopping rule (spc3d.training.Plateau)
+    plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
+    plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
 
     def __post_init__(self):
-        require_positive(self, "channels", "n_samples", "n_iters", "batch_rays", "occupancy_every", "chunk")
+        require_positive(
+            self, "channels", "n_samples", "n_iters", "batch_rays", "occupancy_every", "chunk", "plateau_window"
+        )
         if not self.res_schedule or any(res < 2 for _, res in self.res_schedule):
             raise ValueError(f"res_schedule = {self.res_schedule}: needs (iteration, resolution >= 2) pairs")
 

@@ -25,7 +25,7 @@ from spc3d.reconstruct import nerf, nerf_grid
 from spc3d.reconstruct.rays import camera_rays, ndc_rays, recenter, view_dirs
 from spc3d.reconstruct.views import Views
 from spc3d.reconstruct.volume import render_chunked
-from spc3d.training import default_device, set_lr
+from spc3d.training import Plateau, default_device, set_lr
 
 
 def all_rays(cams: Cameras, idx) -> tuple[Tensor, Tensor, Tensor]:
@@ -56,6 +56,9 @@ class RayTrainer:
         self.lib = nerf if kind == "nerf" else nerf_grid
         self.opt = self.lib.make_optimizer(self.model, cfg)
         self.rng = np.random.default_rng(seed)
+        # A grid still growing on its schedule is not on a plateau: no stop before its last step.
+        start = max(it for it, _ in cfg.res_schedule) if kind == "nerf-grid" else 0
+        self.plateau = Plateau(cfg.plateau_window, cfg.plateau_patience, cfg.plateau_gain, start)
 
     def step(self, it: int) -> dict:
         if self.kind == "nerf-grid":
@@ -72,8 +75,10 @@ class RayTrainer:
         if self.kind == "nerf-grid":
             self.model.add_tv_grad()  # the total-variation term's gradient, added in place
         self.opt.step()
+        value = loss.item()
+        self.plateau.update(it, value - self.objective.floor(target))
         rgb = self.objective.name == "rgb"
-        return {"loss": loss.item(), "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
+        return {"loss": value, "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
 
     def _grid_schedule(self, it: int) -> None:
         """Coarse-to-fine growth and periodic occupancy refresh of the grid."""
@@ -83,6 +88,10 @@ class RayTrainer:
             self.opt = self.lib.make_optimizer(self.model, self.cfg, it)  # new parameter tensors
         if it >= self.cfg.occupancy_warmup and it % self.cfg.occupancy_every == 0:
             self.model.update_occupancy()
+
+    def should_stop(self) -> bool:
+        """The training objective has stopped improving (:class:`spc3d.training.Plateau`)."""
+        return self.plateau.should_stop()
 
     @torch.no_grad()
     def render(self, cams: Cameras, i: int) -> Tensor:
@@ -102,6 +111,7 @@ class RayTrainer:
             "opt": self.opt.state_dict(),
             "rng": self.rng.bit_generator.state,
             "res": getattr(self.model, "res", None),
+            "plateau": self.plateau.state(),
         }
 
     def load(self, state: dict) -> None:
@@ -112,3 +122,4 @@ class RayTrainer:
         self.opt = self.lib.make_optimizer(self.model, self.cfg)
         self.opt.load_state_dict(state["opt"])
         self.rng.bit_generator.state = state["rng"]
+        self.plateau.load(state["plateau"])

@@ -42,6 +42,10 @@ class RGBObjective:
 
         return (1.0 - self.ssim_weight) * err + self.ssim_weight * ssim_loss(_bchw(pred), _bchw(target))
 
+    def floor(self, target: Tensor) -> float:
+        """The least loss any render can reach on ``target``: 0 for an image loss."""
+        return 0.0
+
     def to_srgb(self, pred: Tensor) -> Tensor:
         return pred.clamp(0.0, 1.0)
 
@@ -68,6 +72,13 @@ class BernoulliObjective:
         small, large = x.clamp(max=LN2), x.clamp(min=LN2)
         log_p = torch.where(x < LN2, torch.log(-torch.expm1(-small)), torch.log1p(-torch.exp(-large)))
         return -(target * log_p - (1.0 - target) * x).mean()
+
+    def floor(self, target: Tensor) -> float:
+        """The least loss any render can reach on ``target``: the binary entropy of the fractions of
+        ones (p = f everywhere), which the plateau rule subtracts so that its relative gain measures
+        the fit, not the photon noise that no model can explain."""
+        f = target.double().clamp(0.0, 1.0)
+        return float(-(torch.special.xlogy(f, f) + torch.special.xlogy(1.0 - f, 1.0 - f)).mean())
 
     def to_srgb(self, pred: Tensor) -> Tensor:
         return linear_to_srgb(pred)

@@ -29,6 +29,7 @@ from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianMod
 from spc3d.reconstruct.pose_refine import PoseCorrections, RowAdam, heldout_cameras
 from spc3d.reconstruct.splat.project import CameraError
 from spc3d.reconstruct.views import Views
+from spc3d.training import Plateau
 
 
 def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> torch.optim.Adam:
@@ -85,6 +86,8 @@ class SplatTrainer:
         self.degree_loss = math.inf  # mean loss of the interval before the last degree decision
         self.poses = PoseCorrections(views.cameras, self.extent) if cfg.pose_refine else None
         self.pose_opt = RowAdam(self.poses.delta) if self.poses else None
+        self.plateau = Plateau(cfg.plateau_window, cfg.plateau_patience, cfg.plateau_gain)
+        self.floors = [objective.floor(t) for t in views.targets]  # per view: the loss no fit goes below
 
     def step(self, it: int) -> dict:
         for group in self.opt.param_groups:
@@ -120,11 +123,16 @@ class SplatTrainer:
             self.pose_opt.step(i, pose_lr(it, self.cfg))
         self.control.step(it, self.model, self.opt)
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
+        self.plateau.update(it, value - self.floors[i], i)
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).
         rgb = self.objective.name == "rgb"
         return {"loss": value, "psnr": psnr(out["image"].clamp(0, 1), self.views.targets[i]) if rgb else math.nan}
+
+    def should_stop(self) -> bool:
+        """The training objective has stopped improving (:class:`spc3d.training.Plateau`)."""
+        return self.plateau.should_stop()
 
     def maybe_raise_degree(self) -> None:
         """Raise the SH degree while the loss still improves by >= 0.5 % per interval."""
@@ -156,7 +164,7 @@ class SplatTrainer:
         return self.objective.to_srgb(out["image"])
 
     def capacity(self) -> dict:
-        return self.model.capacity()
+        return self.model.capacity() | {"densify": self.control.history}
 
     def heldout_cameras(self, reference_train: Cameras, reference_test: Cameras) -> Cameras:
         """Where to render the held-out views: their reference cameras, or with refined training
@@ -175,6 +183,8 @@ class SplatTrainer:
             "rng": self.rng.bit_generator.state,
             "losses": self.losses,
             "degree_loss": self.degree_loss,
+            "plateau": self.plateau.state(),
+            "densify": [list(h) for h in self.control.history],
             "poses": None if self.poses is None else (self.poses.delta.detach().clone(), self.pose_opt.state_dict()),
         }
 
@@ -188,6 +198,8 @@ class SplatTrainer:
         self.control.generator.set_state(state["split_rng"])
         self.rng.bit_generator.state = state["rng"]
         self.losses, self.degree_loss = state["losses"], state["degree_loss"]
+        self.plateau.load(state["plateau"])
+        self.control.history = [list(h) for h in state["densify"]]
         if self.poses is not None:
             delta, opt = state["poses"]
             with torch.no_grad():

@@ -5,7 +5,9 @@
 
     renders/{view}.png   the held-out (every 8th) views rendered in sRGB
     train.json           model, source, objective, seed, resolved settings, iterations, training and
-                         rendering wall time, capacity (Gaussians / voxels / parameters, peak memory)
+                         rendering wall time, capacity (Gaussians / voxels / parameters, peak memory;
+                         3DGS: every density-control pass), where and why training stopped (the
+                         plateau rule of the training objective, or the budget)
 
 The checkpoint lives outside that folder (``checkpoint``, e.g. ``results/checkpoints/...``) so
 that Snakemake's clean-up of an interrupted job's outputs keeps it: a rerun resumes from it, but
@@ -25,6 +27,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from spc3d import io, llff
 from spc3d.cameras import Cameras, split_views
@@ -33,7 +36,7 @@ from spc3d.poses.colmap import sparse_points
 from spc3d.poses.estimate import NoPoses, poses_summary
 from spc3d.reconstruct import RECONSTRUCTORS
 from spc3d.reconstruct.sources import load_source, with_estimated_poses
-from spc3d.training import peak_rss_mb, run, seed_everything
+from spc3d.training import Plateau, peak_rss_mb, run, seed_everything
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +48,14 @@ class RefinesCameras(Protocol):
     training cameras with the reference ones (``train``: the reference cameras of its views)."""
 
     def heldout_cameras(self, train: Cameras, test: Cameras) -> Cameras: ...
+
+
+@runtime_checkable
+class StopsOnPlateau(Protocol):
+    """A trainer that ends its training when its objective stops improving; ``plateau`` says where
+    and why it stopped (:class:`spc3d.training.Plateau`)."""
+
+    plateau: Plateau
 
 
 @dataclass(frozen=True)
@@ -60,7 +71,9 @@ class ReconstructJob:
     source's and its pose source's. ``points_dir``: a ``colmap_poses`` folder whose sparse points
     initialise a model that accepts them (random initialisation when None, or when that run has no
     aligned reconstruction). ``init_setting``: the config's ``stage2.init``, recorded beside what
-    was done. ``checkpoint``: outside ``out_dir`` (Snakemake's clean-up of a failed job keeps it);
+    was done. ``observe_plateau``: train past the plateau stop to the budget, rendering the held-out
+    views at the stop too (``renders_at_stop/``: the trade table's paired measurement).
+    ``checkpoint``: outside ``out_dir`` (Snakemake's clean-up of a failed job keeps it);
     ``policy``: when it is written.
     """
 
@@ -77,9 +90,18 @@ class ReconstructJob:
     points_dir: str | os.PathLike | None = None
     poses_dir: str | os.PathLike | None = None
     init_setting: str | None = None
+    observe_plateau: bool = False
     checkpoint: str | os.PathLike | None = None
     policy: CheckpointPolicy = CheckpointPolicy()
     threads: int | None = None
+
+    def inputs(self) -> dict:
+        """What the job fitted, as given (input folders, settings, K, init), for the record: another
+        fit of the same row (a new seed, observe mode) is ``ReconstructJob(**inputs, out_dir=...)``."""
+        kept = ("scene_dir", "source", "model", "settings", "frames", "spc_dir", "image_dir", "display_dir")
+        kept += ("points_dir", "poses_dir", "init_setting")
+        values = {k: getattr(self, k) for k in kept}
+        return {k: str(v) if isinstance(v, os.PathLike) else v for k, v in values.items()}
 
     def digests(self) -> dict:
         """What identifies the inputs in the checkpoint's fingerprint: digests of the input folders."""
@@ -127,7 +149,13 @@ def reconstruct(job: ReconstructJob) -> dict:
         "display": display_record(job.display_dir),
     }
     record = train(trainer, iterations, job, meta)
-    render_s = write_renders(trainer, job.scene_dir, job.out_dir, record | meta)
+    at_stop = None
+    if job.observe_plateau and isinstance(trainer, StopsOnPlateau):
+        at_stop = render_heldout(trainer, job.scene_dir)
+        record |= {"at_stop": {"step": record["steps"], "train_s": record["train_s"]}}
+        record |= continue_to_budget(trainer, iterations, record, job)
+    record["job"] = job.inputs()
+    render_s = write_renders(trainer, job.scene_dir, job.out_dir, record | meta, at_stop)
     return record | meta | {"render_s": render_s}
 
 
@@ -149,9 +177,29 @@ def train(trainer, iterations: int, job: ReconstructJob, meta: dict) -> dict:
         "final_train_psnr": result["final"].get("psnr"),
         "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()},
     }
+    if isinstance(trainer, StopsOnPlateau):
+        record["stopped"] = trainer.plateau.record(iterations, result["steps"])
     if getattr(trainer, "poses", None) is not None:
         record["pose_corrections"] = trainer.poses.magnitude()
     return record
+
+
+def continue_to_budget(trainer: StopsOnPlateau, iterations: int, record: dict, job: ReconstructJob) -> dict:
+    """Observe mode: after the plateau stop, train on to the budget (no checkpoints: a killed
+    continuation restarts from the stop's); the record's steps, time and capacity at the budget."""
+    trainer.plateau.patience = 0  # the rule has spoken; from here it only keeps its curve
+    t0 = time.perf_counter()
+    stats = {}
+    for it in tqdm(range(record["steps"] + 1, iterations + 1), desc=f"{job.source}+{job.model} (observe)"):
+        stats = trainer.step(it)
+    return {
+        "steps": iterations,
+        "stopped_early": False,
+        "train_s": record["train_s"] + time.perf_counter() - t0,
+        "final_loss": stats.get("loss", record["final_loss"]),
+        "final_train_psnr": stats.get("psnr", record["final_train_psnr"]),
+        "capacity": {**trainer.capacity(), "peak_rss_mb": peak_rss_mb()},
+    }
 
 
 def write_unposed(scene_dir, out_dir, record: dict) -> dict:
@@ -183,19 +231,27 @@ def initial_points(points_dir) -> tuple[tuple[np.ndarray, np.ndarray] | None, st
     return (xyz, rgb), f"colmap sparse points ({len(xyz)}) from {points_dir}"
 
 
-def write_renders(trainer, scene_dir, out_dir, record: dict) -> float:
-    """Render every held-out view into ``out_dir/renders`` and write ``train.json``, atomically."""
+def render_heldout(trainer, scene_dir) -> dict[str, np.ndarray]:
+    """The held-out views rendered in sRGB, view name -> (H, W, 3) in [0, 1]."""
     scene = llff.read_scene(scene_dir, with_images=False)
     _, test = split_views(len(scene.names))
     cams = scene.cameras.subset(test)
     if isinstance(trainer, RefinesCameras):
         index = {n: i for i, n in enumerate(scene.names)}
         cams = trainer.heldout_cameras(scene.cameras.subset([index[n] for n in trainer.views.names]), cams)
+    images = (trainer.render(cams, j).detach().cpu().numpy() for j in range(len(test)))
+    return {scene.names[i]: np.clip(image, 0.0, 1.0) for i, image in zip(test, images)}
+
+
+def write_renders(trainer, scene_dir, out_dir, record: dict, at_stop: dict | None = None) -> float:
+    """Render every held-out view into ``out_dir/renders`` (and the observed stop's into
+    ``renders_at_stop``) and write ``train.json``, atomically."""
     t0 = time.perf_counter()
+    renders = render_heldout(trainer, scene_dir)
+    render_s = time.perf_counter() - t0
     with io.atomic_path(out_dir, is_dir=True) as tmp:
-        for j, i in enumerate(test):
-            image = trainer.render(cams, j).detach().cpu().numpy()
-            io.write_image(tmp / "renders" / f"{scene.names[i]}.png", np.clip(image, 0.0, 1.0))
-        render_s = time.perf_counter() - t0
-        io.write_json(tmp / "train.json", record | {"render_s": render_s, "test_views": [scene.names[i] for i in test]})
+        for folder, images in (("renders", renders), ("renders_at_stop", at_stop or {})):
+            for name, image in images.items():
+                io.write_image(tmp / folder / f"{name}.png", image)
+        io.write_json(tmp / "train.json", record | {"render_s": render_s, "test_views": list(renders)})
     return render_s
