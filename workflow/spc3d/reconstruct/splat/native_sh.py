@@ -25,7 +25,7 @@ import torch
 from numba import njit
 from torch import Tensor
 
-from spc3d.reconstruct.splat.native_prep import CHUNK, gather_columns
+from spc3d.reconstruct.splat.native_prep import CHUNK
 from spc3d.reconstruct.splat.native_threads import in_chunks, next_chunk
 from spc3d.reconstruct.splat.project import SH_C0, SH_C1, SH_C2, SH_C3
 
@@ -34,61 +34,39 @@ _C3 = np.array(SH_C3)
 
 
 @njit(inline="always")
-def _unit_columns(inp, n, d, inv, keep):
-    """Rows 0..2 of ``inp`` (directions, one per column) normalised into d (3, CHUNK); 1 / the
-    clamped norm into inv; keep: 1.0 where the norm was not clamped (its gradient then counts)."""
-    for j in range(n):
-        vx, vy, vz = inp[0, j], inp[1, j], inp[2, j]
-        n2 = vx * vx + vy * vy + vz * vz
-        r = 1.0 / math.sqrt(max(n2, 1e-24))
-        d[0, j], d[1, j], d[2, j], inv[j] = vx * r, vy * r, vz * r, r
-        keep[j] = 0.0 if n2 < 1e-24 else 1.0
+def _unit(dirs, i):
+    """(x, y, z) of dirs[i] normalised, 1 / clamped norm, and whether the norm was clamped."""
+    vx, vy, vz = float(dirs[i, 0]), float(dirs[i, 1]), float(dirs[i, 2])
+    n2 = vx * vx + vy * vy + vz * vz
+    inv = 1.0 / math.sqrt(max(n2, 1e-24))
+    return vx * inv, vy * inv, vz * inv, inv, n2 < 1e-24
 
 
 @njit(inline="always")
-def _basis_columns(degree, n, d, c2, c3, b):
-    """Y_0..Y_{(degree+1)²-1} (rows of b) at the unit directions d (3, CHUNK), columns 0..n-1."""
-    for j in range(n):
-        b[0, j] = SH_C0
+def _basis(degree, x, y, z, c2, c3, b):
+    """Y_0..Y_{(degree+1)²-1} at the unit direction (x, y, z) into b."""
+    b[0] = SH_C0
     if degree >= 1:
-        for j in range(n):
-            x, y, z = d[0, j], d[1, j], d[2, j]
-            b[1, j], b[2, j], b[3, j] = -SH_C1 * y, SH_C1 * z, -SH_C1 * x
+        b[1], b[2], b[3] = -SH_C1 * y, SH_C1 * z, -SH_C1 * x
     if degree >= 2:
-        for j in range(n):
-            x, y, z = d[0, j], d[1, j], d[2, j]
-            xx, yy, zz = x * x, y * y, z * z
-            b[4, j], b[5, j], b[6, j] = c2[0] * x * y, c2[1] * y * z, c2[2] * (2 * zz - xx - yy)
-            b[7, j], b[8, j] = c2[3] * x * z, c2[4] * (xx - yy)
+        xx, yy, zz = x * x, y * y, z * z
+        b[4], b[5], b[6] = c2[0] * x * y, c2[1] * y * z, c2[2] * (2 * zz - xx - yy)
+        b[7], b[8] = c2[3] * x * z, c2[4] * (xx - yy)
     if degree >= 3:
-        for j in range(n):
-            x, y, z = d[0, j], d[1, j], d[2, j]
-            xx, yy, zz = x * x, y * y, z * z
-            b[9, j], b[10, j] = c3[0] * y * (3 * xx - yy), c3[1] * x * y * z
-            b[11, j], b[12, j] = c3[2] * y * (4 * zz - xx - yy), c3[3] * z * (2 * zz - 3 * xx - 3 * yy)
-            b[13, j], b[14, j] = c3[4] * x * (4 * zz - xx - yy), c3[5] * z * (xx - yy)
-            b[15, j] = c3[6] * x * (xx - 3 * yy)
+        xx, yy, zz = x * x, y * y, z * z
+        b[9], b[10] = c3[0] * y * (3 * xx - yy), c3[1] * x * y * z
+        b[11], b[12] = c3[2] * y * (4 * zz - xx - yy), c3[3] * z * (2 * zz - 3 * xx - 3 * yy)
+        b[13], b[14] = c3[4] * x * (4 * zz - xx - yy), c3[5] * z * (xx - yy)
+        b[15] = c3[6] * x * (xx - 3 * yy)
 
 
 @njit(inline="always")
-def _colours(k, n, b, sh, acc):
-    """acc (3, CHUNK) = Σ_{k' < k} Y_k' sh_k'c + 0.5 (before the clamp); sh: rows 3 k' + c."""
-    for c in range(3):
-        for j in range(n):
-            acc[c, j] = b[0, j] * sh[c, j]
-        for q in range(1, k):
-            for j in range(n):
-                acc[c, j] += b[q, j] * sh[3 * q + c, j]
-        for j in range(n):
-            acc[c, j] += 0.5
-
-
-@njit(inline="always")
-def _gather(dirs, dc, rest, c0, n, inp, sh):
-    """Directions into rows 0..2 of inp, the coefficients (DC, then rest) into rows of sh, one
-    column per Gaussian."""
-    gather_columns(dirs, c0, n, inp, 0)
-    gather_columns(rest, c0, n, sh, gather_columns(dc, c0, n, sh, 0))
+def _colour(i, k, dc, rest, b, c):
+    """Σ_{k' < k} Y_k' sh_k'c + 0.5 of Gaussian i, channel c (before the clamp)."""
+    s = b[0] * float(dc[i, c])
+    for q in range(1, k):
+        s += b[q] * float(rest[i, 3 * (q - 1) + c])
+    return s + 0.5
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -96,21 +74,17 @@ def _sh_forward(degree, dirs, dc, rest, c2, c3, counter, total, rgb):
     """rgb (N, 3) of the chunks of the ``total`` Gaussians this worker takes. dc (N, 3), rest
     (N, 3 (K - 1)): the coefficients flattened."""
     k = (degree + 1) ** 2
-    inp, sh = np.empty((3, CHUNK)), np.empty((3 + rest.shape[1], CHUNK))
-    d, inv, keep, b, acc = np.empty((3, CHUNK)), np.empty(CHUNK), np.empty(CHUNK), np.empty((16, CHUNK)), np.empty(
-        (3, CHUNK))
+    b = np.empty(16)
     while True:
         c0, n = next_chunk(counter, total, CHUNK)
         if n <= 0:
             break
-        _gather(dirs, dc, rest, c0, n, inp, sh)
-        _unit_columns(inp, n, d, inv, keep)
-        _basis_columns(degree, n, d, c2, c3, b)
-        _colours(k, n, b, sh, acc)
-        for j in range(n):
+        for i in range(c0, c0 + n):
+            x, y, z, _, _ = _unit(dirs, i)
+            _basis(degree, x, y, z, c2, c3, b)
             for c in range(3):
-                s = acc[c, j]
-                rgb[c0 + j, c] = s if not s < 0.0 else 0.0  # NaN stays NaN (torch's clamp_min)
+                s = _colour(i, k, dc, rest, b, c)
+                rgb[i, c] = s if not s < 0.0 else 0.0  # NaN stays NaN (torch's clamp_min)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -118,58 +92,46 @@ def _sh_backward(degree, dirs, dc, rest, c2, c3, g_rgb, counter, total, g_dirs, 
     """dL/d(dirs, DC, rest) of the chunks this worker takes (g_rest zero above the degree);
     coefficients and their gradients flattened as in _sh_forward."""
     k = (degree + 1) ** 2
-    inp, sh = np.empty((3, CHUNK)), np.empty((3 + rest.shape[1], CHUNK))
-    d, inv, keep, b, acc = np.empty((3, CHUNK)), np.empty(CHUNK), np.empty(CHUNK), np.empty((16, CHUNK)), np.empty(
-        (3, CHUNK))
-    g, gb, gsh = np.empty((3, CHUNK)), np.zeros((16, CHUNK)), np.zeros((3 + rest.shape[1], CHUNK))
+    b, gb = np.empty(16), np.zeros(16)
     while True:
         c0, n = next_chunk(counter, total, CHUNK)
         if n <= 0:
             break
-        _gather(dirs, dc, rest, c0, n, inp, sh)
-        gather_columns(g_rgb, c0, n, g, 0)
-        _unit_columns(inp, n, d, inv, keep)
-        _basis_columns(degree, n, d, c2, c3, b)
-        _colours(k, n, b, sh, acc)
-        for c in range(3):  # the clamp's mask: torch passes the gradient where its input >= 0
-            for j in range(n):
-                g[c, j] = g[c, j] if acc[c, j] >= 0.0 else 0.0
-        for q in range(k):  # dL/dsh = Y g; dL/dY = Σ_c g_c sh_c
-            for j in range(n):
-                g0, g1, g2 = g[0, j], g[1, j], g[2, j]
-                gsh[3 * q, j], gsh[3 * q + 1, j], gsh[3 * q + 2, j] = b[q, j] * g0, b[q, j] * g1, b[q, j] * g2
-                gb[q, j] = g0 * sh[3 * q, j] + g1 * sh[3 * q + 1, j] + g2 * sh[3 * q + 2, j]
-        for j in range(n):
-            x, y, z = d[0, j], d[1, j], d[2, j]
+        for i in range(c0, c0 + n):
+            x, y, z, inv, clamped = _unit(dirs, i)
+            _basis(degree, x, y, z, c2, c3, b)
+            # the clamp's mask: torch passes the gradient where its input >= 0
+            g0 = float(g_rgb[i, 0]) if _colour(i, k, dc, rest, b, 0) >= 0.0 else 0.0
+            g1 = float(g_rgb[i, 1]) if _colour(i, k, dc, rest, b, 1) >= 0.0 else 0.0
+            g2 = float(g_rgb[i, 2]) if _colour(i, k, dc, rest, b, 2) >= 0.0 else 0.0
+            g_dc[i, 0], g_dc[i, 1], g_dc[i, 2] = b[0] * g0, b[0] * g1, b[0] * g2
+            for q in range(1, k):  # dL/dsh = Y g; dL/dY = Σ_c g_c sh_c
+                r = 3 * (q - 1)
+                g_rest[i, r], g_rest[i, r + 1], g_rest[i, r + 2] = b[q] * g0, b[q] * g1, b[q] * g2
+                gb[q] = g0 * float(rest[i, r]) + g1 * float(rest[i, r + 1]) + g2 * float(rest[i, r + 2])
+            for r in range(3 * (k - 1), rest.shape[1]):  # above the active degree
+                g_rest[i, r] = 0.0
             gx, gy, gz = 0.0, 0.0, 0.0
             if degree >= 1:
-                gx -= SH_C1 * gb[3, j]
-                gy -= SH_C1 * gb[1, j]
-                gz += SH_C1 * gb[2, j]
+                gx -= SH_C1 * gb[3]
+                gy -= SH_C1 * gb[1]
+                gz += SH_C1 * gb[2]
             if degree >= 2:
-                gx += c2[0] * y * gb[4, j] - 2 * c2[2] * x * gb[6, j] + c2[3] * z * gb[7, j] + 2 * c2[4] * x * gb[8, j]
-                gy += c2[0] * x * gb[4, j] + c2[1] * z * gb[5, j] - 2 * c2[2] * y * gb[6, j] - 2 * c2[4] * y * gb[8, j]
-                gz += c2[1] * y * gb[5, j] + 4 * c2[2] * z * gb[6, j] + c2[3] * x * gb[7, j]
+                gx += c2[0] * y * gb[4] - 2 * c2[2] * x * gb[6] + c2[3] * z * gb[7] + 2 * c2[4] * x * gb[8]
+                gy += c2[0] * x * gb[4] + c2[1] * z * gb[5] - 2 * c2[2] * y * gb[6] - 2 * c2[4] * y * gb[8]
+                gz += c2[1] * y * gb[5] + 4 * c2[2] * z * gb[6] + c2[3] * x * gb[7]
             if degree >= 3:
                 xx, yy, zz = x * x, y * y, z * z
-                gx += (c3[0] * 6 * x * y * gb[9, j] + c3[1] * y * z * gb[10, j] - c3[2] * 2 * x * y * gb[11, j]
-                       - c3[3] * 6 * x * z * gb[12, j] + c3[4] * (4 * zz - 3 * xx - yy) * gb[13, j]
-                       + c3[5] * 2 * x * z * gb[14, j] + c3[6] * 3 * (xx - yy) * gb[15, j])
-                gy += (c3[0] * 3 * (xx - yy) * gb[9, j] + c3[1] * x * z * gb[10, j]
-                       + c3[2] * (4 * zz - xx - 3 * yy) * gb[11, j] - c3[3] * 6 * y * z * gb[12, j]
-                       - c3[4] * 2 * x * y * gb[13, j] - c3[5] * 2 * y * z * gb[14, j] - c3[6] * 6 * x * y * gb[15, j])
-                gz += (c3[1] * x * y * gb[10, j] + c3[2] * 8 * y * z * gb[11, j]
-                       + c3[3] * (6 * zz - 3 * xx - 3 * yy) * gb[12, j] + c3[4] * 8 * x * z * gb[13, j]
-                       + c3[5] * (xx - yy) * gb[14, j])
-            dot = keep[j] * (x * gx + y * gy + z * gz)  # a clamped norm is constant: no projection
-            r = inv[j]
-            g_dirs[c0 + j, 0], g_dirs[c0 + j, 1], g_dirs[c0 + j, 2] = (gx - x * dot) * r, (gy - y * dot) * r, (
-                gz - z * dot) * r
-        for j in range(n):
-            for c in range(3):
-                g_dc[c0 + j, c] = gsh[c, j]
-            for q in range(rest.shape[1]):  # zero above the active degree (gsh rows stay 0 there)
-                g_rest[c0 + j, q] = gsh[3 + q, j]
+                gx += (c3[0] * 6 * x * y * gb[9] + c3[1] * y * z * gb[10] - c3[2] * 2 * x * y * gb[11]
+                       - c3[3] * 6 * x * z * gb[12] + c3[4] * (4 * zz - 3 * xx - yy) * gb[13]
+                       + c3[5] * 2 * x * z * gb[14] + c3[6] * 3 * (xx - yy) * gb[15])
+                gy += (c3[0] * 3 * (xx - yy) * gb[9] + c3[1] * x * z * gb[10] + c3[2] * (4 * zz - xx - 3 * yy) * gb[11]
+                       - c3[3] * 6 * y * z * gb[12] - c3[4] * 2 * x * y * gb[13] - c3[5] * 2 * y * z * gb[14]
+                       - c3[6] * 6 * x * y * gb[15])
+                gz += (c3[1] * x * y * gb[10] + c3[2] * 8 * y * z * gb[11] + c3[3] * (6 * zz - 3 * xx - 3 * yy) * gb[12]
+                       + c3[4] * 8 * x * z * gb[13] + c3[5] * (xx - yy) * gb[14])
+            dot = 0.0 if clamped else x * gx + y * gy + z * gz  # a clamped norm is constant: no projection
+            g_dirs[i, 0], g_dirs[i, 1], g_dirs[i, 2] = (gx - x * dot) * inv, (gy - y * dot) * inv, (gz - z * dot) * inv
 
 
 class _EvalSHNative(torch.autograd.Function):
