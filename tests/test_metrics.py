@@ -103,6 +103,32 @@ def test_ssim_loss_gradcheck(one_thread):
     assert torch.autograd.gradcheck(lambda p: metrics.ssim_map(p, target).mean(), (pred,))
 
 
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 1e-6)])
+def test_ssim_loss_fast_matches_ssim_loss(dtype, tol):
+    """The training loss's fast form (banded blur, closed-form backward) has ssim_loss's value
+    and gradient, also at the borders (zero padding) and for a (B, C, H, W) permuted view."""
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(2, 3, 23, 31, generator=g, dtype=dtype)
+    pred = (target + 0.2 * torch.randn(target.shape, generator=g, dtype=dtype)).clamp(0, 1)
+    for p, t in ((pred, target), (pred.permute(0, 2, 3, 1)[:1].permute(0, 3, 1, 2), target[:1])):
+        a, b = p.detach().clone().requires_grad_(), p.detach().clone().requires_grad_()
+        ref, fast = metrics.ssim_loss(a, t), metrics.ssim_loss_fast(b, t)
+        ref.backward()
+        fast.backward()
+        assert abs(ref.item() - fast.item()) < tol
+        scale = a.grad.abs().max().item()
+        assert (a.grad - b.grad).abs().max().item() < tol * scale
+    same = torch.rand(1, 3, 16, 16, dtype=dtype)
+    assert metrics.ssim_loss_fast(same, same.clone()).item() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_ssim_loss_fast_gradcheck(one_thread):
+    torch.manual_seed(0)
+    pred = torch.rand(1, 2, 12, 13, dtype=torch.float64, requires_grad=True)
+    target = torch.rand(1, 2, 12, 13, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda p: metrics.ssim_loss_fast(p, target), (pred,))
+
+
 def test_ssim_loss_constant_images_finite():
     for pred, target in [
         (torch.zeros(1, 3, 16, 16), torch.zeros(1, 3, 16, 16)),

@@ -20,6 +20,7 @@ from spc3d.reconstruct.splat import (
     rasterize_native,
     rasterize_reference,
 )
+from spc3d.reconstruct.splat.native_sh import eval_sh_native
 from spc3d.reconstruct.splat.project import SH_C0
 
 RASTERIZERS = {"native": rasterize_native, "reference": rasterize_reference}
@@ -561,6 +562,52 @@ def test_eval_sh_degree0():
     sh = torch.randn(10, 1, 3)
     out = eval_sh(0, sh, torch.randn(10, 3))
     assert torch.allclose(out, (SH_C0 * sh[:, 0] + 0.5).clamp_min(0))
+
+
+@pytest.mark.parametrize("rest", [15, 8, 0])
+def test_eval_sh_native_matches_eval_sh(rest):
+    """Colour and gradients (directions, DC, rest) of the numba SH as autograd through eval_sh,
+    including a zero direction (clamped norm), clamped colours and coefficients above the
+    active degree (zero gradient, as autograd through the concatenation gives them)."""
+    g = torch.Generator().manual_seed(1)
+    n = 300
+    for degree in range(4):
+        if (degree + 1) ** 2 > rest + 1:
+            continue
+        dirs = torch.randn(n, 3, generator=g, dtype=torch.float64) * torch.rand(n, 1, generator=g, dtype=torch.float64)
+        dirs[0] = 0.0
+        dc, sh_rest = (
+            torch.randn(n, 1, 3, generator=g, dtype=torch.float64),
+            torch.randn(n, rest, 3, generator=g, dtype=torch.float64),
+        )
+        weight = torch.randn(n, 3, generator=g, dtype=torch.float64)
+        ref = [t.clone().requires_grad_() for t in (dirs, dc, sh_rest)]
+        nat = [t.clone().requires_grad_() for t in (dirs, dc, sh_rest)]
+        expected = eval_sh(degree, torch.cat([ref[1], ref[2]], 1), ref[0])
+        out = eval_sh_native(degree, nat[1], nat[2], nat[0])
+        assert (expected == 0).any() and torch.allclose(out, expected, rtol=0, atol=1e-13)
+        (expected * weight).sum().backward()
+        (out * weight).sum().backward()
+        for r, m in zip(ref, nat):
+            want = torch.zeros_like(r) if r.grad is None else r.grad  # degree 0: no direction gradient
+            assert torch.allclose(m.grad, want, rtol=1e-12, atol=1e-12)
+
+
+def test_eval_sh_native_gradcheck_and_float32(one_thread):
+    g = torch.Generator().manual_seed(2)
+    args = (
+        torch.randn(12, 3, generator=g, dtype=torch.float64),
+        torch.randn(12, 1, 3, generator=g, dtype=torch.float64),
+        torch.randn(12, 15, 3, generator=g, dtype=torch.float64),
+    )
+    args = tuple(a.requires_grad_() for a in args)
+    assert torch.autograd.gradcheck(lambda d, dc, r: eval_sh_native(3, dc, r, d), args)
+    d32, dc32, r32 = (a.detach().float() for a in args)
+    out = eval_sh_native(3, dc32, r32, d32)
+    assert out.dtype == torch.float32
+    assert torch.allclose(out, eval_sh(3, torch.cat([dc32, r32], 1), d32), atol=1e-6)
+    with pytest.raises(ValueError, match="degree"):
+        eval_sh_native(3, dc32, r32[:, :8], d32)
 
 
 def test_eval_sh_degree3_matches_independent_basis():

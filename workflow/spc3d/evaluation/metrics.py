@@ -146,6 +146,82 @@ def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return 1.0 - ssim_map(pred, target, padding="same").mean()
 
 
+def _band(n: int, size: int, sigma: float, dtype: torch.dtype, device) -> torch.Tensor:
+    """(n, n) matrix of the 'same' zero-padded 1-D Gaussian filter: ``x @ band`` filters the last
+    axis of x (the matrix is symmetric, so ``band @ x`` filters the one before)."""
+    key = (n, size, sigma, dtype, str(device))
+    if key not in _BANDS:
+        w, half = gaussian_window(size, sigma, torch.float64), size // 2
+        offset = torch.arange(n)[None, :] - torch.arange(n)[:, None]
+        inside = offset.abs() <= half
+        band = torch.zeros(n, n, dtype=torch.float64)
+        band[inside] = w[(offset + half)[inside]]
+        _BANDS[key] = band.to(dtype=dtype, device=device)
+    return _BANDS[key]
+
+
+_BANDS: dict = {}  # filter matrices by (size, window, sigma, dtype, device): a few small ones per run
+
+
+def _blur_banded(x: torch.Tensor, size: int, sigma: float) -> torch.Tensor:
+    """:func:`_blur` of (B, C, H, W) with 'same' zero padding, as two matrix products (on CPU
+    several times faster than the depthwise convolutions, though they multiply by the zeros
+    outside the band too)."""
+    h, w = x.shape[-2:]
+    rows = (x.reshape(-1, w) @ _band(w, size, sigma, x.dtype, x.device)).reshape(x.shape)
+    return torch.matmul(_band(h, size, sigma, x.dtype, x.device), rows)
+
+
+class _SSIMLoss(torch.autograd.Function):
+    """1 - mean SSIM ('same' padding) with a closed-form gradient w.r.t. pred.
+
+    Forward: the five local moments (means, second moments, cross moment) in one stacked blur.
+    Backward: with S = A1 A2 / (B1 B2), A1 = 2 mu_x mu_y + c1, A2 = 2 (exy - mu_x mu_y) + c2,
+    B1 = mu_x² + mu_y² + c1, B2 = exx - mu_x² + eyy - mu_y² + c2 and e.. the blurred products,
+    dS/dmu_x = 2 mu_y (A2 - A1) / (B1 B2) - 2 mu_x S (1 / B1 - 1 / B2), dS/dexx = -S / B2,
+    dS/dexy = 2 A1 / (B1 B2); the blur is symmetric with zero padding, hence self-adjoint, so
+    dL/dpred = blur(dL/dmu_x) + 2 pred blur(dL/dexx) + target blur(dL/dexy): one stacked blur.
+    """
+
+    @staticmethod
+    def forward(ctx, pred, target, size, sigma):
+        c = pred.shape[1]
+        moments = _blur_banded(torch.cat([pred, target, pred * pred, target * target, pred * target], 1), size, sigma)
+        mu_x, mu_y, exx, eyy, exy = moments.split(c, 1)
+        c1, c2 = (SSIM_K1 * DATA_RANGE) ** 2, (SSIM_K2 * DATA_RANGE) ** 2
+        mxy, mxx, myy = mu_x * mu_y, mu_x * mu_x, mu_y * mu_y
+        a1, a2 = 2 * mxy + c1, 2 * (exy - mxy) + c2
+        b1, b2 = mxx + myy + c1, (exx - mxx) + (eyy - myy) + c2
+        den = b1 * b2
+        s = a1 * a2 / den
+        ctx.save_for_backward(pred, target, mu_x, mu_y, a1, a2, b1, b2, den, s)
+        ctx.blur = (size, sigma)
+        return 1.0 - s.mean()
+
+    @staticmethod
+    def backward(ctx, grad):
+        pred, target, mu_x, mu_y, a1, a2, b1, b2, den, s = ctx.saved_tensors
+        g = -grad / s.numel()
+        d_mu = g * (2 * mu_y * (a2 - a1) / den - 2 * mu_x * s * (1 / b1 - 1 / b2))
+        d_exx, d_exy = g * -s / b2, g * 2 * a1 / den
+        b_mu, b_exx, b_exy = _blur_banded(torch.cat([d_mu, d_exx, d_exy], 1), *ctx.blur).split(pred.shape[1], 1)
+        return b_mu + 2 * pred * b_exx + target * b_exy, None, None, None
+
+
+def ssim_loss_fast(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """:func:`ssim_loss` for training: the same value and gradient w.r.t. ``pred`` (to float
+    rounding), faster: the separable blur as two matrix products with banded filter matrices,
+    all five moments in one stacked blur, and a closed-form backward (:class:`_SSIMLoss`). A
+    target that needs a gradient gets ssim_loss itself."""
+    if pred.shape != target.shape or pred.ndim != 4:
+        raise ValueError(
+            f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} and {tuple(target.shape)}"
+        )
+    if target.requires_grad:
+        return ssim_loss(pred, target)
+    return _SSIMLoss.apply(pred, target.to(pred.dtype), SSIM_WINDOW, SSIM_SIGMA)
+
+
 def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2) -> torch.Tensor:
     """3DGS loss ``(1 - lambda) * L1 + lambda * (1 - SSIM)`` of (B, C, H, W) tensors; scalar."""
     l1 = torch.mean(torch.abs(pred - target))

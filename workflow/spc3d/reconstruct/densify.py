@@ -41,12 +41,14 @@ class DensityControl:
     def observe(self, means2d: Tensor, radii: Tensor, height: int, width: int) -> None:
         """Accumulate after ``loss.backward()``; ``means2d`` had ``retain_grad()``."""
         visible = radii > 0
-        if means2d.grad is None or not visible.any():
+        if means2d.grad is None:
             return
-        g = means2d.grad[visible] * torch.tensor([width / 2.0, height / 2.0])  # pixel -> NDC units
-        self.grad_sum[visible] += g.norm(dim=-1)
-        self.count[visible] += 1
-        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].float())
+        # masks by torch.where rather than boolean indexing (no gathers and scatters); invisible
+        # Gaussians add exactly 0 and keep their maximum
+        g = means2d.grad * torch.tensor([width / 2.0, height / 2.0])  # pixel -> NDC units
+        self.grad_sum += torch.where(visible, g.norm(dim=-1), 0.0)
+        self.count += visible
+        torch.where(visible, torch.maximum(self.max_radii, radii), self.max_radii, out=self.max_radii)
 
     def step(self, it: int, model: GaussianModel, opt: torch.optim.Optimizer) -> None:
         """Run the schedule for iteration ``it`` (1-based)."""

@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from spc3d.cameras import Cameras
 from spc3d.reconstruct.pose_refine import quat_mul
 from spc3d.reconstruct.splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
+from spc3d.reconstruct.splat.native_sh import eval_sh_native
 from spc3d.reconstruct.splat.project import SH_C0
 from spc3d.training import require_positive
 
@@ -115,12 +116,15 @@ class GaussianModel(nn.Module):
         means, quats = self.means, self.quats
         if motion is not None:
             means, quats = means @ motion.R.T + motion.t, quat_mul(motion.q, quats)
-        project = project_gaussians_native if backend == "native" else project_gaussians  # same math
+        native = backend == "native"
+        project = project_gaussians_native if native else project_gaussians  # same math
         proj = project(means, self.scales, quats, w2c, *map(float, K), cams.height, cams.width)
         centre = torch.as_tensor(cams.centers[i], dtype=torch.float32)
-        sh = torch.cat([self.sh_dc, self.sh_rest], 1)
         dirs = means - centre if motion is None else (means - centre) @ motion.R  # R^T: back to the model's frame
-        rgb = eval_sh(self.active_degree, sh, dirs)
+        if native:  # same colour and gradients, without the concatenation
+            rgb = eval_sh_native(self.active_degree, self.sh_dc, self.sh_rest, dirs)
+        else:
+            rgb = eval_sh(self.active_degree, torch.cat([self.sh_dc, self.sh_rest], 1), dirs)
         image, alpha = rasterize(
             proj.means2d,
             proj.conics,

@@ -42,7 +42,9 @@ def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> 
         "sh_rest": cfg.lr_sh_rest,
     }
     groups = [{"params": [getattr(model, n)], "lr": lrs[n], "name": n} for n in PARAM_NAMES]
-    return torch.optim.Adam(groups, lr=0.0, eps=1e-15)
+    # fused: one pass over each parameter per step instead of ~10 tensor ops (same update, the
+    # last bits may differ from the op-by-op path)
+    return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
 
 
 def log_linear(it: int, start: int, end: int, first: float, last: float) -> float:
