@@ -1,7 +1,9 @@
 """Reliability: ``kill -9`` in the middle of every kind of training, then the same command again.
 
-Each row of KINDS trains one kind (3DGS, grid NeRF, MLP NeRF, a GAN, Restormer, diffusion, a
-trade-off point's reconstruction) just long enough to be killed after its first checkpoint, in one of three ways:
+Each row of KINDS trains one kind (3DGS, grid NeRF, a GAN, diffusion) just long enough to be killed
+after its first checkpoint, in one of three ways (every way at least once, every trainer family once;
+the MLP NeRF, Restormer and a sweep point's reconstruction share those code paths and resume
+in-process in test_nerf, test_translate_pipeline and test_sweeps):
 
     job        SIGKILL of the training job alone (as the OOM killer does): Snakemake reports the failure
     group      SIGKILL of Snakemake and its job together (their process group: a crash, `kill -9 -PGID`)
@@ -41,8 +43,6 @@ from conftest import REPO, child_processes, process_alive, run_snakemake, snakem
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
 TINY_3DGS = {"iterations": 60, "densify_from": 10, "densify_until": 50, "densify_every": 10, "init_points": 400}
 FRACTION = 0.1  # checkpoint every 10 % of a training's iterations (the default)
-POINT = "iters~100/res~64"  # the trade-off point (one row of TRADEOFF_TABLE)
-TRADEOFF_TABLE = "iters\tres\n100\t64\n"
 
 # Smoke preset plus trainings of ~2 s each (long enough to kill one after its first checkpoint).
 KILL_CONFIG = {
@@ -52,12 +52,10 @@ KILL_CONFIG = {
         "data": "online",
         "validation": {"every": 10, "patience": 0},
         "pix2pix": {"train": {"iterations": 200}},
-        "restormer": {"train": {"iterations": 60}},
         "diffusion": {"train": {"iterations": 100}},
     },
     "stage2": {
-        "combinations": ["gt+3dgs", "gt+nerf", "gt+nerf-grid"],
-        "nerf_variant": "nerf",
+        "combinations": ["gt+3dgs", "gt+nerf-grid"],
         "3dgs": {
             "iterations": 100,
             "densify_from": 10,
@@ -67,18 +65,7 @@ KILL_CONFIG = {
             "sh_interval": 30,
         },
         "nerf-grid": {"n_iters": 80},
-        "nerf": {
-            "preset": "cpu",
-            "n_iters": 120,
-            "batch_rays": 256,
-            "n_coarse": 16,
-            "n_fine": 16,
-            "depth": 2,
-            "width": 32,
-            "skips": [],
-        },
     },
-    "tradeoff": {"combinations": ["gt+3dgs"]},
 }
 UPSTREAM = [
     "results/cache/lpips/lpips_v0.1_alex.npz",
@@ -115,14 +102,6 @@ KINDS = {
         80,
         "job",
     ),
-    "nerf": Kind(
-        "results/eval/courtyard/gt+nerf/metrics.json",
-        "reconstruct",
-        "results/recon/courtyard/gt+nerf",
-        "results/checkpoints/courtyard/gt+nerf/checkpoint.pt",
-        120,
-        "group",
-    ),
     "pix2pix": Kind(
         "results/stage1/courtyard/pix2pix.json",
         "train_translator",
@@ -130,14 +109,6 @@ KINDS = {
         "results/checkpoints/models/pix2pix/checkpoint.pt",
         200,
         "group",
-    ),
-    "restormer": Kind(
-        "results/stage1/courtyard/restormer.json",
-        "train_translator",
-        "results/models/restormer",
-        "results/checkpoints/models/restormer/checkpoint.pt",
-        60,
-        "job",
     ),
     "diffusion": Kind(
         "results/stage1/courtyard/diffusion.json",
@@ -147,24 +118,12 @@ KINDS = {
         100,
         "snakemake",
     ),
-    "tradeoff": Kind(  # a trade-off point: the reconstruct job under its settings overlay
-        f"results/sweeps/tradeoff/{POINT}/eval/courtyard/gt+3dgs/metrics.json",
-        "reconstruct",
-        f"results/sweeps/tradeoff/{POINT}/recon/courtyard/gt+3dgs",
-        f"results/sweeps/tradeoff/{POINT}/checkpoints/courtyard/gt+3dgs/checkpoint.pt",
-        100,
-        "job",
-    ),
 }
 
 
 def _configs(folder, lpips_cache) -> list[str]:
     """``--configfile`` arguments: the smoke preset and KILL_CONFIG (written into ``folder``)."""
-    (folder / "tradeoff.tsv").write_text(TRADEOFF_TABLE)
-    config = KILL_CONFIG | {
-        "metrics": {"lpips_source": str(lpips_cache)},
-        "tradeoff": KILL_CONFIG["tradeoff"] | {"table": str(folder / "tradeoff.tsv")},
-    }
+    config = KILL_CONFIG | {"metrics": {"lpips_source": str(lpips_cache)}}
     (folder / "kill.yaml").write_text(yaml.safe_dump(config))
     return ["--configfile", str(SMOKE), str(folder / "kill.yaml")]
 
@@ -252,9 +211,6 @@ def test_killed_training_resumes_where_it_stopped(name, upstream, tmp_path, lpip
     assert rec["resumed_from"] % every == 0 and rec["checkpoint"]["discarded"] is None
     assert "resuming from" in "".join(p.read_text() for p in log.rglob("*.log"))
     assert _scores(killed / kind.target) == _scores(ref / kind.target)  # bit for bit
-    if name == "tradeoff":  # the point's own job, logged and benchmarked under its overlay
-        assert (killed / "benchmarks" / "reconstruct" / "sweeps" / "tradeoff" / POINT / "courtyard").is_dir()
-        assert not (killed / "results" / "recon").exists()  # nothing of the grid ran
     leftovers = [p for p in (killed / "results").rglob("*") if p.name.endswith((".tmp", ".lock"))]
     assert not leftovers, leftovers
     print(f"{name}: killed ({kind.kill}) and resumed from iteration {rec['resumed_from']} of {kind.iterations}")

@@ -384,6 +384,6 @@ def test_published_weights_without_training_are_validated_once(world, tmp_path):
     settings = {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")}
     rec = train.train_translator(_online_job(world, tmp_path, "restormer", settings, {"iterations": 0, "crop": 16}))
     assert [h["iteration"] for h in rec["validation"]["curve"]] == [0] and rec["model_step"] == 0
-    assert rec["stopped"] == {"step": 0, "reason": "budget"} and rec["data"]["samples"] == 0
+    assert rec["stopped"] == {"step": 0, "of": 0, "reason": "budget"} and rec["data"]["samples"] == 0
     _, loaded = model_io.load_translator(tmp_path / "model")
     assert all(torch.equal(a, b) for a, b in zip(loaded.net.state_dict().values(), published.net.state_dict().values()))

@@ -119,22 +119,24 @@ def _tuples(v):
 class Plateau:
     """Stops a training once its own objective has stopped improving (the stage-2 trainers' rule).
 
-    Every ``window`` steps the objective (above its floor: a likelihood's data entropy, 0 for an
-    image loss) is averaged per training view and then over the views seen, so a window's value does
+    Every ``window`` steps the training objective is averaged per training view and then over the
+    views seen, so a window's value does
     not depend on which views the random draw happened to pick. A window counts as progress when
-    that value is at least ``min_gain`` (relative) below the best window so far; ``patience``
-    windows in a row without progress stop the training, never before step ``start`` (while a
-    schedule still changes the model: coarse-to-fine grids). ``patience`` 0 never stops. Only
-    training views are read: the scored views play no part in when a training ends.
+    that value is below the best window so far by at least ``min_gain`` of it and by at least
+    ``tol`` (in the objective's units: a fit already that close to its floor has nothing left
+    that matters, though its tiny values may still halve); ``patience`` windows in a row without
+    progress stop the training, never before step ``start`` (while a schedule still changes the
+    model: coarse-to-fine grids). ``patience`` 0 never stops. Only training views are read: the
+    scored views play no part in when a training ends.
     """
 
-    def __init__(self, window: int, patience: int, min_gain: float, start: int = 0):
-        if window < 1 or patience < 0 or not 0.0 <= min_gain < 1.0:
+    def __init__(self, window: int, patience: int, min_gain: float, start: int = 0, tol: float = 0.0):
+        if window < 1 or patience < 0 or not 0.0 <= min_gain < 1.0 or not tol >= 0.0:
             raise ValueError(
-                f"plateau rule: need window >= 1, patience >= 0 and 0 <= min_gain < 1 "
-                f"(got window = {window}, patience = {patience}, min_gain = {min_gain})"
+                f"plateau rule: need window >= 1, patience >= 0, 0 <= min_gain < 1 and tol >= 0 "
+                f"(got window = {window}, patience = {patience}, min_gain = {min_gain}, tol = {tol})"
             )
-        self.window, self.patience, self.min_gain, self.start = window, patience, min_gain, start
+        self.window, self.patience, self.min_gain, self.start, self.tol = window, patience, min_gain, start, tol
         self.sums: dict[int, list[float]] = {}  # view -> [sum, count] in the current window
         self.curve: list[tuple[int, float]] = []  # (last step of a window, its value)
         self.best, self.since_best, self.stopped_at = math.inf, 0, None
@@ -147,7 +149,7 @@ class Plateau:
             return
         mean = float(np.mean([s / n for s, n in self.sums.values()]))
         self.sums, self.curve = {}, self.curve + [(it, mean)]
-        if mean < self.best * (1.0 - self.min_gain):
+        if self.best == math.inf or self.best - mean >= max(self.min_gain * self.best, self.tol):
             self.best, self.since_best = mean, 0
         else:
             self.best, self.since_best = min(self.best, mean), self.since_best + 1
@@ -160,7 +162,8 @@ class Plateau:
     def record(self, iterations: int, steps: int) -> dict:
         """Where and why the training stopped, with the rule and its curve (for ``train.json``)."""
         reason = "plateau" if self.stopped_at is not None else "budget"
-        rule = {"window": self.window, "patience": self.patience, "min_gain": self.min_gain, "start": self.start}
+        rule = {"window": self.window, "patience": self.patience, "min_gain": self.min_gain, "tol": self.tol}
+        rule["start"] = self.start
         return {"step": steps, "of": iterations, "reason": reason, "rule": rule, "curve": self.curve}
 
     def state(self) -> dict:

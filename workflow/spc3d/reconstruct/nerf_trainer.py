@@ -58,7 +58,8 @@ class RayTrainer:
         self.rng = np.random.default_rng(seed)
         # A grid still growing on its schedule is not on a plateau: no stop before its last step.
         start = max(it for it, _ in cfg.res_schedule) if kind == "nerf-grid" else 0
-        self.plateau = Plateau(cfg.plateau_window, cfg.plateau_patience, cfg.plateau_gain, start)
+        patience = cfg.plateau_patience if objective.stops_on_plateau else 0  # (see objectives.py)
+        self.plateau = Plateau(cfg.plateau_window, patience, cfg.plateau_gain, start, cfg.plateau_tol)
 
     def step(self, it: int) -> dict:
         if self.kind == "nerf-grid":
@@ -76,7 +77,7 @@ class RayTrainer:
             self.model.add_tv_grad()  # the total-variation term's gradient, added in place
         self.opt.step()
         value = loss.item()
-        self.plateau.update(it, value - self.objective.floor(target))
+        self.plateau.update(it, value)
         rgb = self.objective.name == "rgb"
         return {"loss": value, "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
 

@@ -88,8 +88,8 @@ class SplatTrainer:
         self.degree_loss = math.inf  # mean loss of the interval before the last degree decision
         self.poses = PoseCorrections(views.cameras, self.extent) if cfg.pose_refine else None
         self.pose_opt = RowAdam(self.poses.delta) if self.poses else None
-        self.plateau = Plateau(cfg.plateau_window, cfg.plateau_patience, cfg.plateau_gain)
-        self.floors = [objective.floor(t) for t in views.targets]  # per view: the loss no fit goes below
+        patience = cfg.plateau_patience if objective.stops_on_plateau else 0  # (see objectives.py)
+        self.plateau = Plateau(cfg.plateau_window, patience, cfg.plateau_gain, tol=cfg.plateau_tol)
 
     def step(self, it: int) -> dict:
         for group in self.opt.param_groups:
@@ -125,7 +125,7 @@ class SplatTrainer:
             self.pose_opt.step(i, pose_lr(it, self.cfg))
         self.control.step(it, self.model, self.opt)
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
-        self.plateau.update(it, value - self.floors[i], i)
+        self.plateau.update(it, value, i)
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).

@@ -156,10 +156,11 @@ def fit(
             "checkpoint": None,
             "final_losses": {},
             "curve": [],
-            "stopped": {"step": 0, "reason": "budget"},
+            "stopped": {"step": 0, "of": 0, "reason": "budget"},
         }
     result = run(trainer, s.iterations, checkpoint, policy, desc=desc, log_every=s.log_every)
-    stopped = {"step": result["steps"], "reason": "patience" if result["stopped_early"] else "budget"}
+    reason = "patience" if result["stopped_early"] else "budget"  # validation stopped improving, or the maximum
+    stopped = {"step": result["steps"], "of": s.iterations, "reason": reason}
     final = {k: v for k, v in trainer.curve[-1].items() if k != "iteration"}  # also when resumed at the end
     return {
         **{k: v for k, v in result.items() if k not in ("final", "steps", "stopped_early")},
