@@ -390,6 +390,7 @@ class MosaicBernoulliObjective:
 
     base: BernoulliObjective
     name: str = "bernoulli"
+    stops_on_plateau = False  # the SPAD likelihood: fits train to their budget (reconstruct/objectives.py)
 
     def loss(self, pred: Tensor, target: Tensor) -> Tensor:
         return mosaic_bernoulli_loss(self.base, pred, target[..., 0], target[..., 1:4], target[..., 4] > 0.5)
