@@ -120,14 +120,13 @@ class Plateau:
     """Stops a training once its own objective has stopped improving (the stage-2 trainers' rule).
 
     Every ``window`` steps the training objective is averaged per training view and then over the
-    views seen, so a window's value does
-    not depend on which views the random draw happened to pick. A window counts as progress when
-    that value is below the best window so far by at least ``min_gain`` of it and by at least
-    ``tol`` (in the objective's units: a fit already that close to its floor has nothing left
-    that matters, though its tiny values may still halve); ``patience`` windows in a row without
-    progress stop the training, never before step ``start`` (while a schedule still changes the
-    model: coarse-to-fine grids). ``patience`` 0 never stops. Only training views are read: the
-    scored views play no part in when a training ends.
+    views seen, so a window's value does not depend on which views the random draw happened to
+    pick. A window counts as progress when that value is below the best window so far by at least
+    ``min_gain`` of it and by at least ``tol`` (in the objective's units: a fit already that close
+    to its floor has nothing left that matters, though its tiny values may still halve);
+    ``patience`` windows in a row without progress stop the training, never before step ``start``
+    (while a schedule still changes the model: coarse-to-fine grids). ``patience`` 0 never stops.
+    Only training views are read: the scored views play no part in when a training ends.
     """
 
     def __init__(self, window: int, patience: int, min_gain: float, start: int = 0, tol: float = 0.0):
@@ -141,14 +140,22 @@ class Plateau:
         self.curve: list[tuple[int, float]] = []  # (last step of a window, its value)
         self.best, self.since_best, self.stopped_at = math.inf, 0, None
 
+    @classmethod
+    def of(cls, cfg, enabled: bool = True, start: int = 0) -> Plateau:
+        """The rule of a model config's ``plateau_window / _patience / _gain / _tol`` fields;
+        ``enabled`` False (an objective whose relative gains mean nothing) never stops."""
+        patience = cfg.plateau_patience if enabled else 0
+        return cls(cfg.plateau_window, patience, cfg.plateau_gain, start, cfg.plateau_tol)
+
     def update(self, it: int, value: float, view: int = 0) -> None:
-        """Add step ``it``'s objective (above its floor) on training view ``view``."""
+        """Add step ``it``'s training objective on training view ``view``."""
         acc = self.sums.setdefault(view, [0.0, 0])
         acc[0], acc[1] = acc[0] + value, acc[1] + 1
         if it % self.window:
             return
         mean = float(np.mean([s / n for s, n in self.sums.values()]))
-        self.sums, self.curve = {}, self.curve + [(it, mean)]
+        self.sums = {}
+        self.curve.append((it, mean))
         if self.best == math.inf or self.best - mean >= max(self.min_gain * self.best, self.tol):
             self.best, self.since_best = mean, 0
         else:

@@ -43,13 +43,14 @@ def scene_has_colour(scene_dir: str | os.PathLike) -> bool:
 
 
 def score_view(
-    pred: np.ndarray, gt: np.ndarray, lpips_dir: str | os.PathLike | None = None, colour: bool = True
+    pred: np.ndarray, gt: np.ndarray, lpips_dir: str | os.PathLike | None = None, colour: bool = True, keys=METRICS
 ) -> dict[str, float]:
-    """All metrics of one (H, W, 3) sRGB render against its ground truth; ``colour`` False (a scene
-    of a colourless sensor): of their luminance (:func:`spc3d.physics.sensors.luminance_srgb`)."""
+    """The metrics ``keys`` (default: all) of one (H, W, 3) sRGB render against its ground truth;
+    ``colour`` False (a scene of a colourless sensor): of their luminance
+    (:func:`spc3d.physics.sensors.luminance_srgb`)."""
     if not colour:
         pred, gt = sensors.luminance_srgb(pred), sensors.luminance_srgb(gt)
-    return {key: SCORERS[key](pred, gt, lpips_dir) for key in METRICS}
+    return {key: SCORERS[key](pred, gt, lpips_dir) for key in keys}
 
 
 # One scorer per key of spc3d.names.METRICS: (render, ground truth, LPIPS weights folder) -> value.
@@ -113,13 +114,9 @@ def evaluate(
 
 def at_stop_scores(folder: Path, references: dict[str, np.ndarray], colour: bool) -> dict[str, float]:
     """Mean PSNR and SSIM of the renders in ``folder`` (view name -> reference image)."""
-    if not colour:
-        references = {n: sensors.luminance_srgb(g) for n, g in references.items()}
-    preds = {n: io.read_rgb(folder / f"{n}.png") for n in references}
-    if not colour:
-        preds = {n: sensors.luminance_srgb(p) for n, p in preds.items()}
-    scores = {k: [SCORERS[k](preds[n], references[n], None) for n in references] for k in ("psnr", "ssim")}
-    return {k: float(np.mean(v)) for k, v in scores.items()}
+    keys = ("psnr", "ssim")
+    views = [score_view(io.read_rgb(folder / f"{n}.png"), gt, None, colour, keys) for n, gt in references.items()]
+    return {k: float(np.mean([v[k] for v in views])) for k in keys}
 
 
 ROW_KEYS = (

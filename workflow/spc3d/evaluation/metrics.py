@@ -160,7 +160,7 @@ def _band(n: int, size: int, sigma: float, dtype: torch.dtype, device) -> torch.
     return _BANDS[key]
 
 
-_BANDS: dict = {}  # filter matrices by (size, window, sigma, dtype, device): a few small ones per run
+_BANDS: dict = {}  # filter matrices by (image side, window, sigma, dtype, device): a few small ones per run
 
 
 def _blur_banded(x: torch.Tensor, size: int, sigma: float) -> torch.Tensor:

@@ -62,11 +62,11 @@ def row(combination: str, runs: list[dict]) -> dict:
 
 
 def capacity_text(runs: list[dict]) -> str:
-    """Mean Gaussians (3DGS) or occupied voxels (grids) at the end, as the record gives them."""
-    for key in ("gaussians", "occupied", "voxels"):
+    """Mean Gaussians (3DGS) or occupied grid cells (grid NeRF) at the end, as the record gives them."""
+    for key in ("gaussians", "occupied_cells"):
         values = [r["capacity"][key] for r in runs if isinstance(r.get("capacity"), dict) and key in r["capacity"]]
         if values:
-            return f"{np.mean(values):,.0f} {key}"
+            return f"{np.mean(values):,.0f} {key.replace('_', ' ')}"
     return ""
 
 

@@ -296,10 +296,7 @@ def k_text(K, S=1) -> str:
 
 def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protocol: str = PROTOCOL) -> None:
     """``stem``.csv (numbers), .md, .tex and .html (formatted) atomically."""
-    stem = Path(stem)
-    io.write_text(stem.with_suffix(".csv"), df.to_csv(index=False, float_format="%.6g"))
     md = formatted(df, lambda s: f"**{s}**", lambda s: f"*{s}*")
-    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + f"\n\n{protocol}\n")
     tex = formatted(df, lambda s: f"\\textbf{{{s}}}", lambda s: f"\\textit{{{s}}}")
     tex = tex.map(
         lambda s: (
@@ -308,8 +305,17 @@ def write_table(df: pd.DataFrame, stem: str | os.PathLike, caption: str, protoco
             else s
         )
     )
-    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {protocol}", escape=False))
     html = formatted(df, lambda s: f"<b>{s}</b>", lambda s: f"<i>{s}</i>").to_html(index=False, escape=False)
+    write_formats(stem, df, md, tex, html, caption, protocol)
+
+
+def write_formats(stem, numbers: pd.DataFrame, md: pd.DataFrame, tex: pd.DataFrame, html: str, caption, protocol):
+    """The four files of a table, atomically: ``numbers`` as .csv, the display frames as .md and
+    .tex (caption and protocol around them) and the HTML table in the report's page."""
+    stem = Path(stem)
+    io.write_text(stem.with_suffix(".csv"), numbers.to_csv(index=False, float_format="%.6g"))
+    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + md.to_markdown(index=False) + f"\n\n{protocol}\n")
+    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {protocol}", escape=False))
     io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
 
 
@@ -496,14 +502,9 @@ def to_latex(text: str) -> str:
 
 def write_plain_table(text: pd.DataFrame, numbers: pd.DataFrame, stem, caption: str, protocol: str) -> None:
     """``stem``.csv (``numbers``) and .md / .tex / .html (``text``: display strings), atomically."""
-    stem = Path(stem)
-    io.write_text(stem.with_suffix(".csv"), numbers.to_csv(index=False, float_format="%.6g"))
-    io.write_text(stem.with_suffix(".md"), f"# {caption}\n\n" + text.to_markdown(index=False) + f"\n\n{protocol}\n")
     tex = text.map(lambda s: to_latex(s) if isinstance(s, str) else s)
     tex.columns = [to_latex(c) for c in tex.columns]
-    io.write_text(stem.with_suffix(".tex"), tex.to_latex(index=False, caption=f"{caption}. {protocol}", escape=False))
-    html = text.to_html(index=False, escape=True)
-    io.write_text(stem.with_suffix(".html"), HTML_PAGE.format(caption=caption, table=html, protocol=protocol))
+    write_formats(stem, numbers, text, tex, text.to_html(index=False, escape=True), caption, protocol)
 
 
 def write_text_table(stem: str | os.PathLike, text: str) -> None:

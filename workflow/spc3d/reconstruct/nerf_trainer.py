@@ -58,8 +58,7 @@ class RayTrainer:
         self.rng = np.random.default_rng(seed)
         # A grid still growing on its schedule is not on a plateau: no stop before its last step.
         start = max(it for it, _ in cfg.res_schedule) if kind == "nerf-grid" else 0
-        patience = cfg.plateau_patience if objective.stops_on_plateau else 0  # (see objectives.py)
-        self.plateau = Plateau(cfg.plateau_window, patience, cfg.plateau_gain, start, cfg.plateau_tol)
+        self.plateau = Plateau.of(cfg, objective.stops_on_plateau, start)  # (see objectives.py)
 
     def step(self, it: int) -> dict:
         if self.kind == "nerf-grid":

@@ -88,8 +88,7 @@ class SplatTrainer:
         self.degree_loss = math.inf  # mean loss of the interval before the last degree decision
         self.poses = PoseCorrections(views.cameras, self.extent) if cfg.pose_refine else None
         self.pose_opt = RowAdam(self.poses.delta) if self.poses else None
-        patience = cfg.plateau_patience if objective.stops_on_plateau else 0  # (see objectives.py)
-        self.plateau = Plateau(cfg.plateau_window, patience, cfg.plateau_gain, tol=cfg.plateau_tol)
+        self.plateau = Plateau.of(cfg, objective.stops_on_plateau)  # (see objectives.py)
 
     def step(self, it: int) -> dict:
         for group in self.opt.param_groups:
