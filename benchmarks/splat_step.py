@@ -15,8 +15,9 @@ state, numba compile), then times two variants on the same Gaussians:
 
 The raster variant uses the trainer's current Gaussians as leaves (means, activated scales,
 quaternions, opacities, colours from SH of view 0, background), so both composite the same
-footprints. The variants take turns in runs of 4 consecutive steps (the first step of each run
-is not timed), so that both see the same load from other jobs. It prints the median
+footprints. The process keeps freed memory for reuse, as a workflow job does
+(:func:`spc3d.runtime.keep_freed_memory`). The variants take turns in runs of 4 consecutive
+steps (the first step of each run is not timed), so that both see the same load from other jobs. It prints the median
 iterations/s of each and the ratio step / raster (time per step over time per raster pass); the
 last line, ``step_over_raster_10k: <ratio>``, is machine-readable.
 """
@@ -37,6 +38,7 @@ from spc3d.reconstruct.objectives import RGBObjective
 from spc3d.reconstruct.splat import eval_sh, project_gaussians_native, rasterize
 from spc3d.reconstruct.splatting import SplatTrainer
 from spc3d.reconstruct.views import Views
+from spc3d.runtime import keep_freed_memory
 
 HEIGHT, WIDTH = 96, 128
 SHRINK = 0.25  # initial scales x this: 3-sigma radii of ~2-10 px, as benchmarks/rasterizer.py's scene
@@ -145,6 +147,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.threads > 0:
         torch.set_num_threads(args.threads)
+    keep_freed_memory()  # as every workflow job does at its start (spc3d.jobs): no page faults per step
     views = make_views()
     print(f"{HEIGHT}x{WIDTH} training views, torch threads {torch.get_num_threads()}")
     print(f"{'gaussians':>9} {'raster':>8} {'step':>8} {'step/raster':>12}   (iterations/s)")

@@ -44,6 +44,17 @@ def llff_scene(name: str) -> Path:
     return path
 
 
+def pytest_collection_modifyitems(config, items):
+    """Schedule for two xdist workers (``--dist loadgroup``, pyproject.toml): the tests on the
+    session's smoke run form one group, so one worker builds it while the other runs other tests
+    (each worker asked for it at once and one waited out the whole build); slow tests come first,
+    so none of them starts last and leaves one worker alone for minutes."""
+    for item in items:
+        if "smoke_run" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.xdist_group("smoke"))
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # stable: file order otherwise
+
+
 @pytest.fixture
 def fern() -> Path:
     return llff_scene("fern")

@@ -122,6 +122,22 @@ def test_ssim_loss_fast_matches_ssim_loss(dtype, tol):
     assert metrics.ssim_loss_fast(same, same.clone()).item() == pytest.approx(0.0, abs=1e-6)
 
 
+def test_ssim_loss_fast_cpu_kernel_matches_the_torch_form():
+    """The CPU kernel (ssim_native) and the banded-matrix form used on other devices agree."""
+    from spc3d.evaluation.ssim_native import N_TAPS
+
+    assert N_TAPS == metrics.SSIM_WINDOW  # the kernel's compile-time window
+    g = torch.Generator().manual_seed(1)
+    target = torch.rand(2, 3, 17, 40, generator=g)
+    pred = (target + 0.1 * torch.randn(target.shape, generator=g)).clamp(0, 1)
+    a, b = pred.clone().requires_grad_(), pred.clone().requires_grad_()
+    native, banded = metrics.ssim_loss_fast(a, target), metrics._SSIMLoss.apply(b, target, 11, 1.5)
+    (3 * native).backward()
+    (3 * banded).backward()
+    assert abs(native.item() - banded.item()) < 1e-6 and native.dtype == torch.float32
+    assert (a.grad - b.grad).abs().max().item() < 1e-5 * b.grad.abs().max().item()
+
+
 def test_ssim_loss_fast_gradcheck(one_thread):
     torch.manual_seed(0)
     pred = torch.rand(1, 2, 12, 13, dtype=torch.float64, requires_grad=True)

@@ -210,16 +210,40 @@ class _SSIMLoss(torch.autograd.Function):
 
 def ssim_loss_fast(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """:func:`ssim_loss` for training: the same value and gradient w.r.t. ``pred`` (to float
-    rounding), faster: the separable blur as two matrix products with banded filter matrices,
-    all five moments in one stacked blur, and a closed-form backward (:class:`_SSIMLoss`). A
-    target that needs a gradient gets ssim_loss itself."""
+    rounding), faster: all five moments in one stacked blur and a closed-form backward
+    (:class:`_SSIMLoss`); on the CPU both in one numba call (:mod:`.ssim_native`), elsewhere the
+    separable blur as two matrix products with banded filter matrices. A target that needs a
+    gradient gets ssim_loss itself."""
     if pred.shape != target.shape or pred.ndim != 4:
         raise ValueError(
             f"expected two (B, C, H, W) tensors of one shape, got {tuple(pred.shape)} and {tuple(target.shape)}"
         )
     if target.requires_grad:
         return ssim_loss(pred, target)
+    if pred.device.type == "cpu" and pred.dtype in (torch.float32, torch.float64):
+        return _SSIMLossNative.apply(pred, target.to(pred.dtype))
     return _SSIMLoss.apply(pred, target.to(pred.dtype), SSIM_WINDOW, SSIM_SIGMA)
+
+
+class _SSIMLossNative(torch.autograd.Function):
+    """:class:`_SSIMLoss` on CPU tensors: value and gradient in one numba call (ssim_native.py)."""
+
+    @staticmethod
+    def forward(ctx, pred, target):
+        from spc3d.evaluation.ssim_native import ssim_loss_and_grad  # numba: only where training asks
+
+        h, w = pred.shape[-2:]
+        x = pred.detach().contiguous().reshape(-1, h, w).numpy()
+        grad = np.empty_like(x)
+        taps = gaussian_window(SSIM_WINDOW, SSIM_SIGMA, pred.dtype).numpy()
+        consts = np.array([(SSIM_K1 * DATA_RANGE) ** 2, (SSIM_K2 * DATA_RANGE) ** 2, -1.0 / x.size], x.dtype)
+        loss = ssim_loss_and_grad(x, target.contiguous().reshape(-1, h, w).numpy(), taps, consts, grad)
+        ctx.grad = torch.from_numpy(grad).reshape(pred.shape)
+        return torch.tensor(loss, dtype=pred.dtype)
+
+    @staticmethod
+    def backward(ctx, grad):
+        return grad * ctx.grad, None
 
 
 def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2) -> torch.Tensor:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel
 from spc3d.reconstruct.splat import quat_to_rotmat
 
@@ -50,7 +51,7 @@ class DensityControl:
         self.count += visible
         torch.where(visible, torch.maximum(self.max_radii, radii), self.max_radii, out=self.max_radii)
 
-    def step(self, it: int, model: GaussianModel, opt: torch.optim.Optimizer) -> None:
+    def step(self, it: int, model: GaussianModel, opt: FusedAdam) -> None:
         """Run the schedule for iteration ``it`` (1-based)."""
         c = self.cfg
         if c.densify_from < it <= c.densify_until and it % c.densify_every == 0:
@@ -60,7 +61,7 @@ class DensityControl:
         if it <= c.densify_until and it % c.opacity_reset_every == 0:
             reset_opacity(model, opt)
 
-    def densify_and_prune(self, model: GaussianModel, opt: torch.optim.Optimizer, prune_big: bool) -> tuple[int, int]:
+    def densify_and_prune(self, model: GaussianModel, opt: FusedAdam, prune_big: bool) -> tuple[int, int]:
         """One density-control pass; returns (Gaussians cloned, Gaussians split)."""
         grads = self.grad_sum / self.count.clamp_min(1)  # clamp: never-seen Gaussians have 0 / 0
         big = model.scales.detach().max(1).values > self.cfg.percent_dense * self.extent
@@ -116,7 +117,7 @@ def concat_dicts(a: dict[str, Tensor], b: dict[str, Tensor]) -> dict[str, Tensor
     return {k: torch.cat([a[k], b[k]]) for k in a}
 
 
-def append(model: GaussianModel, opt: torch.optim.Optimizer, new: dict[str, Tensor]) -> None:
+def append(model: GaussianModel, opt: FusedAdam, new: dict[str, Tensor]) -> None:
     """Add Gaussians; their Adam moments start at zero."""
     for name in PARAM_NAMES:
         old = getattr(model, name)
@@ -125,7 +126,7 @@ def append(model: GaussianModel, opt: torch.optim.Optimizer, new: dict[str, Tens
         setattr(model, name, param)
 
 
-def select(model: GaussianModel, opt: torch.optim.Optimizer, keep: Tensor) -> None:
+def select(model: GaussianModel, opt: FusedAdam, keep: Tensor) -> None:
     """Keep only the Gaussians where ``keep`` is True (parameters and Adam moments)."""
     for name in PARAM_NAMES:
         old = getattr(model, name)
@@ -134,7 +135,7 @@ def select(model: GaussianModel, opt: torch.optim.Optimizer, keep: Tensor) -> No
         setattr(model, name, param)
 
 
-def reset_opacity(model: GaussianModel, opt: torch.optim.Optimizer, ceiling: float = 0.01) -> None:
+def reset_opacity(model: GaussianModel, opt: FusedAdam, ceiling: float = 0.01) -> None:
     """Clamp opacities to <= ``ceiling`` and zero their Adam moments (3DGS's opacity reset)."""
     logit = torch.logit(torch.tensor(ceiling))
     old = model.opacity_logits
@@ -143,7 +144,7 @@ def reset_opacity(model: GaussianModel, opt: torch.optim.Optimizer, ceiling: flo
     model.opacity_logits = param
 
 
-def _replace_in_optimizer(opt: torch.optim.Optimizer, old: Tensor, new: Tensor, fix_state) -> None:
+def _replace_in_optimizer(opt: FusedAdam, old: Tensor, new: Tensor, fix_state) -> None:
     """Swap ``old`` for ``new`` in its param group, mapping Adam's moment tensors with ``fix_state``."""
     for group in opt.param_groups:
         for i, p in enumerate(group["params"]):

@@ -28,6 +28,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 from numba import njit
 
+from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.nerf import positional_encoding
 from spc3d.reconstruct.volume import accumulate, composite_weights, march_grid, stratified_t
 from spc3d.training import require_positive
@@ -390,7 +391,7 @@ def lr_at(step: int, cfg: GridConfig) -> dict[str, float]:
     return {"density": cfg.lr_grid * f, "features": cfg.lr_grid * f, "mlp": cfg.lr_mlp * f}
 
 
-def make_optimizer(model: GridNeRF, cfg: GridConfig, step: int = 0) -> torch.optim.Optimizer:
+def make_optimizer(model: GridNeRF, cfg: GridConfig, step: int = 0) -> FusedAdam:
     """Adam (β = 0.9, 0.99, as DVGO) with groups 'density', 'features', 'mlp' at ``lr_at(step)``."""
     lrs = lr_at(step, cfg)
     groups = [
@@ -400,7 +401,6 @@ def make_optimizer(model: GridNeRF, cfg: GridConfig, step: int = 0) -> torch.opt
     ]
     for g in groups:
         g["lr"] = lrs[g["name"]]
-    try:  # one fused kernel per group: ~6x faster than the foreach step on a 96³ x 13 grid (one CPU core)
-        return torch.optim.Adam(groups, betas=(0.9, 0.99), fused=True)
-    except RuntimeError:  # torch < 2.4 has no fused Adam on the CPU
-        return torch.optim.Adam(groups, betas=(0.9, 0.99))
+    # one fused kernel per group: ~6x faster than the foreach step on a 96³ x 13 grid (one CPU core);
+    # torch.optim.Adam(fused=True)'s kernel without torch.optim's start-up cost (adam.py)
+    return FusedAdam(groups, betas=(0.9, 0.99))

@@ -24,6 +24,7 @@ from torch import Tensor
 
 from spc3d.cameras import Cameras
 from spc3d.evaluation.metrics import psnr
+from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.densify import DensityControl
 from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
 from spc3d.reconstruct.pose_refine import PoseCorrections, RowAdam, heldout_cameras
@@ -32,7 +33,7 @@ from spc3d.reconstruct.views import Views
 from spc3d.training import Plateau
 
 
-def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> torch.optim.Adam:
+def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> FusedAdam:
     lrs = {
         "means": cfg.lr_means * extent,
         "log_scales": cfg.lr_scales,
@@ -43,8 +44,8 @@ def make_optimizer(model: GaussianModel, cfg: GaussianConfig, extent: float) -> 
     }
     groups = [{"params": [getattr(model, n)], "lr": lrs[n], "name": n} for n in PARAM_NAMES]
     # fused: one pass over each parameter per step instead of ~10 tensor ops (same update, the
-    # last bits may differ from the op-by-op path)
-    return torch.optim.Adam(groups, lr=0.0, eps=1e-15, fused=True)
+    # last bits may differ from the op-by-op path); torch.optim.Adam(fused=True)'s kernel (adam.py)
+    return FusedAdam(groups, lr=0.0, eps=1e-15)
 
 
 def log_linear(it: int, start: int, end: int, first: float, last: float) -> float:

@@ -10,7 +10,8 @@ evaluates, per Gaussian, in float64:
 * the real SH basis Y_k(d) of degrees 0..degree (project.py's ``_sh_basis``);
 * rgb_c = max(Σ_k Y_k sh_kc + 0.5, 0), NaN kept as torch's ``clamp_min``.
 
-Backward (g = dL/drgb where the clamp let it through, i.e. where Σ + 0.5 >= 0, as torch):
+Backward (g = dL/drgb where the clamp let it through, i.e. where Σ + 0.5 >= 0, as torch; the forward
+keeps that mask):
 dL/dsh_kc = Y_k g_c (zero for the coefficients above the active degree, as autograd gives them),
 dL/dd = Σ_k (Σ_c g_c sh_kc) ∇Y_k(d) with the gradients of the basis polynomials in closed form,
 and dL/dv = (dL/dd - d (d · dL/dd)) / |v|, or dL/dd / |v| where the norm was clamped.
@@ -70,8 +71,9 @@ def _colour(i, k, dc, rest, b, c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _sh_forward(degree, dirs, dc, rest, c2, c3, counter, total, rgb):
-    """rgb (N, 3) of the chunks of the ``total`` Gaussians this worker takes. dc (N, 3), rest
+def _sh_forward(degree, dirs, dc, rest, c2, c3, counter, total, rgb, passed):
+    """rgb (N, 3) of the chunks of the ``total`` Gaussians this worker takes, and ``passed`` (N, 3):
+    1 where the clamp lets the gradient through (its input >= 0, as torch's). dc (N, 3), rest
     (N, 3 (K - 1)): the coefficients flattened."""
     k = (degree + 1) ** 2
     b = np.empty(16)
@@ -85,12 +87,13 @@ def _sh_forward(degree, dirs, dc, rest, c2, c3, counter, total, rgb):
             for c in range(3):
                 s = _colour(i, k, dc, rest, b, c)
                 rgb[i, c] = s if not s < 0.0 else 0.0  # NaN stays NaN (torch's clamp_min)
+                passed[i, c] = s >= 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _sh_backward(degree, dirs, dc, rest, c2, c3, g_rgb, counter, total, g_dirs, g_dc, g_rest):
+def _sh_backward(degree, dirs, rest, c2, c3, g_rgb, passed, counter, total, g_dirs, g_dc, g_rest):
     """dL/d(dirs, DC, rest) of the chunks this worker takes (g_rest zero above the degree);
-    coefficients and their gradients flattened as in _sh_forward."""
+    coefficients and their gradients flattened as in _sh_forward, ``passed`` its clamp mask."""
     k = (degree + 1) ** 2
     b, gb = np.empty(16), np.zeros(16)
     while True:
@@ -100,10 +103,9 @@ def _sh_backward(degree, dirs, dc, rest, c2, c3, g_rgb, counter, total, g_dirs, 
         for i in range(c0, c0 + n):
             x, y, z, inv, clamped = _unit(dirs, i)
             _basis(degree, x, y, z, c2, c3, b)
-            # the clamp's mask: torch passes the gradient where its input >= 0
-            g0 = float(g_rgb[i, 0]) if _colour(i, k, dc, rest, b, 0) >= 0.0 else 0.0
-            g1 = float(g_rgb[i, 1]) if _colour(i, k, dc, rest, b, 1) >= 0.0 else 0.0
-            g2 = float(g_rgb[i, 2]) if _colour(i, k, dc, rest, b, 2) >= 0.0 else 0.0
+            g0 = float(g_rgb[i, 0]) if passed[i, 0] else 0.0  # the forward's clamp mask
+            g1 = float(g_rgb[i, 1]) if passed[i, 1] else 0.0
+            g2 = float(g_rgb[i, 2]) if passed[i, 2] else 0.0
             g_dc[i, 0], g_dc[i, 1], g_dc[i, 2] = b[0] * g0, b[0] * g1, b[0] * g2
             for q in range(1, k):  # dL/dsh = Y g; dL/dY = Σ_c g_c sh_c
                 r = 3 * (q - 1)
@@ -140,9 +142,9 @@ class _EvalSHNative(torch.autograd.Function):
         n = dirs.shape[0]
         arrays = (dirs.detach().contiguous().numpy(), sh_dc.detach().reshape(n, 3).contiguous().numpy(),
                   sh_rest.detach().reshape(n, 3 * sh_rest.shape[1]).contiguous().numpy())
-        rgb = np.empty((n, 3), arrays[1].dtype)
-        in_chunks(_sh_forward, n, (degree, *arrays, _C2, _C3), (rgb,))
-        ctx.degree, ctx.arrays = degree, arrays
+        rgb, passed = np.empty((n, 3), arrays[1].dtype), np.empty((n, 3), np.bool_)
+        in_chunks(_sh_forward, n, (degree, *arrays, _C2, _C3), (rgb, passed))
+        ctx.degree, ctx.arrays, ctx.passed = degree, arrays, passed
         return torch.from_numpy(rgb)
 
     @staticmethod
@@ -151,7 +153,7 @@ class _EvalSHNative(torch.autograd.Function):
         n = len(dirs)
         g_dirs, g_dc, g_rest = np.empty(dirs.shape, dirs.dtype), np.empty(dc.shape, dc.dtype), np.empty(rest.shape,
                                                                                                        rest.dtype)
-        in_chunks(_sh_backward, n, (ctx.degree, dirs, dc, rest, _C2, _C3, g_rgb.contiguous().numpy()),
+        in_chunks(_sh_backward, n, (ctx.degree, dirs, rest, _C2, _C3, g_rgb.contiguous().numpy(), ctx.passed),
                   (g_dirs, g_dc, g_rest))
         return (None, torch.from_numpy(g_dirs), torch.from_numpy(g_dc).reshape(n, 1, 3),
                 torch.from_numpy(g_rest).reshape(n, rest.shape[1] // 3, 3))
