@@ -20,7 +20,9 @@ BASE and NEW are commits or refs of ``--repo`` (default: this repository), resol
    The LPIPS weights are downloaded (pip) by the run itself, as in any fresh checkout.
 5. Job CPU: the sum over the clone's ``benchmarks/{rule}/**/*.tsv``, which each job writes
    about itself (``spc3d.jobs.write_benchmark``: user_s + sys_s; Snakemake's ``benchmark:``
-   TSVs, column ``cpu_time``, are read as well), per rule (the first folder below benchmarks/).
+   TSVs, column ``cpu_time``, are read as well), per rule (the first folder below benchmarks/),
+   and over the jobs both commits ran (same TSV path): when a newer default adds rows, that is
+   the same work done by both.
 
 Printed: per rule the jobs and job CPU seconds of both commits and their ratio, the totals, the
 wall times and the reference it/s, then the new / base ratios of job CPU and of wall, and both
@@ -171,17 +173,34 @@ def tsv_cpu(path: Path) -> float:
     return total
 
 
-def job_cpu_by_rule(benchmarks: Path) -> dict[str, dict]:
-    """Rule (first folder under ``benchmarks``) -> {"jobs": TSV files, "cpu_s": their summed CPU}."""
-    rules: dict[str, dict] = {}
+def job_cpu(benchmarks: Path) -> dict[str, float]:
+    """Job (its TSV's path below ``benchmarks``, the rule first) -> CPU seconds."""
+    jobs = {}
     for path in sorted(benchmarks.rglob("*.tsv")):
-        parts = path.relative_to(benchmarks).parts
-        if len(parts) < 2 or path.name.startswith("."):
-            continue
-        rule = rules.setdefault(parts[0], {"jobs": 0, "cpu_s": 0.0})
+        rel = path.relative_to(benchmarks)
+        if len(rel.parts) >= 2 and not path.name.startswith("."):
+            jobs[rel.as_posix()] = round(tsv_cpu(path), 2)
+    return jobs
+
+
+def job_cpu_by_rule(jobs: dict[str, float]) -> dict[str, dict]:
+    """Rule (first folder of the job's path) -> {"jobs": TSV files, "cpu_s": their summed CPU}."""
+    rules: dict[str, dict] = {}
+    for name, cpu in jobs.items():
+        rule = rules.setdefault(name.split("/")[0], {"jobs": 0, "cpu_s": 0.0})
         rule["jobs"] += 1
-        rule["cpu_s"] = round(rule["cpu_s"] + tsv_cpu(path), 2)
+        rule["cpu_s"] = round(rule["cpu_s"] + cpu, 2)
     return rules
+
+
+def same_jobs(base: dict, new: dict) -> dict | None:
+    """Job CPU of the jobs both runs did (same rule, scene and output name): the work both
+    defaults share, when a newer default adds rows; None when a run has no per-job record."""
+    if "jobs" not in base or "jobs" not in new:
+        return None
+    common = sorted(set(base["jobs"]) & set(new["jobs"]))
+    b, n = (round(sum(x["jobs"][k] for k in common), 2) for x in (base, new))
+    return {"jobs": len(common), "base_cpu_s": b, "new_cpu_s": n, "ratio": ratio(n, b)}
 
 
 def measure(label: str, sha: str, args: argparse.Namespace, workdir: Path, name: str) -> dict:
@@ -203,7 +222,8 @@ def measure(label: str, sha: str, args: argparse.Namespace, workdir: Path, name:
             args.keep = True
             raise SystemExit(f"{label}: snakemake failed ({res['run']['rc']}), see {log}")
     res["ref_after"] = rasterizer_rate(python, dest, env)
-    res["rules"] = job_cpu_by_rule(dest / "benchmarks")
+    res["jobs"] = job_cpu(dest / "benchmarks")
+    res["rules"] = job_cpu_by_rule(res["jobs"])
     return res
 
 
@@ -233,6 +253,7 @@ def ratios(base: dict, new: dict) -> dict:
     ref = ratio(reference(new), reference(base))
     return {
         "job_cpu": cpu,
+        "same_jobs": same_jobs(base, new),
         "wall": wall,
         "job_cpu_normalised": cpu * ref if cpu and ref else None,
         "wall_normalised": wall * ref if wall and ref else None,
@@ -270,6 +291,12 @@ def print_summary(base: dict, new: dict, r: dict) -> None:
         f"new/base: job CPU {fmt(r['job_cpu'], '.3f')}, wall {fmt(r['wall'], '.3f')}; normalised by the"
         f" reference: job CPU {fmt(r['job_cpu_normalised'], '.3f')}, wall {fmt(r['wall_normalised'], '.3f')}"
     )
+    same = r.get("same_jobs")
+    if same:
+        print(
+            f"jobs both runs did ({same['jobs']}): job CPU base {same['base_cpu_s']:.1f} s, new"
+            f" {same['new_cpu_s']:.1f} s, new/base {fmt(same['ratio'], '.3f')}"
+        )
     print(f"job_cpu_ratio: {fmt(r['job_cpu'], '.3f') if r['job_cpu'] else 'n/a'}")
 
 

@@ -75,12 +75,35 @@ def test_job_cpu_sums_each_rules_tsvs_at_any_depth(drun, tmp_path):
     write_tsv(bench / "reconstruct/.partial.tsv", own, "1\t100\t100\t1\tok")
     (bench / "rasterizer.py").write_text("")
     assert drun.tsv_cpu(bench / "reconstruct/courtyard/gt+3dgs.tsv") == pytest.approx(52.0)
-    assert drun.job_cpu_by_rule(bench) == {
+    jobs = drun.job_cpu(bench)
+    assert jobs["reconstruct/courtyard/gt+3dgs.tsv"] == pytest.approx(52.0) and len(jobs) == 4
+    assert drun.job_cpu_by_rule(jobs) == {
         "reconstruct": {"jobs": 2, "cpu_s": 61.0},
         "evaluate": {"jobs": 1, "cpu_s": 0.5},
         "train_translator": {"jobs": 1, "cpu_s": 75.25},
     }
-    assert drun.job_cpu_by_rule(tmp_path / "missing") == {}
+    assert drun.job_cpu(tmp_path / "missing") == {}
+
+
+def test_the_jobs_both_runs_did_compare_the_same_work(drun, capsys):
+    """A newer default with more rows: the jobs of both (same TSV path) give the like-for-like ratio."""
+    base = {"commit": "a" * 40, "jobs": {"reconstruct/c/gt+3dgs.tsv": 80.0, "evaluate/c/gt+3dgs.tsv": 4.0}}
+    new = {
+        "commit": "b" * 40,
+        "jobs": {
+            "reconstruct/c/gt+3dgs.tsv": 40.0,
+            "evaluate/c/gt+3dgs.tsv": 2.0,
+            "reconstruct/c/prior+3dgs.tsv": 50.0,
+        },
+    }
+    for x in (base, new):
+        x["rules"] = drun.job_cpu_by_rule(x["jobs"])
+    r = drun.ratios(base, new)
+    assert r["job_cpu"] == pytest.approx(92 / 84)
+    assert r["same_jobs"] == {"jobs": 2, "base_cpu_s": 84.0, "new_cpu_s": 42.0, "ratio": pytest.approx(0.5)}
+    drun.print_summary(base, new, r)
+    assert "jobs both runs did (2): job CPU base 84.0 s, new 42.0 s, new/base 0.500" in capsys.readouterr().out
+    assert drun.same_jobs({"rules": {}}, new) is None  # an --out file from before per-job records
 
 
 def test_ratios_and_the_machine_readable_last_line(drun, capsys):
