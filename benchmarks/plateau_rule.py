@@ -88,13 +88,24 @@ def target_images(kind: str, src, seed: int, results: Path | None, scene: str) -
     raise SystemExit(f"--targets {kind}: choose from gt, blur, noisy")
 
 
-def settings_of(model: str) -> dict:
-    """config.yaml's stage2 block of ``model`` (the default budget the rule must fit)."""
+def settings_of(model: str, overrides: dict | None = None) -> dict:
+    """config.yaml's stage2 block of ``model`` (the default budget the rule must fit), with
+    ``overrides`` (``--set``: e.g. plateau_views=2, the rule judged on training views held out)."""
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    return dict(cfg["stage2"].get(model, {}))
+    return dict(cfg["stage2"].get(model, {})) | (overrides or {})
 
 
-def observe(model: str, scene_dir: Path, kind: str, seed: int, results: Path | None = None) -> dict:
+def parse_sets(items: list[str]) -> dict:
+    """``KEY=VALUE`` pairs, values read as YAML (numbers, lists)."""
+    bad = [x for x in items if "=" not in x]
+    if bad:
+        raise SystemExit(f"--set {bad[0]!r}: write KEY=VALUE, e.g. plateau_views=2")
+    return {k: yaml.safe_load(v) for k, v in (x.split("=", 1) for x in items)}
+
+
+def observe(
+    model: str, scene_dir: Path, kind: str, seed: int, results: Path | None = None, overrides: dict | None = None
+) -> dict:
     """Train to the budget; per window: step, plateau value, held-out PSNR, training seconds."""
     warm_up_kernels(model)
     scene_name = scene_dir.name.rsplit("_w", 1)[0]
@@ -103,7 +114,7 @@ def observe(model: str, scene_dir: Path, kind: str, seed: int, results: Path | N
     else:
         src = load_source("gt", scene_dir)
         src.views.targets = target_images(kind, src, seed, results, scene_name)
-    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings_of(model), seed)
+    trainer, iterations, cfg = RECONSTRUCTORS[model](src.views, src.objective, settings_of(model, overrides), seed)
     trainer.plateau.patience = 0  # observe only
     scene = llff.read_scene(scene_dir)
     window, train_s, rows = getattr(cfg, WINDOW_FIELD), 0.0, []
@@ -150,15 +161,16 @@ def main() -> None:
     ap.add_argument("--patiences", nargs="+", type=int, default=[1, 2, 3])
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_scenes")
     ap.add_argument("--out", type=Path, help="also write every run's window curve here (JSON)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="override the models' settings")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    runs = []
+    sets, runs = parse_sets(args.set), []
     for scene in args.scenes:
         scene_dir = build_scene(scene, 128, args.cache)
         for model in args.models:
             for kind in args.targets:
                 for seed in args.seeds:
-                    run = observe(model, scene_dir, kind, seed, args.results) | {"scene": scene}
+                    run = observe(model, scene_dir, kind, seed, args.results, sets) | {"scene": scene}
                     last = run["rows"][-1]
                     print(
                         f"{scene} {model} {kind} seed {seed}: {last['step']} it {last['s']:.0f} s {last['psnr']:.2f} dB"

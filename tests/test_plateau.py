@@ -87,7 +87,9 @@ def test_the_record_says_where_and_why():
     rec = rule.record(iterations=100, steps=20)
     assert rec["reason"] == "plateau" and rec["step"] == 20 and rec["of"] == 100
     assert (
-        rec["rule"] == {"window": 10, "patience": 1, "min_gain": 0.01, "tol": 0.0, "start": 0}
+        rec["rule"]
+        == {"window": 10, "patience": 1, "min_gain": 0.01, "tol": 0.0, "start": 0}
+        | {"on": "training objective", "views": []}
         and len(rec["curve"]) == 2
     )
     assert Plateau(10, 1, 0.01).record(100, 100)["reason"] == "budget"
@@ -105,12 +107,13 @@ TINY = {"iterations": 60, "densify_from": 10, "densify_until": 40, "densify_ever
 
 def test_a_3dgs_training_stops_on_its_plateau_and_records_it(gallery, tmp_path):
     settings = TINY | {"plateau_window": 10, "plateau_patience": 1, "plateau_gain": 0.9}  # any window < 90 % drop
+    settings |= {"densify_from": 5}  # passes at 10 and 20; a stop at 20 skips the pass of its own step
     rec = reconstruct(ReconstructJob(gallery, tmp_path / "r", "gt", "3dgs", settings, checkpoint=tmp_path / "c.pt"))
     train = io.read_json(tmp_path / "r" / "train.json")
     assert train["stopped"]["reason"] == "plateau" and train["stopped"]["step"] == 20 == rec["steps"]
     assert train["stopped"]["of"] == 60 and [s for s, _ in train["stopped"]["curve"]] == [10, 20]
     passes = train["capacity"]["densify"]
-    assert [p[0] for p in passes] == [20] and passes[0][-1] == train["capacity"]["gaussians"]
+    assert [p[0] for p in passes] == [10] and passes[0][-1] == train["capacity"]["gaussians"]
     it, before, cloned, split, pruned, after = passes[0]
     assert after == before + cloned + split - pruned  # a split replaces its parent by two
     again = reconstruct(ReconstructJob(gallery, tmp_path / "r2", "gt", "3dgs", settings, checkpoint=tmp_path / "c.pt"))
@@ -147,13 +150,13 @@ def test_observe_mode_trains_to_the_budget_and_keeps_the_stop(gallery, tmp_path)
     )
 
 
-def fake_run(tmp_path, combo, seed, psnr, at_stop=None, reason="plateau"):
+def fake_run(tmp_path, combo, seed, psnr, at_stop=None, reason="plateau", views=()):
     rec = {
         "combination": combo,
         "mean": {"psnr": psnr, "ssim": 0.9},
         "train_s": 10.0,
         "capacity": {"gaussians": 1000},
-        "stopped": {"step": 600, "of": 1200, "reason": reason},
+        "stopped": {"step": 600, "of": 1200, "reason": reason, "rule": {"views": list(views)}},
     }
     if at_stop is not None:
         rec["at_stop"] = {"step": 600, "train_s": 4.0, "psnr": at_stop, "ssim": 0.89}
@@ -166,7 +169,7 @@ def test_stopping_table_pairs_each_fit_and_bounds_only_with_enough_runs(tmp_path
     from spc3d.evaluation.stopping import stopping_table
 
     files = [fake_run(tmp_path, "gt+3dgs", s, 30.0 + s, 30.0 + s - 0.1 * (1 + s % 2)) for s in range(6)]
-    files += [fake_run(tmp_path, "prior+3dgs", s, 20.0, 20.05) for s in range(2)]
+    files += [fake_run(tmp_path, "prior+3dgs", s, 20.0, 20.05, views=("a", "b")) for s in range(2)]
     io.write_json(tmp_path / "toy.json", {"combination": "toy+mean", "mean": {"psnr": 1.0}})
     files.append(tmp_path / "toy.json")  # a reconstructor without a stopping rule: not a row
     df = stopping_table(files, tmp_path / "stopping").set_index("combination")
@@ -176,4 +179,102 @@ def test_stopping_table_pairs_each_fit_and_bounds_only_with_enough_runs(tmp_path
     assert not np.isfinite(df.loc["prior+3dgs", "ΔPSNR lo"])  # 2 runs: no test can bound it
     md = (tmp_path / "stopping.md").read_text()
     assert "6/6" in md and "50% of 1200" in md and "n < 6: unbounded" in md and "−" not in md.split("\n")[0]
+    assert df.loc["gt+3dgs", "judged on"] == "training loss" and "2 held-out training views" in md
     assert (tmp_path / "stopping.tex").read_text().count("$\\Delta$") >= 1
+
+
+# --- the rule judged on training views held out of the fit (plateau_views) ----------------------
+
+
+def test_closing_windows_directly_is_the_same_rule():
+    values = [1.0, 0.5, 0.4, 0.399, 0.398, 0.397]
+    fed, closed = Plateau(10, 2, 0.01), Plateau(10, 2, 0.01)
+    feed(fed, np.repeat(values, 10))
+    for k, v in enumerate(values, 1):
+        closed.close(10 * k, v)
+        if closed.should_stop():
+            break
+    assert np.allclose(closed.curve, fed.curve) and closed.stopped_at == fed.stopped_at == 50
+
+
+def test_hold_out_spreads_the_views_inside_the_set_and_keeps_three_quarters(gallery):
+    from spc3d.reconstruct.sources import load_source
+    from spc3d.reconstruct.views import hold_out
+
+    views = load_source("gt", gallery).views  # 10 views, 2 of them scored: 8 training views
+    fit, check = hold_out(views, 2)
+    assert check.names == [views.names[2], views.names[6]] and len(fit.names) == 6
+    assert not set(fit.names) & set(check.names)
+    assert (check.targets[1] == views.targets[6]).all() and np.allclose(check.cameras.w2c[0], views.cameras.w2c[2])
+    assert hold_out(views, 0) == (views, None)
+    assert hold_out(views, 7)[1].names == check.names  # at most a quarter of the views
+    few = views.subset(range(3))
+    assert hold_out(few, 2)[1] is None and hold_out(few, 2)[0] is few
+    with pytest.raises(ValueError, match="plateau_views = -1: .* must be >= 0"):
+        hold_out(views, -1)
+
+
+def noise_views(views, seed=0):
+    """The views with each target replaced by independent noise: nothing one view says about another."""
+    from spc3d.reconstruct.views import Views
+
+    rng = np.random.default_rng(seed)
+    import torch
+
+    noise = torch.as_tensor(rng.uniform(0.0, 1.0, views.targets.shape).astype(np.float32))
+    return Views(noise, views.cameras, views.names)
+
+
+@pytest.mark.parametrize("model", ["3dgs", "nerf-grid"])
+def test_held_out_views_stop_a_fit_learning_noise_while_its_training_loss_still_falls(gallery, model):
+    """Targets that are independent noise per view: the fit memorises its own views (training loss
+    falls) but predicts nothing of a view it never saw, so the held-out rule stops it at once."""
+    from spc3d.reconstruct import RECONSTRUCTORS
+    from spc3d.reconstruct.sources import load_source
+
+    views = noise_views(load_source("gt", gallery).views)
+    rule = {"plateau_patience": 2, "plateau_gain": 0.01, "plateau_window": 10}
+    grid = {"n_iters": 200, "batch_rays": 256, "n_samples": 16, "res_schedule": [[0, 16]], "chunk": 1024}
+    settings = (TINY | {"iterations": 200} if model == "3dgs" else grid) | rule
+    held, _, _ = RECONSTRUCTORS[model](views, RGBObjective(), settings | {"plateau_views": 2}, 0)
+    train, _, _ = RECONSTRUCTORS[model](views, RGBObjective(), settings, 0)
+    assert len(held.views.names) == 6 and held.plateau.views == [views.names[2], views.names[6]]
+    stops = {}
+    for name, trainer in (("held", held), ("train", train)):
+        losses = []
+        for it in range(1, 201):
+            losses.append(trainer.step(it)["loss"])
+            if trainer.should_stop():
+                break
+        stops[name] = (it, np.mean(losses[:10]), np.mean(losses[-10:]))
+    assert stops["held"][0] <= 60 and stops["held"][2] < stops["held"][1]  # stopped while the fit still fell
+    assert stops["train"][0] > stops["held"][0]
+
+
+def test_the_held_out_value_is_the_objective_on_those_views(gallery):
+    import torch
+
+    from spc3d.reconstruct import RECONSTRUCTORS
+    from spc3d.reconstruct.sources import load_source
+
+    views = load_source("gt", gallery).views
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, RGBObjective(), TINY | {"plateau_views": 2, "plateau_window": 5}, 0)
+    for it in range(1, 6):
+        trainer.step(it)
+    with torch.no_grad():
+        ref = [
+            trainer.objective.loss(
+                trainer.model.render(trainer.check.cameras, j, trainer.background)["image"], trainer.check.targets[j]
+            ).item()
+            for j in range(2)
+        ]
+    assert trainer.plateau.curve == [(5, pytest.approx(float(np.mean(ref)), rel=1e-6))]
+
+
+def test_a_job_records_the_views_that_judged_its_stop(gallery, tmp_path):
+    settings = TINY | {"plateau_window": 10, "plateau_patience": 1, "plateau_gain": 0.9, "plateau_views": 2}
+    reconstruct(ReconstructJob(gallery, tmp_path / "r", "gt", "3dgs", settings))
+    train = io.read_json(tmp_path / "r" / "train.json")
+    rule = train["stopped"]["rule"]
+    assert rule["on"] == "held-out training views" and len(rule["views"]) == 2
+    assert train["train_views"] == 6 and train["stopped"]["reason"] == "plateau"

@@ -126,6 +126,9 @@ class Plateau:
     to its floor has nothing left that matters, though its tiny values may still halve);
     ``patience`` windows in a row without progress stop the training, never before step ``start``
     (while a schedule still changes the model: coarse-to-fine grids). ``patience`` 0 never stops.
+    A trainer that holds training views out of its fit (``plateau_views``) instead closes each
+    window with its objective on those views (:meth:`close`): a fit that has begun to learn its
+    targets' view-inconsistent noise stops there, while its training loss still falls.
     Only training views are read: the scored views play no part in when a training ends.
     """
 
@@ -139,6 +142,7 @@ class Plateau:
         self.sums: dict[int, list[float]] = {}  # view -> [sum, count] in the current window
         self.curve: list[tuple[int, float]] = []  # (last step of a window, its value)
         self.best, self.since_best, self.stopped_at = math.inf, 0, None
+        self.views: list[str] = []  # training views held out of the fit that judge it (none: the objective)
 
     @classmethod
     def of(cls, cfg, enabled: bool = True, start: int = 0) -> Plateau:
@@ -155,6 +159,11 @@ class Plateau:
             return
         mean = float(np.mean([s / n for s, n in self.sums.values()]))
         self.sums = {}
+        self.close(it, mean)
+
+    def close(self, it: int, mean: float) -> None:
+        """End the window at step ``it`` with value ``mean``: the training views' mean from
+        :meth:`update`, or the objective on views held out of the fit (``views``)."""
         self.curve.append((it, mean))
         if self.best == math.inf or self.best - mean >= max(self.min_gain * self.best, self.tol):
             self.best, self.since_best = mean, 0
@@ -171,7 +180,8 @@ class Plateau:
         reason = "plateau" if self.stopped_at is not None else "budget"
         rule = {"window": self.window, "patience": self.patience, "min_gain": self.min_gain, "tol": self.tol}
         rule["start"] = self.start
-        return {"step": steps, "of": iterations, "reason": reason, "rule": rule, "curve": self.curve}
+        judged = {"on": "held-out training views" if self.views else "training objective", "views": self.views}
+        return {"step": steps, "of": iterations, "reason": reason, "rule": rule | judged, "curve": self.curve}
 
     def state(self) -> dict:
         return {

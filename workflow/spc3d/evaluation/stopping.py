@@ -23,8 +23,9 @@ from spc3d.evaluation.tables import write_plain_table, write_text_table
 
 CAPTION = "Adaptive stage-2 budgets: where each row stopped, and the trade against its full budget"
 PROTOCOL = (
-    "A row stops once its training objective (on training views only) gains less than the rule's "
-    "min_gain over patience windows. Observed runs train on to the budget; time saved and ΔPSNR / ΔSSIM "
+    "A row stops once its training objective gains less than the rule's min_gain over patience windows, "
+    "judged on its training views or on training views held out of its fit (never the scored views). "
+    "Observed runs train on to the budget; time saved and ΔPSNR / ΔSSIM "
     "(stop − budget, held-out views) are paired within each fit; interval: 95 % sign-flip (unbounded with < 6 runs)."
 )
 
@@ -44,6 +45,7 @@ def row(combination: str, runs: list[dict]) -> dict:
         "stopped early": f"{sum(r['stopped']['reason'] == 'plateau' for r in runs)}/{len(runs)}",
         "steps used": float(np.mean(steps)),
         "max steps": runs[0]["stopped"]["of"],
+        "judged on": judged_on(runs[0]["stopped"].get("rule", {})),
         "train s": float(np.mean([r["train_s"] for r in runs])),
         "capacity": capacity_text(runs),
     }
@@ -59,6 +61,12 @@ def row(combination: str, runs: list[dict]) -> dict:
             "ΔSSIM": float(np.mean([r["at_stop"]["ssim"] - r["mean"]["ssim"] for r in runs])),
         }
     return out
+
+
+def judged_on(rule: dict) -> str:
+    """What the rule read: the training loss, or the objective on N training views held out of the fit."""
+    views = rule.get("views") or []
+    return f"{len(views)} held-out training views" if views else "training loss"
 
 
 def capacity_text(runs: list[dict]) -> str:
@@ -92,6 +100,7 @@ def display(df: pd.DataFrame) -> pd.DataFrame:
             "n": df["n"],
             "stopped early": df["stopped early"],
             "steps used": [f"{s:.0%} of {m}" for s, m in zip(df["steps used"], df["max steps"])],
+            "judged on": df["judged on"],
             "train s": [f"{s:.1f}" for s in df["train s"]],
             "capacity": df["capacity"],
         }

@@ -65,6 +65,8 @@ class GaussianConfig:
     plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
     plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
     plateau_tol: float = 0.0  # ... and by at least this much (objective units): below it the fit is done
+    plateau_views: int = 0  # training views held out of the fit whose objective judges the stop (0: the
+    # training objective itself; spc3d.reconstruct.views.hold_out)
     backend: str = "native"  # rasterizer back-end
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour behind the last Gaussian (render space)
 

@@ -23,7 +23,7 @@ from spc3d.cameras import Cameras, transform_cameras
 from spc3d.evaluation.metrics import psnr
 from spc3d.reconstruct import nerf, nerf_grid
 from spc3d.reconstruct.rays import camera_rays, ndc_rays, recenter, view_dirs
-from spc3d.reconstruct.views import Views
+from spc3d.reconstruct.views import Views, hold_out
 from spc3d.reconstruct.volume import render_chunked
 from spc3d.training import Plateau, default_device, set_lr
 
@@ -48,6 +48,8 @@ class RayTrainer:
     ):
         torch.manual_seed(seed)
         self.kind, self.cfg, self.objective = kind, cfg, objective
+        self.views, self.check = hold_out(views, cfg.plateau_views if objective.stops_on_plateau else 0)
+        views = self.views
         self.device = torch.device(device) if device is not None else default_device()
         self.cams, self.similarity = recenter(views.cameras)
         self.rays = tuple(r.to(self.device) for r in all_rays(self.cams, range(len(self.cams))))
@@ -59,6 +61,7 @@ class RayTrainer:
         # A grid still growing on its schedule is not on a plateau: no stop before its last step.
         start = max(it for it, _ in cfg.res_schedule) if kind == "nerf-grid" else 0
         self.plateau = Plateau.of(cfg, objective.stops_on_plateau, start)  # (see objectives.py)
+        self.plateau.views = self.check.names if self.check else []
 
     def step(self, it: int) -> dict:
         if self.kind == "nerf-grid":
@@ -76,7 +79,10 @@ class RayTrainer:
             self.model.add_tv_grad()  # the total-variation term's gradient, added in place
         self.opt.step()
         value = loss.item()
-        self.plateau.update(it, value)
+        if self.check is None:
+            self.plateau.update(it, value)
+        elif it % self.cfg.plateau_window == 0:
+            self.plateau.close(it, self.check_loss())
         rgb = self.objective.name == "rgb"
         return {"loss": value, "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
 
@@ -99,6 +105,17 @@ class RayTrainer:
         o, d, v = (r.to(self.device) for r in all_rays(view, [0]))
         out = render_chunked(self.model, o, d, v, chunk=self.cfg.chunk)
         return self.objective.to_srgb(out["rgb"]).reshape(cams.height, cams.width, -1).cpu()
+
+    @torch.no_grad()
+    def check_loss(self) -> float:
+        """The training objective on the views held out of the fit (mapped as the training cameras)."""
+        cams = transform_cameras(self.check.cameras, *self.similarity)
+        losses = []
+        for j in range(len(cams)):
+            o, d, v = (r.to(self.device) for r in all_rays(cams, [j]))
+            rgb = render_chunked(self.model, o, d, v, chunk=self.cfg.chunk)["rgb"]
+            losses.append(self.objective.loss(rgb, self.check.targets[j].reshape(rgb.shape).to(self.device)).item())
+        return float(np.mean(losses))
 
     def capacity(self) -> dict:
         if self.kind == "nerf-grid":

@@ -29,7 +29,7 @@ from spc3d.reconstruct.densify import DensityControl
 from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
 from spc3d.reconstruct.pose_refine import PoseCorrections, RowAdam, heldout_cameras
 from spc3d.reconstruct.splat.project import CameraError
-from spc3d.reconstruct.views import Views
+from spc3d.reconstruct.views import Views, hold_out
 from spc3d.training import Plateau
 
 
@@ -78,7 +78,9 @@ class SplatTrainer:
         points: np.ndarray | None = None,
         colors: np.ndarray | None = None,
     ):
-        self.views, self.objective, self.cfg = views, objective, cfg
+        self.objective, self.cfg = objective, cfg
+        self.views, self.check = hold_out(views, cfg.plateau_views if objective.stops_on_plateau else 0)
+        views = self.views
         self.extent = scene_extent(views.cameras)
         self.model = initial_model(views.cameras, cfg, seed, points, colors)
         self.opt = make_optimizer(self.model, cfg, self.extent)
@@ -90,8 +92,14 @@ class SplatTrainer:
         self.poses = PoseCorrections(views.cameras, self.extent) if cfg.pose_refine else None
         self.pose_opt = RowAdam(self.poses.delta) if self.poses else None
         self.plateau = Plateau.of(cfg, objective.stops_on_plateau)  # (see objectives.py)
+        self.plateau.views = self.check.names if self.check else []
 
     def step(self, it: int) -> dict:
+        # The density-control pass of the previous step runs here, not at its end: a training that
+        # stops at step k (or a window judged at k) ends on the fitted model, not on one whose new
+        # Gaussians have not been fitted yet. A full run performs the same operations in the same order.
+        if it > 1:
+            self.control.step(it - 1, self.model, self.opt)
         for group in self.opt.param_groups:
             if group["name"] == "means":
                 group["lr"] = means_lr(it, self.cfg, self.extent)
@@ -123,9 +131,11 @@ class SplatTrainer:
         self.opt.step()
         if refine:
             self.pose_opt.step(i, pose_lr(it, self.cfg))
-        self.control.step(it, self.model, self.opt)
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
-        self.plateau.update(it, value, i)
+        if self.check is None:
+            self.plateau.update(it, value, i)
+        elif it % self.cfg.plateau_window == 0:
+            self.plateau.close(it, self.check_loss())
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).
@@ -135,6 +145,13 @@ class SplatTrainer:
     def should_stop(self) -> bool:
         """The training objective has stopped improving (:class:`spc3d.training.Plateau`)."""
         return self.plateau.should_stop()
+
+    @torch.no_grad()
+    def check_loss(self) -> float:
+        """The training objective on the views held out of the fit (their cameras as given)."""
+        cams, targets = self.check.cameras, self.check.targets
+        losses = [self.objective.loss(self._render(cams, j)["image"], targets[j]).item() for j in range(len(cams))]
+        return float(np.mean(losses))
 
     def maybe_raise_degree(self) -> None:
         """Raise the SH degree while the loss still improves by >= 0.5 % per interval."""

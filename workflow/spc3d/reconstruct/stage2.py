@@ -133,7 +133,11 @@ def reconstruct(job: ReconstructJob) -> dict:
             return write_unposed(job.scene_dir, job.out_dir, unposed | {"poses": poses, "status": str(e)})
     points, init = initial_points(job.points_dir)
     trainer, iterations, cfg = RECONSTRUCTORS[job.model](src.views, src.objective, job.settings, job.seed, points)
-    log.info("%s+%s on %s: %d training views", job.source, job.model, Path(job.scene_dir).name, len(src.views.names))
+    fitted = trainer.views.names
+    held = len(src.views.names) - len(fitted)
+    log.info("%s+%s on %s: %d training views", job.source, job.model, Path(job.scene_dir).name, len(fitted))
+    if held:
+        log.info("%d more held out of the fit to judge when it stops: %s", held, ", ".join(trainer.plateau.views))
     meta = {
         "model": job.model,
         "source": job.source,
@@ -144,7 +148,7 @@ def reconstruct(job: ReconstructJob) -> dict:
         "frames": frames,
         "capture_factor": src.capture_factor,
         "poses": poses,
-        "train_views": len(src.views.names),
+        "train_views": len(fitted),  # fitted; the stopping rule's held-out views: stopped.rule.views
         "init": {"setting": job.init_setting or ("colmap" if job.points_dir else "random"), "used": init},
         "display": display_record(job.display_dir),
     }
