@@ -184,3 +184,22 @@ def test_row_adam_is_adam_on_the_visited_row_and_leaves_the_others():
     assert all(torch.equal(a, b) for a, b in zip(resumed.state_dict().values(), row_adam.state_dict().values()))
     with pytest.raises(ValueError, match="before per-view Adam"):
         resumed.load_state_dict({"state": {}, "param_groups": []})  # torch's Adam state, an old checkpoint
+
+
+def test_views_held_out_to_judge_the_stop_follow_the_refined_world(scene):
+    """Move the whole model and its refined training cameras by one similarity: the fit is the
+    same, so the objective on the views held out of it (plateau_views) must not change."""
+    train, _ = split_views(len(scene.names))
+    views = Views(torch.tensor(scene.images[train]), scene.cameras.subset(train), [scene.names[i] for i in train])
+    cfg = GaussianConfig(iterations=6, init_points=200, sh_degree=0, pose_refine=True, plateau_views=1)
+    trainer = SplatTrainer(views, RGBObjective(), cfg, seed=0)
+    before = trainer.check_loss()
+    s, t = 1.5, torch.tensor([0.2, -0.1, 0.3])
+    with torch.no_grad():
+        trainer.model.means.mul_(s).add_(t)
+        trainer.model.log_scales.add_(float(np.log(s)))
+    trainer.poses.refined = lambda cams: transform_cameras(cams, s, np.eye(3), t.numpy())
+    assert trainer.check_loss() == pytest.approx(before, rel=1e-4)
+    unmapped = SplatTrainer(views, RGBObjective(), dataclasses.replace(cfg, pose_refine=False), seed=0)
+    unmapped.model = trainer.model  # the moved model seen from the check cameras as given: another value
+    assert unmapped.check_loss() != pytest.approx(before, rel=1e-2)

@@ -148,8 +148,10 @@ class SplatTrainer:
 
     @torch.no_grad()
     def check_loss(self) -> float:
-        """The training objective on the views held out of the fit (their cameras as given)."""
-        cams, targets = self.check.cameras, self.check.targets
+        """The training objective on the views held out of the fit: their cameras as given, or with
+        refined training cameras, mapped into the refined world as the scored views are (a drift of
+        the whole refined world must not read as a worse fit)."""
+        cams, targets = self.heldout_cameras(self.views.cameras, self.check.cameras), self.check.targets
         losses = [self.objective.loss(self._render(cams, j)["image"], targets[j]).item() for j in range(len(cams))]
         return float(np.mean(losses))
 
