@@ -161,6 +161,14 @@ class Plateau:
         self.sums = {}
         self.close(it, mean)
 
+    def observe(self, it: int, value: float, view: int = 0, held_out=None) -> None:
+        """A trainer's per-step call: its training objective ``value`` on ``view``, or, when it
+        holds views out of its fit, ``held_out()`` (their objective) once per window."""
+        if held_out is None:
+            self.update(it, value, view)
+        elif it % self.window == 0:
+            self.close(it, held_out())
+
     def close(self, it: int, mean: float) -> None:
         """End the window at step ``it`` with value ``mean``: the training views' mean from
         :meth:`update`, or the objective on views held out of the fit (``views``)."""

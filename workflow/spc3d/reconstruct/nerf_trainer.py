@@ -62,6 +62,13 @@ class RayTrainer:
         start = max(it for it, _ in cfg.res_schedule) if kind == "nerf-grid" else 0
         self.plateau = Plateau.of(cfg, objective.stops_on_plateau, start)  # (see objectives.py)
         self.plateau.views = self.check.names if self.check else []
+        self.check_rays = []  # per held-out view: (NDC origins, directions, view dirs, targets) on the device
+        if self.check:
+            cams = transform_cameras(self.check.cameras, *self.similarity)
+            for j in range(len(cams)):
+                rays = (r.to(self.device) for r in all_rays(cams, [j]))
+                target = self.check.targets[j].reshape(-1, self.check.targets.shape[-1]).to(self.device)
+                self.check_rays.append((*rays, target))
 
     def step(self, it: int) -> dict:
         if self.kind == "nerf-grid":
@@ -79,10 +86,7 @@ class RayTrainer:
             self.model.add_tv_grad()  # the total-variation term's gradient, added in place
         self.opt.step()
         value = loss.item()
-        if self.check is None:
-            self.plateau.update(it, value)
-        elif it % self.cfg.plateau_window == 0:
-            self.plateau.close(it, self.check_loss())
+        self.plateau.observe(it, value, 0, self.check_loss if self.check else None)
         rgb = self.objective.name == "rgb"
         return {"loss": value, "psnr": psnr(out["rgb"].clamp(0, 1), target) if rgb else math.nan}
 
@@ -109,12 +113,10 @@ class RayTrainer:
     @torch.no_grad()
     def check_loss(self) -> float:
         """The training objective on the views held out of the fit (mapped as the training cameras)."""
-        cams = transform_cameras(self.check.cameras, *self.similarity)
-        losses = []
-        for j in range(len(cams)):
-            o, d, v = (r.to(self.device) for r in all_rays(cams, [j]))
-            rgb = render_chunked(self.model, o, d, v, chunk=self.cfg.chunk)["rgb"]
-            losses.append(self.objective.loss(rgb, self.check.targets[j].reshape(rgb.shape).to(self.device)).item())
+        losses = [
+            self.objective.loss(render_chunked(self.model, o, d, v, chunk=self.cfg.chunk)["rgb"], target).item()
+            for o, d, v, target in self.check_rays
+        ]
         return float(np.mean(losses))
 
     def capacity(self) -> dict:

@@ -132,10 +132,7 @@ class SplatTrainer:
         if refine:
             self.pose_opt.step(i, pose_lr(it, self.cfg))
         self.losses = self.losses[-(self.cfg.sh_interval - 1) :] + [value]  # one interval is all it needs
-        if self.check is None:
-            self.plateau.update(it, value, i)
-        elif it % self.cfg.plateau_window == 0:
-            self.plateau.close(it, self.check_loss())
+        self.plateau.observe(it, value, i, self.check_loss if self.check else None)
         if it % self.cfg.sh_interval == 0:
             self.maybe_raise_degree()
         # Training PSNR only means something against image targets (not against bit fractions).
