@@ -5,6 +5,8 @@ import io
 import json
 import os
 import pickle
+import subprocess
+import sys
 import tarfile
 from pathlib import Path
 
@@ -13,7 +15,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from spc3d.evaluation import lpips_net, lpips_weights, metrics
+from spc3d.evaluation import lpips_net, lpips_weights, metrics, scores
 from spc3d.io import read_rgb
 
 LPIPS_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lpips"
@@ -195,6 +197,40 @@ def test_lpips_batch_gradient_and_net_cache(lpips_cache):
     dist.sum().backward()
     assert dist.shape == (2,) and torch.isfinite(pred.grad).all() and pred.grad.abs().sum() > 0
     assert lpips_net.get_lpips_net("alex", cache_dir=lpips_cache) is lpips_net.get_lpips_net("alexnet")
+
+
+@pytest.mark.parametrize("net,shape", [("alex", (40, 56)), ("alex", (33, 97)), ("vgg", (48, 40))])
+def test_numpy_lpips_equals_the_torch_network(lpips_cache, net, shape):
+    """The scoring path (numpy, channels last) and the differentiable torch network agree to
+    float32 rounding, odd sizes (strided conv and floor-mode pools) included."""
+    a, b = np.random.default_rng(3).random((2, *shape, 3), dtype=np.float32)
+    ta, tb = (torch.from_numpy(x).permute(2, 0, 1)[None] for x in (a, b))
+    expected = metrics.lpips_batch(ta, tb, net=net, cache_dir=lpips_cache).item()
+    assert scores.lpips(a, b, net=net, cache_dir=lpips_cache) == pytest.approx(expected, rel=1e-5, abs=1e-7)
+    with pytest.raises(ValueError, match="at least 32x32"):
+        scores.lpips(a[:31], b[:31], net=net, cache_dir=lpips_cache)
+
+
+def test_numpy_ssim_equals_the_torch_map():
+    a, b = np.random.default_rng(4).random((2, 23, 31, 3))
+    ta, tb = (torch.from_numpy(x).permute(2, 0, 1)[None] for x in (a, b))
+    expected = metrics.ssim_map(ta, tb, padding="valid").mean().item()
+    assert scores.ssim(a, b) == pytest.approx(expected, abs=1e-12)
+
+
+def test_scores_read_tensors_that_carry_gradients():
+    x, y = torch.rand(16, 16, 3, requires_grad=True), torch.rand(16, 16, 3)
+    assert scores.psnr(x, y) == scores.psnr(x.detach().numpy(), y.numpy())
+    assert scores.ssim(x, y) == scores.ssim(x.detach().numpy(), y.numpy())
+
+
+def test_scoring_jobs_do_not_import_torch():
+    """The evaluate, score_images and figure jobs score with numpy: importing torch would cost each
+    of them more CPU than its own work."""
+    modules = "spc3d.jobs, spc3d.evaluation.evaluate, spc3d.evaluation.stage1, spc3d.evaluation.figures"
+    code = f"import sys, {modules}; print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch')[:3])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
 
 
 def test_lpips_weights_from_npz_path(lpips_cache):

@@ -17,6 +17,7 @@ from spc3d import io, translate
 from spc3d.checkpoints import CheckpointPolicy
 from spc3d.evaluation import tables
 from spc3d.evaluation.figures import pick_view, qualitative_figure
+from spc3d.evaluation.stage1 import score_images
 from spc3d.inputs.augment import AugmentSettings, augment_scene
 from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
@@ -24,7 +25,7 @@ from spc3d.names import LABELS, STAGE1_METHODS, translator_settings
 from spc3d.physics import spc
 from spc3d.training import run
 from spc3d.translate import base, data, model_io, train
-from spc3d.translate.apply import score_images, self_ensemble, translate_scene
+from spc3d.translate.apply import self_ensemble, translate_scene
 
 from conftest import InterruptAt, Interrupted
 

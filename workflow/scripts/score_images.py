@@ -1,9 +1,9 @@
-"""Adapter: rule score_images -> spc3d.translate.apply.score_images."""
+"""Adapter: rule score_images -> spc3d.evaluation.stage1.score_images."""
 
 from pathlib import Path
 
+from spc3d.evaluation.stage1 import score_images
 from spc3d.jobs import logged
-from spc3d.translate.apply import score_images
 
 with logged(snakemake.log[0]):
     p = snakemake.params

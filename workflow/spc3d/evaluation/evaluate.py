@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from spc3d import io, llff
-from spc3d.evaluation import metrics
+from spc3d.evaluation import scores
 from spc3d.names import METRICS
 from spc3d.physics import sensors, spc
 
@@ -55,10 +55,10 @@ def score_view(
 
 # One scorer per key of spc3d.names.METRICS: (render, ground truth, LPIPS weights folder) -> value.
 SCORERS = {
-    "psnr": lambda pred, gt, lpips_dir: metrics.psnr(pred, gt),
-    "ssim": lambda pred, gt, lpips_dir: metrics.ssim(pred, gt),
-    "lpips_alex": lambda pred, gt, lpips_dir: metrics.lpips(pred, gt, net="alex", cache_dir=lpips_dir),
-    "lpips_vgg": lambda pred, gt, lpips_dir: metrics.lpips(pred, gt, net="vgg", cache_dir=lpips_dir),
+    "psnr": lambda pred, gt, lpips_dir: scores.psnr(pred, gt),
+    "ssim": lambda pred, gt, lpips_dir: scores.ssim(pred, gt),
+    "lpips_alex": lambda pred, gt, lpips_dir: scores.lpips(pred, gt, net="alex", cache_dir=lpips_dir),
+    "lpips_vgg": lambda pred, gt, lpips_dir: scores.lpips(pred, gt, net="vgg", cache_dir=lpips_dir),
 }
 
 

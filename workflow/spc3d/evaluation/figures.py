@@ -15,7 +15,7 @@ import numpy as np
 
 from spc3d import io, llff
 from spc3d.cameras import split_views
-from spc3d.evaluation import metrics
+from spc3d.evaluation import scores
 from spc3d.names import source_label
 from spc3d.plotting import pyplot, save_png
 
@@ -51,7 +51,7 @@ def qualitative_figure(
         img = io.read_rgb(Path(folder) / "renders" / f"{view}.png")
         source, model = combo.split("+", 1)
         name = f"{source_label(source, labels or {})} + {model}"
-        panels.append((f"{name}\n{metrics.psnr(img, gt):.2f} dB", img))
+        panels.append((f"{name}\n{scores.psnr(img, gt):.2f} dB", img))
     panels.append(("ground truth", gt))
     _draw(panels, out_png, f"{Path(scene_dir).name}, held-out view {view}", per_row)
     return view

@@ -3,7 +3,8 @@
 Layouts
 -------
 - Reported metrics ``psnr``, ``ssim``, ``lpips`` take ONE image pair: sRGB (H, W, 3) float arrays
-  in [0, 1], numpy or torch (any (H, W, C) works for PSNR/SSIM), and return Python floats.
+  in [0, 1], numpy or torch (any (H, W, C) works for PSNR/SSIM), and return Python floats. They are
+  numpy code (:mod:`.scores`, re-exported here), so that a scoring job never imports torch.
 - Batched torch functions (``ssim_map``, ``ssim_loss``, ``gs_photometric_loss``, ``lpips_batch``)
   take (B, C, H, W) tensors in [0, 1] and keep gradients.
 
@@ -31,7 +32,6 @@ denominators positive; identical constant images give SSIM 1); LPIPS of identica
 
 from __future__ import annotations
 
-import math
 import os
 
 import numpy as np
@@ -39,41 +39,18 @@ import torch
 import torch.nn.functional as F
 
 from spc3d.evaluation.lpips_net import get_lpips_net
-
-SSIM_WINDOW = 11
-SSIM_SIGMA = 1.5
-SSIM_K1 = 0.01
-SSIM_K2 = 0.03
-DATA_RANGE = 1.0
-
-
-def _as_tensor(img, dtype: torch.dtype | None = None) -> torch.Tensor:
-    """numpy or torch array -> torch tensor (detached only if it came from numpy)."""
-    t = img if isinstance(img, torch.Tensor) else torch.from_numpy(np.asarray(img))
-    return t.to(dtype) if dtype is not None else t
-
-
-def _pair_hwc(pred, target, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor]:
-    """Two (H, W, C) images -> two (1, C, H, W) tensors of ``dtype``; checks shapes."""
-    a, b = _as_tensor(pred, dtype), _as_tensor(target, dtype)
-    if a.shape != b.shape or a.ndim != 3:
-        raise ValueError(f"expected two (H, W, C) images of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
-    return a.permute(2, 0, 1)[None], b.permute(2, 0, 1)[None]
-
-
-# ---------------------------------------------------------------------------------------------
-# PSNR
-# ---------------------------------------------------------------------------------------------
-def psnr(pred, target) -> float:
-    """PSNR in dB (data range 1) between two arrays of one shape (images (H, W, C), ray batches
-    (R, 3), ...); ``inf`` when they are identical. No gradient."""
-    a, b = _as_tensor(pred, torch.float64).detach(), _as_tensor(target, torch.float64).detach()
-    if a.shape != b.shape:
-        raise ValueError(f"expected two arrays of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
-    mse = torch.mean((a - b) ** 2).item()
-    if mse == 0.0:
-        return float("inf")
-    return 10.0 * math.log10(DATA_RANGE**2 / mse)
+from spc3d.evaluation.scores import (  # noqa: F401  (the reported metrics, torch-free: re-exported here)
+    DATA_RANGE,
+    LPIPS_MIN_SIZE,
+    SSIM_K1,
+    SSIM_K2,
+    SSIM_SIGMA,
+    SSIM_WINDOW,
+    gaussian_taps,
+    lpips,
+    psnr,
+    ssim,
+)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -82,10 +59,8 @@ def psnr(pred, target) -> float:
 def gaussian_window(
     size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, dtype: torch.dtype = torch.float64
 ) -> torch.Tensor:
-    """Normalised 1-D Gaussian taps (size,), centred on the middle tap."""
-    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2
-    g = torch.exp(-(x**2) / (2 * sigma**2))
-    return (g / g.sum()).to(dtype)
+    """Normalised 1-D Gaussian taps (size,), centred on the middle tap (:func:`.scores.gaussian_taps`)."""
+    return torch.from_numpy(gaussian_taps(size, sigma)).to(dtype)
 
 
 def _blur(x: torch.Tensor, window: torch.Tensor, pad: int) -> torch.Tensor:
@@ -128,17 +103,6 @@ def ssim_map(
     num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
     den = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
     return num / den
-
-
-def ssim(pred, target) -> float:
-    """SSIM (Wang et al., 'valid', float64) between two (H, W, C) images in [0, 1].
-
-    Matches skimage ``structural_similarity(..., gaussian_weights=True, sigma=1.5,
-    use_sample_covariance=False, data_range=1, channel_axis=-1)``.
-    """
-    a, b = _pair_hwc(pred, target, torch.float64)
-    with torch.no_grad():
-        return ssim_map(a, b, padding="valid").mean().item()
 
 
 def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -255,9 +219,6 @@ def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: 
 # ---------------------------------------------------------------------------------------------
 # LPIPS
 # ---------------------------------------------------------------------------------------------
-LPIPS_MIN_SIZE = 32  # AlexNet: stride-4 conv + two 3x3/2 pools before conv3 need >= 32 px per side
-
-
 def lpips_batch(
     pred: torch.Tensor,
     target: torch.Tensor,
@@ -278,18 +239,3 @@ def lpips_batch(
     if model.shift.device != pred.device:
         model.to(pred.device)
     return model(pred * 2.0 - 1.0, target * 2.0 - 1.0)
-
-
-def lpips(
-    pred,
-    target,
-    net: str = "alex",
-    weights_path: str | os.PathLike | None = None,
-    cache_dir: str | os.PathLike | None = None,
-) -> float:
-    """LPIPS v0.1 (``net`` = 'alex' | 'vgg') between two (H, W, 3) sRGB images in [0, 1]."""
-    a, b = _pair_hwc(pred, target, torch.float32)
-    if a.shape[1] != 3:
-        raise ValueError(f"LPIPS needs RGB images (H, W, 3), got {a.shape[1]} channels")
-    with torch.no_grad():
-        return float(lpips_batch(a, b, net, weights_path, cache_dir).item())
