@@ -52,6 +52,14 @@ def build(method: str, seed: int = 0, prior: bool = True):
     return module.Translator(cfg, torch.device("cpu"), vgg)
 
 
+def to_channels_last(model) -> None:
+    """Every network of ``model`` (its modules and any other nn.Module attribute, e.g. the frozen VGG)
+    in channels-last (NHWC) memory: 4-D weights and buffers are restrided, so the activations follow."""
+    for value in vars(model).values():
+        if isinstance(value, torch.nn.Module):
+            value.to(memory_format=torch.channels_last)
+
+
 def cpu_seconds() -> tuple[float, float]:
     """(user, system) CPU seconds of this process so far, all threads."""
     r = resource.getrusage(resource.RUSAGE_SELF)
@@ -93,6 +101,11 @@ def main() -> None:
         help="keep: as a workflow job (freed memory reused); default: glibc's own behaviour",
     )
     ap.add_argument("--no-prior", action="store_true", help="the published networks (prior_sigma: 0)")
+    ap.add_argument(
+        "--formats",
+        default="contiguous",
+        help="comma-separated memory formats of the networks, timed in turns: contiguous, channels_last",
+    )
     args = ap.parse_args()
     if args.allocator == "keep":
         from spc3d.runtime import keep_freed_memory
@@ -103,19 +116,24 @@ def main() -> None:
     results = {}
     for threads in (int(t) for t in args.threads.split(",")):
         torch.set_num_threads(threads)
-        models = {
-            m: build(m, prior=not args.no_prior) for m in methods
-        }  # fresh models: every thread count starts alike
+        models = {}  # fresh models: every thread count starts alike
+        for m in methods:
+            for fmt in args.formats.split(","):
+                models[m if fmt == "contiguous" else f"{m}[{fmt}]"] = model = build(m, prior=not args.no_prior)
+                if fmt == "channels_last":
+                    to_channels_last(model)
+                elif fmt != "contiguous":
+                    raise SystemExit(f"--formats: unknown memory format {fmt!r}; use contiguous or channels_last")
         results[threads] = measure(models, batch, args.steps, args.rounds)
     print(
         f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, physics prior {not args.no_prior}, "
         f"torch {torch.__version__}, "
         f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}, load average {os.getloadavg()[0]:.1f}"
     )
-    print(f"{'method':<10} {'threads':>7} {'steps/s':>8} {'CPU s/step':>11} {'kernel':>7}")
+    print(f"{'method':<24} {'threads':>7} {'steps/s':>8} {'CPU s/step':>11} {'kernel':>7}")
     for threads, rows in results.items():
         for m, r in rows.items():
-            print(f"{m:<10} {threads:>7} {r['steps_per_s']:>8.2f} {r['cpu_s']:>11.3f} {100 * r['sys_share']:>6.1f}%")
+            print(f"{m:<24} {threads:>7} {r['steps_per_s']:>8.2f} {r['cpu_s']:>11.3f} {100 * r['sys_share']:>6.1f}%")
     one = results.get(1, {})
     print("steps_per_s_1thread: " + " ".join(f"{m}={r['steps_per_s']:.2f}" for m, r in one.items()))
 

@@ -39,7 +39,7 @@ class ValidationSettings:
     """When a translator is validated and when it stops (the config's ``stage1.validation``)."""
 
     every: int = 25  # steps between validations, plus one at the last step (0: none, the last model is kept)
-    patience: int = 4  # validations without a better PSNR before training stops (0: never stop early)
+    patience: int = 2  # validations without a better PSNR before training stops (0: never stop early)
 
     def __post_init__(self):
         if self.every < 0 or self.patience < 0:
