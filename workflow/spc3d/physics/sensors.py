@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import ndimage
 
 from spc3d import io
 from spc3d.physics import spc
@@ -266,6 +265,8 @@ def _tent(ry: int, rx: int) -> np.ndarray:
 def _interpolate(values: np.ndarray, known: np.ndarray, ry: int, rx: int) -> np.ndarray:
     """Keep ``values`` where ``known``; elsewhere the tent-weighted mean of the known values nearby
     (normalized convolution). Pixels with none within the tent retry with a tent twice as wide."""
+    from scipy import ndimage  # only demosaicing needs it: scoring jobs import this module without it
+
     if not known.any():
         raise ValueError("nothing to interpolate from: no known pixel (all masked?)")
     data = np.where(known, values, 0.0).astype(np.float64)
