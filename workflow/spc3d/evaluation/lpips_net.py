@@ -1,8 +1,9 @@
 """LPIPS v0.1 networks (AlexNet, VGG16 backbones + linear heads), written with plain torch.
 
 Import layout, acyclic: ``lpips_specs`` (architecture: names, layer specs, ScalingLayer constants,
-weight shapes) <- ``lpips_weights`` (obtaining and checking the weights) <- this module; both
-are imported here at module level and neither imports this module.
+weight shapes) <- ``lpips_weights`` (obtaining and checking the weights) <- ``scores`` (the
+numpy LPIPS that scoring uses, and the per-process network cache) <- this module (the
+differentiable torch network); none of them imports this module.
 
 Networks
 --------
@@ -18,15 +19,14 @@ spatial mean; the five taps are summed. Inputs are (B, 3, H, W) in [-1, 1]; the 
 from __future__ import annotations
 
 import os
-import threading
-from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from spc3d.evaluation.lpips_specs import SCALE, SHIFT, SPECS, canonical_net
-from spc3d.evaluation.lpips_weights import check_weights, lpips_weights
+from spc3d.evaluation.lpips_weights import check_weights
+from spc3d.evaluation.scores import cached_net
 
 NORM_EPS = 1e-10
 
@@ -84,16 +84,10 @@ class LPIPSNet(torch.nn.Module):
 
 
 _NETS: dict[tuple, LPIPSNet] = {}
-_NETS_LOCK = threading.Lock()
 
 
 def get_lpips_net(
     net: str = "alex", weights_path: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None
 ) -> LPIPSNet:
     """Process-wide cached ``LPIPSNet`` (one per backbone and explicit weights file)."""
-    net = canonical_net(net)
-    key = (net, None if weights_path is None else str(Path(weights_path).resolve()))
-    with _NETS_LOCK:
-        if key not in _NETS:
-            _NETS[key] = LPIPSNet(net, lpips_weights(net, weights_path, cache_dir))
-        return _NETS[key]
+    return cached_net(_NETS, LPIPSNet, net, weights_path, cache_dir)

@@ -166,17 +166,22 @@ _NETS: dict[tuple, LPIPS] = {}
 _NETS_LOCK = threading.Lock()
 
 
-def get_lpips(
-    net: str = "alex", weights_path: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None
-) -> LPIPS:
-    """Process-wide cached :class:`LPIPS` (one per backbone and explicit weights file); weights
-    resolve as in :func:`spc3d.evaluation.lpips_weights.lpips_weights`."""
+def cached_net(nets: dict, build, net: str, weights_path=None, cache_dir=None):
+    """``nets[(backbone, weights file)]``, built once per process as ``build(backbone, weights)`` with
+    the weights resolved by :func:`spc3d.evaluation.lpips_weights.lpips_weights`."""
     net = canonical_net(net)
     key = (net, None if weights_path is None else str(Path(weights_path).resolve()))
     with _NETS_LOCK:
-        if key not in _NETS:
-            _NETS[key] = LPIPS(net, lpips_weights(net, weights_path, cache_dir))
-        return _NETS[key]
+        if key not in nets:
+            nets[key] = build(net, lpips_weights(net, weights_path, cache_dir))
+        return nets[key]
+
+
+def get_lpips(
+    net: str = "alex", weights_path: str | os.PathLike | None = None, cache_dir: str | os.PathLike | None = None
+) -> LPIPS:
+    """Process-wide cached :class:`LPIPS` (one per backbone and explicit weights file)."""
+    return cached_net(_NETS, LPIPS, net, weights_path, cache_dir)
 
 
 def lpips(
