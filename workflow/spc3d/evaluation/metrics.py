@@ -50,6 +50,7 @@ from spc3d.evaluation.scores import (  # noqa: F401  (the reported metrics, torc
     lpips,
     psnr,
     ssim,
+    ssim_index,
 )
 
 
@@ -99,10 +100,7 @@ def ssim_map(
     var_x = _blur(pred * pred, window, pad) - mu_x**2
     var_y = _blur(target * target, window, pad) - mu_y**2
     cov = _blur(pred * target, window, pad) - mu_x * mu_y
-    c1, c2 = (SSIM_K1 * DATA_RANGE) ** 2, (SSIM_K2 * DATA_RANGE) ** 2
-    num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
-    den = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
-    return num / den
+    return ssim_index(mu_x, mu_y, var_x, var_y, cov)
 
 
 def ssim_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

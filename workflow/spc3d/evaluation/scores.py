@@ -51,11 +51,15 @@ def _pair_hwc(pred, target, dtype) -> tuple[np.ndarray, np.ndarray]:
 
 def psnr(pred, target) -> float:
     """PSNR in dB (data range 1) between two arrays of one shape (images (H, W, C), ray batches
-    (R, 3), ...); ``inf`` when they are identical."""
-    a, b = as_array(pred, np.float64), as_array(target, np.float64)
+    (R, 3), ...); ``inf`` when they are identical. Two torch tensors (a training step's render and
+    target) are compared on their own device in float64: only the scalar leaves it."""
+    if hasattr(pred, "detach") and hasattr(target, "detach"):
+        a, b = pred.detach().double(), target.detach().to(pred.device).double()
+    else:
+        a, b = as_array(pred, np.float64), as_array(target, np.float64)
     if a.shape != b.shape:
-        raise ValueError(f"expected two arrays of one shape, got {a.shape} and {b.shape}")
-    mse = float(np.mean((a - b) ** 2))
+        raise ValueError(f"expected two arrays of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
+    mse = float(((a - b) ** 2).mean())
     if mse == 0.0:
         return float("inf")
     return 10.0 * math.log10(DATA_RANGE**2 / mse)
@@ -77,6 +81,13 @@ def _valid_blur(x: np.ndarray, taps: np.ndarray) -> np.ndarray:
     return sum(t * rows[i : i + h] for i, t in enumerate(taps))
 
 
+def ssim_index(mu_x, mu_y, var_x, var_y, cov):
+    """Wang et al.'s SSIM from local means, variances and covariance (population), data range 1:
+    plain arithmetic, so numpy arrays and torch tensors alike (the torch map in :mod:`.metrics`)."""
+    c1, c2 = (SSIM_K1 * DATA_RANGE) ** 2, (SSIM_K2 * DATA_RANGE) ** 2
+    return (2 * mu_x * mu_y + c1) * (2 * cov + c2) / ((mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2))
+
+
 def ssim(pred, target) -> float:
     """SSIM (Wang et al., 'valid', float64) between two (H, W, C) images in [0, 1].
 
@@ -91,35 +102,36 @@ def ssim(pred, target) -> float:
     var_x = _valid_blur(a * a, taps) - mu_x**2
     var_y = _valid_blur(b * b, taps) - mu_y**2
     cov = _valid_blur(a * b, taps) - mu_x * mu_y
-    c1, c2 = (SSIM_K1 * DATA_RANGE) ** 2, (SSIM_K2 * DATA_RANGE) ** 2
-    num = (2 * mu_x * mu_y + c1) * (2 * cov + c2)
-    den = (mu_x**2 + mu_y**2 + c1) * (var_x + var_y + c2)
-    return float(np.mean(num / den))
+    return float(np.mean(ssim_index(mu_x, mu_y, var_x, var_y, cov)))
 
 
 # ---------------------------------------------------------------------------------------------
 # LPIPS
 # ---------------------------------------------------------------------------------------------
+def _windows(x: np.ndarray, k: int, stride: int) -> list[np.ndarray]:
+    """The k x k strided views of (H, W, C) ``x``, one per window offset (dy, dx) in row order:
+    each (H', W', C) with H' = (H - k) // stride + 1 (no padding, floor mode)."""
+    h, w = (x.shape[0] - k) // stride + 1, (x.shape[1] - k) // stride + 1
+    return [x[dy : dy + stride * h : stride, dx : dx + stride * w : stride] for dy in range(k) for dx in range(k)]
+
+
 def _conv_relu(x: np.ndarray, kernels: np.ndarray, bias: np.ndarray, k: int, stride: int, pad: int) -> np.ndarray:
-    """ReLU(conv2d) of (H, W, C) ``x``: the k x k shifted (strided) copies side by side, a (H' W',
-    k k C) patch matrix, times ``kernels`` (O, k k C; taps ordered dy, dx, c) -> (H', W', O).
-    Channels last keeps every copy a run of contiguous channel vectors."""
-    xp = np.pad(x, ((pad, pad), (pad, pad), (0, 0)))
-    h, w = (xp.shape[0] - k) // stride + 1, (xp.shape[1] - k) // stride + 1
-    shifts = [xp[dy : dy + stride * h : stride, dx : dx + stride * w : stride] for dy in range(k) for dx in range(k)]
-    cols = np.concatenate(shifts, axis=-1).reshape(h * w, -1)
-    out = cols @ kernels.T
+    """ReLU(conv2d) of (H, W, C) ``x``: its window views side by side, a (H' W', k k C) patch
+    matrix, times ``kernels`` (O, k k C; taps ordered dy, dx, c) -> (H', W', O). Channels last
+    keeps every view a run of contiguous channel vectors."""
+    shifts = _windows(np.pad(x, ((pad, pad), (pad, pad), (0, 0))), k, stride)
+    h, w = shifts[0].shape[:2]
+    out = np.concatenate(shifts, axis=-1).reshape(h * w, -1) @ kernels.T
     out += bias
     return np.maximum(out, 0.0, out=out).reshape(h, w, -1)
 
 
 def _max_pool(x: np.ndarray, k: int, stride: int) -> np.ndarray:
     """Max over k x k windows every ``stride`` pixels of (H, W, C), no padding (floor mode)."""
-    h, w = (x.shape[0] - k) // stride + 1, (x.shape[1] - k) // stride + 1
-    out = x[: stride * h : stride, : stride * w : stride].copy()
-    for dy in range(k):
-        for dx in range(k):
-            np.maximum(out, x[dy : dy + stride * h : stride, dx : dx + stride * w : stride], out=out)
+    first, *rest = _windows(x, k, stride)
+    out = first.copy()
+    for view in rest:
+        np.maximum(out, view, out=out)
     return out
 
 
