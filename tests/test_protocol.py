@@ -40,6 +40,27 @@ def test_metered_display_is_exposure_invariant_and_the_fit_finds_the_known_level
     assert biased == pytest.approx(linear[0].mean() / 2, rel=1e-5)
 
 
+@pytest.mark.parametrize("kind", ["frames", "continuous", "constant", "dark"])
+def test_scene_error_equals_the_per_pixel_mse(kind):
+    """The grouped error (one sRGB encoding per distinct flux) is the per-pixel sRGB MSE at every level."""
+    rng = np.random.default_rng(1)
+    gt = rng.uniform(0.0, 1.0, (3, 5, 7, 3)).astype(np.float32)
+    meter = {
+        "frames": rng.integers(0, 5, gt.shape) * 1e3,  # an MLE of K = 4 frames: 5 values
+        "continuous": rng.gamma(2.0, 1e3, gt.shape),  # every pixel distinct
+        "constant": np.full(gt.shape, 42.0),
+        "dark": np.zeros(gt.shape),  # no detection: the unit gain
+    }[kind].astype(np.float32)
+    shown = meter[::-1].copy()  # shown differs from what is metered
+    error = exposure.scene_error(meter, gt, shown)
+    for level in (1e-3, 0.05, 0.18, 0.7, 1.0):
+        displayed = exposure.display_srgb(shown, exposure.metered_gain(meter, level))
+        direct = np.mean((displayed - gt.astype(np.float64)) ** 2)
+        assert error(level) == pytest.approx(direct, rel=1e-12, abs=1e-15), (kind, level)
+    with pytest.raises(ValueError, match="shape"):
+        exposure.scene_error(meter, gt[:2])
+
+
 # --- no oracle information outside oracle rows ----------------------------------------------------
 
 
