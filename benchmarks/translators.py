@@ -52,6 +52,9 @@ def build(method: str, seed: int = 0, prior: bool = True):
     return module.Translator(cfg, torch.device("cpu"), vgg)
 
 
+FORMATS = ("contiguous", "channels_last")
+
+
 def to_channels_last(model) -> None:
     """Every network of ``model`` (its modules and any other nn.Module attribute, e.g. the frozen VGG)
     in channels-last (NHWC) memory: 4-D weights and buffers are restrided, so the activations follow."""
@@ -112,18 +115,20 @@ def main() -> None:
 
         keep_freed_memory()
     methods = args.methods.split(",")
+    formats = args.formats.split(",")
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise SystemExit(f"--formats: unknown memory format(s) {unknown}; use {', '.join(FORMATS)}")
     batch = make_batch(args.batch, args.crop)
     results = {}
     for threads in (int(t) for t in args.threads.split(",")):
         torch.set_num_threads(threads)
         models = {}  # fresh models: every thread count starts alike
         for m in methods:
-            for fmt in args.formats.split(","):
+            for fmt in formats:
                 models[m if fmt == "contiguous" else f"{m}[{fmt}]"] = model = build(m, prior=not args.no_prior)
                 if fmt == "channels_last":
                     to_channels_last(model)
-                elif fmt != "contiguous":
-                    raise SystemExit(f"--formats: unknown memory format {fmt!r}; use contiguous or channels_last")
         results[threads] = measure(models, batch, args.steps, args.rounds)
     print(
         f"batch {args.batch}, crop {args.crop}, allocator {args.allocator}, physics prior {not args.no_prior}, "

@@ -7,6 +7,7 @@ its DAG, so no job starts; else the named rule); leave nothing a rerun would tru
 the failing stage, no temporary folder); and a corrected run in the same folder must succeed.
 """
 
+import os
 import re
 import subprocess
 import sys
@@ -409,3 +410,12 @@ def test_case_table_is_large_and_covers_every_stage():
     assert len(CASES) >= 25 and len({c.id for c in CASES}) == len(CASES)
     assert {c.stage for c in CASES} == {"parse", "prepare_scene", "lpips_weights"}
     assert sum(map(len, GROUPS.values())) == len(CASES)
+
+
+def test_translators_benchmark_names_an_unknown_memory_format_before_building():
+    """benchmarks/translators.py --formats: a typo is named with the formats it accepts, before any model is built."""
+    env = dict(os.environ, PYTHONPATH=str(REPO / "workflow"))
+    cmd = [sys.executable, str(REPO / "benchmarks" / "translators.py"), "--formats", "contiguous,nhwc"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
+    assert proc.returncode != 0
+    assert "unknown memory format(s) ['nhwc']; use contiguous, channels_last" in proc.stderr
