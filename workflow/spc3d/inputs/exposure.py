@@ -129,8 +129,8 @@ def scene_error(meter: np.ndarray, gt: np.ndarray, shown: np.ndarray | None = No
 
     The pixels are grouped by their value of ``shown`` once, so each k costs one sRGB encoding per
     distinct value rather than per pixel: an MLE image takes K + 1 values per channel (K frames),
-    and :func:`fit_level` evaluates each scene at ~120 levels. Per group u (n pixels, truths y): sum (s_u - y)^2 =
-    n s_u^2 - 2 s_u sum y + sum y^2, all in float64.
+    and :func:`fit_level` evaluates each scene at ~120 levels. Per group u (n pixels, truths y):
+    sum (s_u - y)^2 = n s_u^2 - 2 s_u sum y + sum y^2, all in float64.
     """
     shown = meter if shown is None else shown
     if shown.shape != gt.shape:
