@@ -270,3 +270,60 @@ def test_the_three_files_are_written(tmp_path):
     assert "| claim | by | verdict | decisive comparison | Δ PSNR (dB) | 95 % interval (or range) | Holm p |" in md
     html = (tmp_path / "findings.html").read_text()
     assert html.startswith("<!DOCTYPE html>") and "<b>HOLDS</b>" in html and "Δ over the untrained prior" in html
+
+
+# --- two findings runs compared (spc3d.evaluation.shift) ------------------------------------------
+
+
+def _findings_run(folder, offsets: dict[str, float], seed_noise: int = 0):
+    """A results/ folder as the findings preset leaves it: eval/{scene}/{row}{-seedK}/metrics.json
+    on the 6 runs (one base PSNR per run, shared by both compared runs) and tables/findings.json."""
+    base = dict(zip([(s, k) for s in SCENES for k in SEEDS], np.random.default_rng(0).uniform(18, 24, 6)))
+    rng, files = np.random.default_rng(seed_noise), []
+    for combo, offset in offsets.items():
+        for (scene, seed), b in base.items():
+            rep = f"-seed{seed}" if seed else ""
+            path = folder / "eval" / scene / f"{combo}{rep}" / "metrics.json"
+            psnr = b + offset + rng.uniform(-0.05, 0.05)
+            io.write_json(
+                path, {"combination": combo, "scene": scene, "seed": seed, "frames": 1, "mean": {"psnr": psnr}}
+            )
+            files.append(str(path))
+    write_findings(files, folder / "tables" / "findings", NERF)
+    return folder
+
+
+def test_shift_of_a_run_against_itself_is_nil(tmp_path):
+    from spc3d.evaluation.shift import write_shift
+
+    run = _findings_run(tmp_path / "a", {f"pix2pixhd+{NERF}": 3.0, f"none-x1+{NERF}": -4.0})
+    text = write_shift(run, run, names=("x", "x"))
+    assert "Old: x; new: x. Of 9 claims and Δ-over-prior entries, 0 changed verdict and 0 moved" in text
+    assert "| two-stage-nerf" not in text and f"pix2pixhd+{NERF} vs none-x1+{NERF} | HOLDS | HOLDS |" in text
+    assert f"| pix2pixhd+{NERF} | 6 | +0.00 | [+0.00, +0.00] | 1.000 |" in text
+    assert (run / "tables" / "findings_shift.md").read_text() == text
+
+
+def test_shift_finds_a_moved_row_and_a_flipped_claim(tmp_path):
+    from spc3d.evaluation.shift import claim_shifts, read_run, row_shifts
+
+    old = _findings_run(tmp_path / "old", {f"pix2pixhd+{NERF}": 3.0, f"none-x1+{NERF}": -4.0, "prior+3dgs": 0.0})
+    new = _findings_run(tmp_path / "new", {f"pix2pixhd+{NERF}": -5.0, f"none-x1+{NERF}": -4.0, "prior+3dgs": 0.0}, 1)
+    (old_rows, old_f), (new_rows, new_f) = read_run(old), read_run(new)
+    rows = {r["row"]: r for r in row_shifts(old_rows, new_rows)}
+    moved, still = rows[f"pix2pixhd+{NERF}"], rows[f"none-x1+{NERF}"]
+    assert moved["n"] == 6 and moved["mean"] == pytest.approx(-8.0, abs=0.1) and moved["high"] < -7.8
+    assert moved["p"] == 2 / 64 and still["low"] < 0 < still["high"] and still["p"] > 0.05
+    shifts = {c["id"]: c for c in claim_shifts(old_f, new_f)}
+    claim = shifts["two-stage-nerf"]
+    assert shifts["denoisers"]["new"] == "NOT RUN" and shifts["denoisers"]["beyond"] is None
+    assert (claim["old"], claim["new"]) == ("HOLDS", "DOES NOT HOLD")
+    assert claim["beyond"] is True and claim["old_d"]["mean"] == pytest.approx(7.0, abs=0.1)
+    assert claim["new_d"]["mean"] == pytest.approx(-1.0, abs=0.1)
+
+
+def test_shift_names_a_folder_without_findings(tmp_path):
+    from spc3d.evaluation.shift import read_run
+
+    with pytest.raises(FileNotFoundError, match=r"tables/findings.json: no findings table; pass the results/"):
+        read_run(tmp_path)

@@ -19,7 +19,7 @@ physics/      the SPC photon physics, sensors, hot pixels, an SPC folder's recor
 poses/        COLMAP poses, similarity alignment, poses from the photons
 inputs/       built-in scenes, COLMAP-format scenes, scene folders and SPC frames, augmentation, exposure
 captures/     real SPAD captures: photon cubes, capture folders, their import
-evaluation/   metrics, LPIPS, held-out evaluation, tables, findings, figures
+evaluation/   metrics, LPIPS, held-out evaluation, tables, findings (and their shift between runs), figures
 translate/    stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
 reconstruct/  stage 2: image sources, 3DGS / NeRF / grid NeRF (``RECONSTRUCTORS``), fit and render
 sweeps/       the speed-accuracy trade-off and photon-level sweeps
