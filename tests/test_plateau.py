@@ -150,13 +150,13 @@ def test_observe_mode_trains_to_the_budget_and_keeps_the_stop(gallery, tmp_path)
     )
 
 
-def fake_run(tmp_path, combo, seed, psnr, at_stop=None, reason="plateau", views=()):
+def fake_run(tmp_path, combo, seed, psnr, at_stop=None, reason="plateau", views=(), step=600):
     rec = {
         "combination": combo,
         "mean": {"psnr": psnr, "ssim": 0.9},
         "train_s": 10.0,
         "capacity": {"gaussians": 1000},
-        "stopped": {"step": 600, "of": 1200, "reason": reason, "rule": {"views": list(views)}},
+        "stopped": {"step": step, "of": 1200, "reason": reason, "rule": {"views": list(views)}},
     }
     if at_stop is not None:
         rec["at_stop"] = {"step": 600, "train_s": 4.0, "psnr": at_stop, "ssim": 0.89}
@@ -181,6 +181,14 @@ def test_stopping_table_pairs_each_fit_and_bounds_only_with_enough_runs(tmp_path
     assert "6/6" in md and "50% of 1200" in md and "n < 6: unbounded" in md and "−" not in md.split("\n")[0]
     assert df.loc["gt+3dgs", "judged on"] == "training loss" and "2 held-out training views" in md
     assert (tmp_path / "stopping.tex").read_text().count("$\\Delta$") >= 1
+
+
+def test_a_rule_that_fires_on_the_last_step_did_not_stop_early(tmp_path):
+    from spc3d.evaluation.stopping import stopping_table
+
+    files = [fake_run(tmp_path, "none-x1+nerf-grid", s, 20.0, step=1200 if s else 900) for s in range(3)]
+    df = stopping_table(files, tmp_path / "stopping").set_index("combination")
+    assert df.loc["none-x1+nerf-grid", "stopped early"] == "1/3"
 
 
 # --- the rule judged on training views held out of the fit (plateau_views) ----------------------

@@ -36,13 +36,18 @@ def read_runs(metrics_files: list[str | os.PathLike]) -> list[dict]:
     return [r for r in runs if r.get("mean") and r.get("stopped")]
 
 
+def early(stopped: dict) -> bool:
+    """The plateau rule ended the fit before its budget (a rule that fires on the last step saved nothing)."""
+    return stopped["reason"] == "plateau" and stopped["step"] < stopped["of"]
+
+
 def row(combination: str, runs: list[dict]) -> dict:
     """One line of the table from the runs of one combination."""
     steps = [r["stopped"]["step"] / r["stopped"]["of"] for r in runs]
     out = {
         "combination": combination,
         "n": len(runs),
-        "stopped early": f"{sum(r['stopped']['reason'] == 'plateau' for r in runs)}/{len(runs)}",
+        "stopped early": f"{sum(early(r['stopped']) for r in runs)}/{len(runs)}",
         "steps used": float(np.mean(steps)),
         "max steps": runs[0]["stopped"]["of"],
         "judged on": judged_on(runs[0]["stopped"].get("rule", {})),
