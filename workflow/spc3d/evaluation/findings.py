@@ -451,7 +451,7 @@ CLAIM_COLUMNS = ["claim", "by", "verdict", "decisive comparison", "Δ PSNR (dB)"
 PRIOR_COLUMNS = ["translator", "block", "stage", "verdict", "Δ PSNR (dB)", "95 % interval (or range)", "p", "n (runs)"]
 
 
-def _p_text(p: float) -> str:
+def p_text(p: float) -> str:
     return f"{p:.3f}" if p >= 0.001 else f"{p:.1e}"
 
 
@@ -463,7 +463,7 @@ def _cells(r: dict) -> list[str]:
     if c["mean"] is None:
         return [f"**{r['verdict']}**{note}", f"{c['better']} vs {c['worse']}: no paired runs", "–", "–", "–", "0"]
     bounds = f"[{c['low']:+.2f}, {c['high']:+.2f}]"
-    p = "–" if r["verdict"] == DESCRIPTIVE else _p_text(c["adjusted"])
+    p = "–" if r["verdict"] == DESCRIPTIVE else p_text(c["adjusted"])
     return [
         f"**{r['verdict']}**{note}",
         f"{c['better']} vs {c['worse']}",
@@ -484,15 +484,15 @@ def prior_cells(r: dict) -> list[str]:
     return [r["translator"], r["block"], r["stage"], verdict_, *rest]
 
 
-def _md_table(columns: list[str], cells: list[list[str]]) -> list[str]:
+def md_table(columns: list[str], cells: list[list[str]]) -> list[str]:
     return [f"| {' | '.join(columns)} |", "|" + "---|" * len(columns), *(f"| {' | '.join(c)} |" for c in cells)]
 
 
 def markdown(first_line: str, results: list[dict], prior: list[dict]) -> str:
-    lines = ["# Findings", "", first_line, "", *_md_table(CLAIM_COLUMNS, [claim_cells(r) for r in results])]
+    lines = ["# Findings", "", first_line, "", *md_table(CLAIM_COLUMNS, [claim_cells(r) for r in results])]
     lines += ["", LEGEND, "", "## Δ over the untrained prior", ""]
     if prior:
-        lines += _md_table(PRIOR_COLUMNS, [prior_cells(r) for r in prior])
+        lines += md_table(PRIOR_COLUMNS, [prior_cells(r) for r in prior])
     else:
         lines.append("No translator ran beside the untrained prior (`prior` rows) in this run.")
     return "\n".join(lines) + "\n"

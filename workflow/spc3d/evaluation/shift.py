@@ -20,7 +20,7 @@ import math
 from pathlib import Path
 
 from spc3d import io
-from spc3d.evaluation.findings import Row, interval, paired, read_rows, read_stage1, sign_flip_p
+from spc3d.evaluation.findings import Row, interval, md_table, p_text, paired, read_rows, read_stage1, sign_flip_p
 
 STAGE1_PREFIX = "stage 1: "  # stage-1 rows share names with the translators' stage-2 sources
 
@@ -87,37 +87,46 @@ def _dB(d: dict | None) -> str:
     return f"{d['mean']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}]"
 
 
+CLAIM_COLUMNS = [
+    "claim",
+    "comparison (new decisive)",
+    "old verdict",
+    "new verdict",
+    "old Δ [95 %]",
+    "new Δ [95 %]",
+    "beyond",
+]
+ROW_COLUMNS = ["row", "n (runs)", "Δ PSNR (dB)", "95 % interval", "p"]
+
+
+def claim_cells(c: dict) -> list[str]:
+    """One claim's line: verdicts (bold where they differ), both estimates, whether it moved beyond."""
+    old, new = (c["old"], c["new"]) if c["old"] == c["new"] else (f"**{c['old']}**", f"**{c['new']}**")
+    pair = f"{c['new_d']['better']} vs {c['new_d']['worse']}" if c["new_d"] else "–"
+    beyond = "–" if c["beyond"] is None else ("**yes**" if c["beyond"] else "no")
+    return [c["claim"], pair, old, new, _dB(c["old_d"]), _dB(c["new_d"]), beyond]
+
+
+def row_cells(r: dict) -> list[str]:
+    return [r["row"], str(r["n"]), f"{r['mean']:+.2f}", f"[{r['low']:+.2f}, {r['high']:+.2f}]", p_text(r["p"])]
+
+
 def markdown(rows: list[dict], claims: list[dict], old_name: str, new_name: str) -> str:
     """The two tables, with a line counting what changed."""
-    changed = [c for c in claims if c["old"] != c["new"]]
-    moved = [c for c in claims if c["beyond"]]
+    changed = sum(c["old"] != c["new"] for c in claims)
+    moved = sum(bool(c["beyond"]) for c in claims)
     lines = [
         "# Findings shift",
         "",
         f"Old: {old_name}; new: {new_name}. Of {len(claims)} claims and Δ-over-prior entries, "
-        f"{len(changed)} changed verdict and {len(moved)} moved beyond the old 95 % interval "
-        "(new estimate outside it).",
+        f"{changed} changed verdict and {moved} moved beyond the old 95 % interval (new estimate outside it).",
         "",
-        "| claim | comparison (new decisive) | old verdict | new verdict | old Δ [95 %] | new Δ [95 %] | beyond |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for c in claims:
-        beyond = "–" if c["beyond"] is None else ("**yes**" if c["beyond"] else "no")
-        old, new = c["old"], c["new"]
-        if old != new:
-            old, new = f"**{old}**", f"**{new}**"
-        pair = f"{c['new_d']['better']} vs {c['new_d']['worse']}" if c["new_d"] else "–"
-        lines.append(f"| {c['claim']} | {pair} | {old} | {new} | {_dB(c['old_d'])} | {_dB(c['new_d'])} | {beyond} |")
-    lines += [
+        *md_table(CLAIM_COLUMNS, [claim_cells(c) for c in claims]),
         "",
         "## Rows: new − old PSNR, paired over the runs both have",
         "",
-        "| row | n (runs) | Δ PSNR (dB) | 95 % interval | p |",
-        "|---|---|---|---|---|",
+        *md_table(ROW_COLUMNS, [row_cells(r) for r in rows]),
     ]
-    for r in rows:
-        ci = f"[{r['low']:+.2f}, {r['high']:+.2f}]"
-        lines.append(f"| {r['row']} | {r['n']} | {r['mean']:+.2f} | {ci} | {r['p']:.3f} |")
     return "\n".join(lines) + "\n"
 
 
