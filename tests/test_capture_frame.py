@@ -138,7 +138,7 @@ def test_capture_display_records_its_factor_and_refuses_another(scene, tmp_path)
     cal = exposure.calibrate_display([scene], [spc_dir], 1, tmp_path / "cal-capture.json", capture=True)
     assert cal["capture_factor"] == 2 and cal["K"] == 1
     rec = exposure.write_display(spc_dir, tmp_path / "cal-capture.json", 1, tmp_path / "display", capture=True)
-    assert rec["capture_factor"] == 2 and rec["views"] == VIEWS and rec["metered_views"] == VIEWS - 1
+    assert rec["capture_factor"] == 2 and rec["views"] == VIEWS and rec["gain"] == cal["level"] * rec["flux_per_linear"]
     assert len(list((tmp_path / "display" / "images").glob("*.png"))) == VIEWS
     exposure.calibrate_display([scene], [spc_dir], 1, tmp_path / "cal-k1.json")
     with pytest.raises(ValueError, match=r"capture_factor = 1.*capture_factor = 2"):

@@ -1,5 +1,7 @@
-"""The evaluation protocol: no row but the oracle reads the evaluation scene's ground truth, the
-physics rows' display gain is metered from their own frames."""
+"""The evaluation protocol: no row but the oracle reads the evaluation scene's ground truth; every
+photon-fed row's display level follows the exposure the camera reports."""
+
+import shutil
 
 import numpy as np
 import pytest
@@ -18,26 +20,27 @@ TINY_3DGS = {"iterations": 8, "densify_from": 4, "densify_until": 6, "densify_ev
 TINY_PIX2PIX = {"ngf": 8, "ndf": 8, "num_downs": 3, "n_layers_D": 2}
 
 
-# --- the metered display --------------------------------------------------------------------------
+# --- the display follows the camera's reported exposure ------------------------------------------
 
 
-def test_metered_display_is_exposure_invariant_and_the_fit_finds_the_known_level():
+def test_the_fit_finds_the_known_level_and_the_likelihood_needs_none():
     rng = np.random.default_rng(0)
-    linear = [rng.uniform(0.0, 0.5, (2, 6, 8, 3)), rng.uniform(0.0, 0.5, (2, 6, 8, 3))]
-    linear[1] *= linear[0].mean() / linear[1].mean()  # both scenes: the same mean linear level
+    linear = [rng.uniform(0.0, 0.5, (2, 6, 8, 3)), rng.uniform(0.0, 0.2, (2, 6, 8, 3))]  # a bright and a dark scene
     gts = [spc.linear_to_srgb(x) for x in linear]
-    phis = [3e4 * linear[0], 7e5 * linear[1]]  # two exposures, unknown to the rule
-    level, per_scene = exposure.fit_level(phis, gts)
-    assert level == pytest.approx(linear[0].mean(), rel=1e-5)
-    assert per_scene == pytest.approx([linear[0].mean()] * 2, rel=1e-5)
-    shown = exposure.display_srgb(phis[1], exposure.metered_gain(phis[1], level))
-    assert np.abs(shown - gts[1]).max() < 1e-5  # the exact image back, without knowing 7e5
-    brighter = 10 * phis[1]
-    assert np.array_equal(exposure.display_srgb(brighter, exposure.metered_gain(brighter, level)), shown)
-    assert exposure.metered_gain(np.zeros((2, 2)), level) == 1.0  # no detection at all: finite, no NaN
-    # Metering on a biased estimate (half the flux) while showing the true flux: the level absorbs the bias.
-    biased, _ = exposure.fit_level([0.5 * p for p in phis], gts, shown=phis)
-    assert biased == pytest.approx(linear[0].mean() / 2, rel=1e-5)
+    fluxes = [3e4, 7e5]  # their exposures (flux at linear 1), as their cameras report them
+    true = [f * x for f, x in zip(fluxes, linear)]
+    level, per_scene = exposure.fit_level(true, gts, fluxes)
+    assert level == pytest.approx(1.0, rel=1e-6) and per_scene == pytest.approx([1.0, 1.0], rel=1e-6)
+    # The SPAD likelihood recovers the flux itself: k = 1, as calibrate_display writes it.
+    # An estimator biased low by half: the level absorbs the bias, and the dark scene stays dark.
+    biased, _ = exposure.fit_level([0.5 * t for t in true], gts, fluxes)
+    assert biased == pytest.approx(0.5, rel=1e-6)
+    shown = exposure.display_srgb(0.5 * true[1], biased * fluxes[1])
+    assert np.abs(shown - gts[1]).max() < 1e-5
+    assert spc.srgb_to_linear(shown).mean() < 0.5 * spc.srgb_to_linear(exposure.display_srgb(true[0], fluxes[0])).mean()
+    assert exposure.metered_gain(np.zeros((2, 2)), 0.18) == 1.0  # a preview of no detection: finite, no NaN
+    with pytest.raises(ValueError, match="flux per linear intensity"):
+        exposure.scene_error(true[0], gts[0], 0.0)
 
 
 @pytest.mark.parametrize("kind", ["frames", "continuous", "constant", "dark"])
@@ -45,20 +48,59 @@ def test_scene_error_equals_the_per_pixel_mse(kind):
     """The grouped error (one sRGB encoding per distinct flux) is the per-pixel sRGB MSE at every level."""
     rng = np.random.default_rng(1)
     gt = rng.uniform(0.0, 1.0, (3, 5, 7, 3)).astype(np.float32)
-    meter = {
+    shown = {
         "frames": rng.integers(0, 5, gt.shape) * 1e3,  # an MLE of K = 4 frames: 5 values
         "continuous": rng.gamma(2.0, 1e3, gt.shape),  # every pixel distinct
         "constant": np.full(gt.shape, 42.0),
-        "dark": np.zeros(gt.shape),  # no detection: the unit gain
+        "dark": np.zeros(gt.shape),  # no detection: black
     }[kind].astype(np.float32)
-    shown = meter[::-1].copy()  # shown differs from what is metered
-    error = exposure.scene_error(meter, gt, shown)
-    for level in (1e-3, 0.05, 0.18, 0.7, 1.0):
-        displayed = exposure.display_srgb(shown, exposure.metered_gain(meter, level))
+    error = exposure.scene_error(shown, gt, 2.5e3)
+    for level in (0.05, 0.3, 1.0, 4.0, 20.0):
+        displayed = exposure.display_srgb(shown, level * 2.5e3)
         direct = np.mean((displayed - gt.astype(np.float64)) ** 2)
         assert error(level) == pytest.approx(direct, rel=1e-12, abs=1e-15), (kind, level)
     with pytest.raises(ValueError, match="shape"):
-        exposure.scene_error(meter, gt[:2])
+        exposure.scene_error(shown, gt[:2], 1.0)
+
+
+def test_a_scene_four_times_darker_exposed_four_times_longer_displays_four_times_darker(tmp_path):
+    """Same frames (the camera exposes the darker scene 4x longer), so only the reported exposure
+    can tell them apart: the MLE display and a translator's display are 4x darker in linear light."""
+    folders = {"bright": tmp_path / "bright", "dark": tmp_path / "dark"}
+    write_builtin_scene("courtyard", folders["bright"] / "scenes" / "s", height=24, width=32, views=9)
+    shutil.copytree(folders["bright"] / "scenes" / "s", folders["dark"] / "scenes" / "s")
+    for path in sorted((folders["dark"] / "scenes" / "s" / "images").glob("*.png")):  # 4x darker, same cameras
+        io.write_image(path, spc.linear_to_srgb(spc.srgb_to_linear(io.read_rgb(path)) / 4).astype(np.float32), bits=16)
+    records = {
+        name: simulate_scene(root / "scenes" / "s", root / "spc" / "s", spc.SPCParams(frames=8), seed=3)
+        for name, root in folders.items()
+    }
+    ratio = records["dark"]["exposure"]["photons_per_frame"] / records["bright"]["exposure"]["photons_per_frame"]
+    assert ratio == pytest.approx(4.0, rel=0.02)  # auto exposure: 4x longer (8-bit images: not exactly 4)
+    cal = tmp_path / "display-k8.json"
+    exposure.calibrate_display([folders["bright"] / "scenes" / "s"], [folders["bright"] / "spc" / "s"], 8, cal)
+    train_translator(
+        TranslatorJob(
+            "prior", training_data("fixed", [_augmented(folders["bright"])]), tmp_path / "prior", {}, {"crop": 16}
+        )
+    )
+    mle, prior = {}, {}
+    for name, root in folders.items():
+        exposure.write_display(root / "spc" / "s", cal, 8, root / "mle")
+        translate_scene(tmp_path / "prior", root / "spc" / "s", root / "scenes" / "s", root / "prior", threads=1)
+        mle[name], prior[name] = (_mean_linear(root / kind / "images") for kind in ("mle", "prior"))
+    assert mle["dark"] / mle["bright"] == pytest.approx(1 / ratio, rel=0.03)
+    assert prior["dark"] / prior["bright"] == pytest.approx(1 / ratio, rel=0.03)
+
+
+def _mean_linear(folder) -> float:
+    return float(np.mean([spc.srgb_to_linear(io.read_rgb(p)).mean() for p in sorted(folder.glob("*.png"))]))
+
+
+def _augmented(root):
+    out = root / "augment"
+    augment_scene(root / "scenes" / "s", root / "spc" / "s", out, 4, AugmentSettings())
+    return out
 
 
 # --- no oracle information outside oracle rows ----------------------------------------------------

@@ -21,6 +21,7 @@ from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
 from spc3d.training import run
 from spc3d.translate import base, model_io, online, train, validate
+from spc3d.translate.camera import CAMERA_WHITE, from_camera
 
 from conftest import InterruptAt, Interrupted
 
@@ -64,7 +65,8 @@ def test_sources_hold_the_training_views_only(world):
 
 
 def test_the_target_is_the_augmented_view_cropped(world):
-    """The cheap path (warp only the crop) gives the pixels of augment.py's full warp, cropped."""
+    """The cheap path (warp only the crop) gives the pixels of augment.py's full warp, cropped, as
+    the scene's camera exposure shows them (the translators' domain)."""
     sampler = _sampler(world, crop=16)
     replay = np.random.Generator(np.random.PCG64())
     replay.bit_generator.state = sampler.rng.bit_generator.state
@@ -75,7 +77,8 @@ def test_the_target_is_the_augmented_view_cropped(world):
     y, x = (int(replay.integers(0, n - 16 + 1)) for n in (32, 40))
     full = augment.augment_image(spc.linear_to_srgb(view).astype(np.float32), p)
     assert scene is source
-    np.testing.assert_allclose(rgb.permute(1, 2, 0).numpy(), full[y : y + 16, x : x + 16], atol=2e-5)
+    shown = from_camera(rgb, source.exposure)  # back to the display: the target is the view itself
+    np.testing.assert_allclose(shown.permute(1, 2, 0).numpy(), full[y : y + 16, x : x + 16], atol=2e-5)
 
 
 def test_online_pairs_are_aligned(world):
@@ -84,7 +87,8 @@ def test_online_pairs_are_aligned(world):
     for _ in range(2):
         source, binary, rgb = sampler.sample()
         p = spc.detection_probability(
-            spc.flux_from_srgb(rgb.permute(1, 2, 0).numpy(), source.flux_scale), source.params
+            spc.flux_from_srgb(from_camera(rgb, source.exposure).permute(1, 2, 0).numpy(), source.flux_scale),
+            source.params,
         )
         mean = binary.permute(1, 2, 0).numpy()
         assert np.abs(mean - p).mean() < 0.01 and np.abs(mean - p).max() < 0.05  # sd <= 0.008 per pixel
@@ -98,7 +102,7 @@ def test_each_scene_keeps_its_exposure(world):
     ones, expected, other = {n: [] for n in FLUX}, {n: [] for n in FLUX}, {n: [] for n in FLUX}
     for _ in range(60):
         source, binary, rgb = sampler.sample()
-        linear = spc.srgb_to_linear(rgb.permute(1, 2, 0).numpy())
+        linear = spc.srgb_to_linear(from_camera(rgb, source.exposure).permute(1, 2, 0).numpy())
         swap = [f for n, f in FLUX.items() if n != source.name][0]
         ones[source.name].append(binary.mean().item())
         expected[source.name].append(spc.detection_probability(linear * source.flux_scale, source.params).mean())
@@ -186,7 +190,8 @@ def scripted(monkeypatch):
 
 def _grey_trainer(world, iterations=40, patience=3):
     """A scripted translator validated every 2 steps against 0.5 grey views."""
-    views = [validate.ValidationView(f"grey/{i}", torch.zeros(3, 8, 12), torch.full((3, 8, 12), 0.5)) for i in range(2)]
+    grey = torch.full((3, 8, 12), 0.5)  # shown at exposure CAMERA_WHITE the camera image is the display
+    views = [validate.ValidationView(f"grey/{i}", torch.zeros(3, 8, 12), grey, CAMERA_WHITE) for i in range(2)]
     s = train.TrainSettings(iterations=iterations, batch_size=1, crop=8, log_every=2)
     validator = validate.Validator(views, validate.ValidationSettings(every=2, patience=patience), iterations)
     sampler = _sampler(world, crop=8, batch=1)

@@ -56,7 +56,7 @@ def test_sources_hold_only_training_views(scene):
         load_source("mle", scene / "scenes" / "gallery", scene / "spc" / "gallery")
 
 
-def test_bernoulli_source_uses_the_camera_physics_and_the_metered_gain(scene):
+def test_bernoulli_source_uses_the_camera_physics_and_its_reported_exposure(scene):
     src = load_source(
         "bernoulli-k4",
         scene / "scenes" / "gallery",
@@ -66,9 +66,10 @@ def test_bernoulli_source_uses_the_camera_physics_and_the_metered_gain(scene):
     )
     rec = io.read_json(scene / "spc" / "gallery" / "spc.json")
     gain = io.read_json(scene / "mle" / "k4" / "display.json")["gain_likelihood"]
-    assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == gain != rec["flux_scale"]
+    assert isinstance(src.objective, BernoulliObjective) and src.objective.flux_scale == gain
     assert src.objective.q == rec["params"]["q"] and src.objective.exposure_s == rec["params"]["exposure_s"]
-    assert 0.5 < gain / rec["flux_scale"] < 2.0  # metered from the frames, near the simulator's exposure
+    p = rec["params"]  # the flux at linear 1 of the camera's reported exposure: the likelihood needs no level
+    assert gain == pytest.approx(rec["exposure"]["photons_per_frame"] / (p["q"] * p["exposure_s"]), rel=1e-12)
     assert set(torch.unique(src.views.targets * 4).round().tolist()) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     with pytest.raises(ValueError, match="stage2.frames=5 but .* K=4"):
         load_source(
@@ -195,7 +196,7 @@ def test_single_stage_table_ranks_within_equal_budgets(tmp_path):
     assert "**25.00**" in md  # the K = 16 row is best among K = 16 rows only (it outscores every K = 1 row)
     assert md.count("**0.5500**") == 1 and "(K = 1)" in md and "(K = 16)" in md and "(oracle, no photons)" in md
     assert "19.42" in md and "NeRF on binary (single stage; frame at S× resolution" in md and "ground truth" in md
-    assert "metered from their own training views' frames" in md and "| random " in md
+    assert "displayed at the exposure the camera reports" in md and "| random " in md
     assert "\\textbf{21.00}" in (tmp_path / "single_stage.tex").read_text()
     assert (tmp_path / "single_stage.csv").read_text().startswith("approach,combination")
 

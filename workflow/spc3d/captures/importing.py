@@ -23,7 +23,8 @@ folder every combination reads, as a simulated scene has them.
     hot_pixels.png       hot pixels detected from the training views' counts, with sensor.json's map
     spc.json             the sensor (q, T, dcr, CFA), hot-pixel report, detection rates, the
                          scored views (``held_out_views``: they set no hot pixel);
-                         ``flux_scale`` null: a capture's exposure is unknown, as for any camera
+                         ``flux_scale`` null, and an ``exposure`` block metered from the
+                         training views (the capture reports none: :func:`metered_exposure`)
 
 Stage 1 and stage 2 read the sensor back with :func:`spc_sensor`: a folder without it holds the
 simulator's RGB frames (K, H, W, 3), one bit per channel and pixel.
@@ -46,7 +47,7 @@ from spc3d.captures.folders import capture_hot_pixels, capture_views, read_captu
 from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from spc3d.physics import sensors, spc
 from spc3d.physics.hot_pixels import write_hot_pixel_map
-from spc3d.physics.record import HOT_FILE
+from spc3d.physics.record import HOT_FILE, exposure_record
 
 log = logging.getLogger(__name__)
 
@@ -194,15 +195,16 @@ def import_capture_frames(
     total = sum(counts)
     train, test = split_views(len(views))
     hot, hot_record = capture_hot_pixels([counts[i] for i in train], sensor)  # the scored views stay unseen
+    flux = [sensors.mle_rgb(s, k, params, pattern, hot).astype(np.float32) for s in counts]
     with io.atomic_path(out_dir, is_dir=True) as tmp:
-        for view, cube, s in zip(views, cubes, counts):
+        for view, cube, phi in zip(views, cubes, flux):
             io.save_frames(tmp / "frames" / f"{view}.npz", *spc.pack_frames(cube))
             binary = sensors.sensor_input(cube[:1], pattern, ~hot)
             io.write_image(tmp / "binary" / f"{view}.png", binary)
             io.write_image(tmp / "capture" / f"{view}.png", binary, bits=16)
             average = sensors.demosaic_average(cube, pattern, ~hot)
             io.write_image(tmp / "average" / f"{view}.png", np.clip(average, 0.0, 1.0).astype(np.float32), bits=16)
-            io.write_image(tmp / "mle" / f"{view}.exr", sensors.mle_rgb(s, k, params, pattern, hot).astype(np.float32))
+            io.write_image(tmp / "mle" / f"{view}.exr", phi)
         write_hot_pixel_map(tmp / HOT_FILE, hot)
         record = {
             "scene": Path(out_dir).name,
@@ -211,6 +213,7 @@ def import_capture_frames(
             "sensor": {"cfa": pattern.to_json(), "white": pattern.white, "name": pattern.name},
             "sensor_from_config": {k: sensor.record[k] for k in (overrides or {})},
             "sensor_json_values": sensor.record.get("overridden"),
+            "exposure": metered_exposure([flux[i] for i in train], params),
             "flux_scale": None,
             "flux_scale_calibrated": False,
             "target_detection": None,
@@ -230,6 +233,20 @@ def import_capture_frames(
         io.write_json(tmp / "spc.json", record)
     log.info("capture %s: %d views, K = %d, %d hot pixels", folder, len(views), k, int(hot.sum()))
     return record
+
+
+def metered_exposure(flux: list[np.ndarray], params: spc.SPCParams) -> dict:
+    """The exposure block of a capture, which reports none: the training views' mean MLE flux
+    shown at 18 % linear grey (:data:`spc3d.inputs.exposure.PREVIEW_LEVEL`), as a camera's display
+    meters; the scored views do not take part."""
+    mean = float(np.mean([f.mean(dtype=np.float64) for f in flux]))
+    if not mean > 0:
+        raise ValueError(
+            "the capture's training views hold no detection above the dark counts (mean MLE flux 0): "
+            "nothing to expose for; check the capture (lens cap on?)"
+        )
+    photons = params.q * params.exposure_s * mean / PREVIEW_LEVEL
+    return exposure_record(photons, "metered", level=PREVIEW_LEVEL, metered_views=len(flux))
 
 
 # --------------------------------------------------------------------------------------------

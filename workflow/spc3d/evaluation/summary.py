@@ -18,7 +18,7 @@ import pandas as pd
 
 from spc3d import io
 from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
-from spc3d.physics.record import read_spc_record
+from spc3d.physics.record import camera_exposure, read_spc_record
 from spc3d.plotting import pyplot, save_png
 
 
@@ -34,6 +34,7 @@ def scene_row(scene_dir: Path, spc_dir: Path, colmap_dirs: dict[str, Path], role
         "size": f"{meta['width']}x{meta['height']}",
         "K": rec["params"]["frames"],
         "flux_scale": rec["flux_scale"],
+        "exposure_photons": camera_exposure(rec, f"{spc_dir / 'spc.json'}"),  # per frame at linear 1, as reported
         "sensor": (rec.get("sensor") or {}).get("name", "RGB (simulated)"),
         "detection_rate": rec["mean_detection_rate"],
         "saturated": rec.get("mean_saturated_fraction"),

@@ -30,7 +30,7 @@ from tqdm import tqdm
 from spc3d import io, llff
 from spc3d.cameras import split_views
 from spc3d.physics import spc
-from spc3d.physics.record import params_from_record, read_spc_record
+from spc3d.physics.record import camera_exposure, exposure_record, params_from_record, read_spc_record
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +139,7 @@ def augment_scene(
             "settings": asdict(settings),
             "seed": seed,
             "flux_scale": flux_scale,
+            "exposure": spc_record.get("exposure") or exposure_record(camera_exposure(spc_record), "auto"),
             "spc_params": spc_record["params"],
             "samples": samples,
             "wall_s": round(time.perf_counter() - t0, 3),

@@ -32,10 +32,13 @@ physics inversions, one file per view and kind, stems as the scene's images:
 The flux scale is the simulated camera's exposure, set from the scene's *training* views (as an
 auto-exposing camera meters what it captures for training; the scored, held-out views of
 :func:`spc3d.cameras.split_views` do not set it). ``spc.json`` names those views
-(``held_out_views``) and counts the views metered (``metered_views``). Nothing downstream of a
-non-oracle row reads the flux scale: the MLE rows' display gain is metered from the frames
-(:mod:`spc3d.inputs.exposure`). ``spc.json``'s ``mean_mle_psnr_exact_gain_db`` (the MLE shown
-at that exact gain) is a diagnostic of the simulation for the data summary, not a table row.
+(``held_out_views``) and counts the views metered (``metered_views``), and reports the exposure
+as the camera would, in its ``exposure`` block (:func:`spc3d.physics.record.exposure_record`:
+photons per pixel and frame at scene linear intensity 1, and whether the camera chose it): a SPAD
+user knows the exposure each capture was taken with, so every non-oracle row's display level
+comes from it and the scene's own photons (:mod:`spc3d.inputs.exposure`); a dark scene then
+displays dark. ``spc.json``'s ``mean_mle_psnr_exact_gain_db`` (the MLE of all K frames shown at
+that exposure) is a diagnostic of the simulation for the data summary, not a table row.
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ from spc3d import io, llff
 from spc3d.cameras import split_views
 from spc3d.physics import spc
 from spc3d.physics.flux_scale import calibrate_flux_scale
-from spc3d.physics.record import check_capture_factor
+from spc3d.physics.record import check_capture_factor, exposure_record
 
 log = logging.getLogger(__name__)
 
@@ -280,6 +283,12 @@ def simulate_scene(
         record = {
             "scene": name,
             "params": dataclasses.asdict(params),
+            "exposure": exposure_record(
+                params.q * params.exposure_s * scale,
+                "auto" if calibrated else "fixed",
+                target_detection=target_detection if calibrated else None,
+                metered_views=len(train) if calibrated else None,
+            ),
             "flux_scale": scale,
             "flux_scale_calibrated": calibrated,
             "target_detection": target_detection if calibrated else None,

@@ -1,28 +1,30 @@
-"""Display exposure of the physics rows without ground truth: average metering, fitted on training scenes.
+"""Display exposure of the photon-fed rows without ground truth: the camera's reported exposure.
 
-The maximum-likelihood flux φ̂ of a view (photons/s, :func:`spc3d.physics.spc.mle_flux`) must be divided
-by a gain g to become displayable linear light. The exact gain is the scene's ``flux_scale``, but
-the simulator set that from the scene's ground-truth images: a row that used it would read the
-evaluation ground truth (an oracle). A real SPAD user has the frames, q, T, dcr and the training
-scenes, so the MLE and SPAD-likelihood rows use
+A SPAD user knows the exposure each capture was taken with, including an automatic exposure the
+camera chose itself: ``spc.json``'s ``exposure`` block (:func:`spc3d.physics.record.exposure_record`)
+reports H, the signal photons a pixel detects per frame at scene linear intensity 1. The flux per
+unit linear intensity is then F = H / (q T), and a flux estimate φ̂ (photons/s,
+:func:`spc3d.physics.spc.mle_flux`) becomes displayable linear light at the gain
 
-    g = mean(φ̂ over every pixel, channel and training view of the scene's first K frames) / k
+    g = k F        linear = φ̂ / g
 
-the average-metering rule of a camera's auto exposure: the scene's mean estimated flux is shown at
-linear level k. Only the training views are metered: the held-out views of
-:func:`spc3d.cameras.split_views` are scored, and no non-oracle row may read their frames (their
-images are still written, as outputs; ``display.json`` counts ``metered_views`` of ``views``).
-The level is fitted once on the *training* scenes (where ground truth is known), with the same
-estimator, the same K and the same metering, to minimise their sRGB mean squared error over all
-their views (:func:`fit_level`); it is the only number the rule learns, like the translators learn
-brightness from the same scenes. Two levels are fitted, because two different fluxes are shown:
+where k is the one number the rule learns, fitted once on the *training* scenes (where ground
+truth is known) with the same estimator and the same K, to minimise their sRGB mean squared error
+over all their views (:func:`fit_level`). A dark scene exposed longer then displays dark, as it
+is: the display follows the scene's own photon rates and its known exposure, never its images.
+Two gains are written, because two different fluxes are shown:
 
-    level             the MLE image itself (biased at small K: a pixel firing once in K = 1 frames is
-                      clamped at ln 2 / (qT), so the mean MLE flux underestimates the scene's)
-    level_likelihood  the flux the SPAD likelihood recovers, which is unbiased: on the training
-                      scenes that is their true flux (their exposure times their ground truth)
+    level             k of the MLE image itself (biased at small K: a pixel firing once in K = 1
+                      frames is clamped at ln 2 / (qT), so its flux is under- or overestimated)
+    level_likelihood  1: the SPAD likelihood recovers the flux itself, whose display at F is the
+                      scene's linear intensity by the camera model (fitting k on the training
+                      scenes' true flux gives exactly 1, see the tests)
 
-``capture=True`` meters the capture-resolution frame instead (``capture/`` of
+The translators use the same exposure (:mod:`spc3d.translate.camera`). A capture that reports no
+exposure is metered at import (its training views' mean flux shown at :data:`PREVIEW_LEVEL`,
+:func:`spc3d.captures.importing.metered_exposure`).
+
+``capture=True`` reads the capture-resolution frame instead (``capture/`` of
 :mod:`spc3d.inputs.build`, K = 1): each pixel's k ones among S² sub-pixel trials, φ̂ = mle_flux(k, S²).
 
 The SPAD-likelihood objective turns rendered linear intensity into flux with the second gain
@@ -43,16 +45,16 @@ from pathlib import Path
 import numpy as np
 
 from spc3d import io, llff
-from spc3d.cameras import split_views
 from spc3d.physics import sensors, spc
-from spc3d.physics.record import check_capture_factor, params_from_record, read_spc_record
+from spc3d.physics.record import camera_exposure, check_capture_factor, params_from_record, read_spc_record
 
 RULE = (
-    "display gain g = mean MLE flux of the scene's first K frames (training views only) / k; k fitted "
-    "on the training scenes (same K, same metering) to minimise their sRGB MSE over all their views"
+    "display gain g = k F, F = the camera's reported exposure as flux per unit linear intensity "
+    "(spc.json exposure / (q T)); k fitted on the training scenes (same K) to minimise their sRGB MSE "
+    "over all their views; the SPAD likelihood's flux is shown at k = 1"
 )
 PREVIEW_LEVEL = 0.18  # average metering: the mean flux is shown at 18 % linear grey (a camera's default)
-LEVEL_RANGE = (1e-3, 1.0)  # linear display levels searched for k (1e-3: almost black; 1: full white)
+LEVEL_RANGE = (0.05, 20.0)  # k searched: from 20x brighter to 20x darker than the exposure says
 
 
 def mle_views(spc_dir: str | os.PathLike, K: int, capture: bool = False) -> tuple[list[str], np.ndarray]:
@@ -94,18 +96,12 @@ def capture_factor(spc_dir: str | os.PathLike) -> int:
     return check_capture_factor(read_spc_record(spc_dir).get("capture_factor", 1))
 
 
-def metered(spc_dir: str | os.PathLike, names: list[str]) -> np.ndarray:
-    """(N,) bool: the views of ``names`` the display meters, all but the scored (held-out) ones,
-    which ``spc.json`` names (``held_out_views``; without it: :func:`spc3d.cameras.split_views` of
-    ``names``, which are in the scene's order: both are sorted by name)."""
-    held_out = read_spc_record(spc_dir).get("held_out_views")
-    if held_out is None:
-        held_out = [names[i] for i in split_views(len(names))[1]]
-    held_out = set(held_out)
-    keep = np.array([n not in held_out for n in names])
-    if not keep.any():
-        raise ValueError(f"{spc_dir}: every view {names} is held out; the display meters training views only")
-    return keep
+def flux_per_linear(spc_dir: str | os.PathLike) -> float:
+    """F: the flux (photons/s) at scene linear intensity 1 that the camera's reported exposure
+    implies (``exposure.photons_per_frame`` / (q T))."""
+    record = read_spc_record(spc_dir)
+    p = params_from_record(record)
+    return camera_exposure(record, f"{Path(spc_dir) / 'spc.json'}") / (p.q * p.exposure_s)
 
 
 def display_srgb(phi: np.ndarray, gain: float) -> np.ndarray:
@@ -114,55 +110,49 @@ def display_srgb(phi: np.ndarray, gain: float) -> np.ndarray:
 
 
 def metered_gain(phi: np.ndarray, level: float) -> float:
-    """The average-metering gain: mean flux shown at linear ``level`` (a floor keeps it positive:
-    a scene with no detection at all gets the dark-count-free unit gain)."""
-    return _gain(float(np.mean(phi, dtype=np.float64)), level)
-
-
-def _gain(mean: float, level: float) -> float:
+    """The average-metering gain of a preview: mean flux shown at linear ``level`` (a floor keeps it
+    positive: a scene with no detection at all gets the unit gain)."""
+    mean = float(np.mean(phi, dtype=np.float64))
     return mean / level if mean > 0 else 1.0
 
 
-def scene_error(meter: np.ndarray, gt: np.ndarray, shown: np.ndarray | None = None) -> Callable[[float], float]:
-    """k -> the sRGB MSE against ``gt`` of ``shown`` (default: ``meter``) displayed at the gain
-    metered from ``meter`` at level k.
+def scene_error(shown: np.ndarray, gt: np.ndarray, flux: float) -> Callable[[float], float]:
+    """k -> the sRGB MSE against ``gt`` of flux ``shown`` displayed at gain k ``flux`` (F).
 
     The pixels are grouped by their value of ``shown`` once, so each k costs one sRGB encoding per
     distinct value rather than per pixel: an MLE image takes K + 1 values per channel (K frames),
     and :func:`fit_level` evaluates each scene at ~120 levels. Per group u (n pixels, truths y):
     sum (s_u - y)^2 = n s_u^2 - 2 s_u sum y + sum y^2, all in float64.
     """
-    shown = meter if shown is None else shown
     if shown.shape != gt.shape:
         raise ValueError(f"scene_error: the shown flux has shape {shown.shape} but its ground truth {gt.shape}")
+    if not (math.isfinite(flux) and flux > 0):
+        raise ValueError(f"scene_error: the flux per linear intensity must be finite and > 0, got {flux!r}")
     values, inverse = np.unique(shown, return_inverse=True)
     inverse = inverse.ravel()
     truth = gt.astype(np.float64, copy=False).ravel()
     count = np.bincount(inverse, minlength=values.size).astype(np.float64)
     total = np.bincount(inverse, weights=truth, minlength=values.size)
     squares = float(np.dot(truth, truth))
-    mean = float(np.mean(meter, dtype=np.float64))
 
     def error(level: float) -> float:
-        s = display_srgb(values, _gain(mean, level)).astype(np.float64)
+        s = display_srgb(values, level * flux).astype(np.float64)
         return max(float(count @ (s * s) - 2.0 * (total @ s) + squares), 0.0) / truth.size  # >= 0: a sum of squares
 
     return error
 
 
-def fit_level(
-    phis: list[np.ndarray], gts: list[np.ndarray], shown: list[np.ndarray] | None = None
-) -> tuple[float, list[float]]:
-    """The level k minimising the summed sRGB MSE against ``gts`` of ``shown`` (default: ``phis``)
-    displayed at the gain metered from ``phis`` at k, and each scene's own best level (a
-    diagnostic: how much the scenes disagree). Golden-section search on log k over
-    :data:`LEVEL_RANGE` (the error is unimodal in k: too dark, right, too bright)."""
-    shown = shown if shown is not None else [None] * len(phis)
-    if not phis or len(phis) != len(gts) or len(shown) != len(phis):
+def fit_level(shown: list[np.ndarray], gts: list[np.ndarray], fluxes: list[float]) -> tuple[float, list[float]]:
+    """The level k minimising the summed sRGB MSE against ``gts`` of ``shown`` displayed at gain
+    k F (``fluxes``: each scene's F), and each scene's own best level (a diagnostic: how much the
+    scenes disagree). Golden-section search on log k over :data:`LEVEL_RANGE` (the error is
+    unimodal in k: too bright, right, too dark)."""
+    if not shown or not len(shown) == len(gts) == len(fluxes):
         raise ValueError(
-            f"fit_level: need matching non-empty lists of flux stacks and ground truths, got {len(phis)} and {len(gts)}"
+            f"fit_level: need matching non-empty lists of flux stacks, ground truths and exposures, got "
+            f"{len(shown)}, {len(gts)} and {len(fluxes)}"
         )
-    errors = [scene_error(p, g, v) for p, g, v in zip(phis, gts, shown)]
+    errors = [scene_error(v, g, f) for v, g, f in zip(shown, gts, fluxes)]
 
     def best(error) -> float:
         lo, hi = math.log(LEVEL_RANGE[0]), math.log(LEVEL_RANGE[1])
@@ -187,10 +177,7 @@ def fit_level(
 def calibrate_display(
     scene_dirs: list[str], spc_dirs: list[str], K: int, out_json: str | os.PathLike, capture: bool = False
 ) -> dict:
-    """Fit the display level on training scenes (ground truth + their frames); write ``out_json``.
-
-    Each scene's gain is metered on its training views, as :func:`write_display` meters, and the
-    error is taken over all its views (a training scene's ground truth is there to be used).
+    """Fit the display level k on training scenes (ground truth, frames, exposure); write ``out_json``.
     ``capture``: fit the capture frame's display (:func:`mle_views`)."""
     t0 = time.perf_counter()
     if not scene_dirs:
@@ -198,30 +185,26 @@ def calibrate_display(
             "the display level of the mle / bernoulli rows is fitted on the training scenes, but none "
             "was given (scenes.train is empty)"
         )
-    meters, phis, gts, fluxes, factors = [], [], [], [], set()
+    phis, gts, fluxes, factors = [], [], [], set()
     for scene_dir, spc_dir in zip(scene_dirs, spc_dirs):
         names, phi = mle_views(spc_dir, K, capture)
         scene = llff.read_scene(scene_dir)
-        gt = scene.images[[scene.names.index(n) for n in names]]
-        meters.append(phi[metered(spc_dir, names)])
         phis.append(phi)
-        gts.append(gt)
-        fluxes.append(spc.flux_from_srgb(gt, read_spc_record(spc_dir)["flux_scale"]))  # a training scene's truth
+        gts.append(scene.images[[scene.names.index(n) for n in names]])
+        fluxes.append(flux_per_linear(spc_dir))
         factors.add(capture_factor(spc_dir) if capture else 1)
     if len(factors) > 1:
         raise ValueError(f"training scenes {list(spc_dirs)} have capture frames of different capture_factor {factors}")
-    level, per_scene = fit_level(meters, gts, phis)
-    level_likelihood, per_scene_likelihood = fit_level(meters, gts, fluxes)
+    level, per_scene = fit_level(phis, gts, fluxes)
     names = [Path(d).name for d in scene_dirs]
     record = {
         "K": K,
         "capture_factor": factors.pop(),
         "level": level,
-        "level_likelihood": level_likelihood,
+        "level_likelihood": 1.0,
         "rule": RULE,
         "training_scenes": names,
         "per_scene_level": dict(zip(names, per_scene)),
-        "per_scene_level_likelihood": dict(zip(names, per_scene_likelihood)),
         "wall_s": round(time.perf_counter() - t0, 3),
     }
     io.write_json(out_json, record)
@@ -236,7 +219,7 @@ def write_display(
     capture: bool = False,
 ) -> dict:
     """A scene's MLE images of its first ``K`` frames (``capture``: of its capture frame) at the
-    gain metered on its training views; an image for every view (no ground truth read)."""
+    gain of its reported exposure and the fitted level; an image for every view (no ground truth read)."""
     t0 = time.perf_counter()
     cal = io.read_json(calibration)
     S = capture_factor(spc_dir) if capture else 1
@@ -247,8 +230,8 @@ def write_display(
             "calibrate_display with the same K and capture"
         )
     names, phi = mle_views(spc_dir, K, capture)
-    keep = metered(spc_dir, names)
-    gain = metered_gain(phi[keep], cal["level"])
+    flux = flux_per_linear(spc_dir)
+    gain = cal["level"] * flux
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         for name, view in zip(names, phi):
             io.write_image(tmp / "images" / f"{name}.png", display_srgb(view, gain))
@@ -258,14 +241,13 @@ def write_display(
             "capture_factor": S,
             "gain": gain,
             "level": cal["level"],
-            "gain_likelihood": metered_gain(phi[keep], cal["level_likelihood"]),
-            "level_likelihood": cal["level_likelihood"],
-            "mean_flux": float(np.mean(phi[keep], dtype=np.float64)),
+            "gain_likelihood": cal.get("level_likelihood", 1.0) * flux,
+            "level_likelihood": cal.get("level_likelihood", 1.0),
+            "flux_per_linear": flux,
+            "exposure": read_spc_record(spc_dir).get("exposure"),
             "rule": RULE,
             "calibration": str(calibration),
             "views": len(names),
-            "metered_views": int(keep.sum()),
-            "held_out_views": [n for n, k in zip(names, keep) if not k],
             "wall_s": round(time.perf_counter() - t0, 3),
         }
         io.write_json(tmp / "display.json", record)
@@ -273,6 +255,6 @@ def write_display(
 
 
 def read_gain(display_dir: str | os.PathLike, likelihood: bool = False) -> float:
-    """The metered gain of a scene's rows at one K (``display.json`` of :func:`write_display`): the
-    MLE image's, or (``likelihood``) the one for the flux the SPAD likelihood recovers."""
+    """The gain of a scene's rows at one K (``display.json`` of :func:`write_display`): the MLE
+    image's, or (``likelihood``) the one for the flux the SPAD likelihood recovers."""
     return float(io.read_json(Path(display_dir) / "display.json")["gain_likelihood" if likelihood else "gain"])

@@ -7,6 +7,7 @@ so each reads the record one way.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -37,6 +38,42 @@ def read_spc_record(spc_dir: str | os.PathLike) -> dict:
 
 def params_from_record(record: dict) -> spc.SPCParams:
     return spc.SPCParams(**record["params"])
+
+
+EXPOSURE_KINDS = ("auto", "fixed", "metered")  # how the camera set the exposure it reports
+
+
+def exposure_record(photons_per_frame: float, how: str, **details) -> dict:
+    """spc.json's ``exposure`` block: what the camera reports about the exposure of its frames.
+
+    ``photons_per_frame`` is the expected number of signal photons a pixel detects per frame at
+    scene linear intensity 1 (q T times the flux at 1): the camera's exposure (time, aperture, ND)
+    times its radiometric calibration, in the units of the scene's images. ``how``: ``auto``
+    (the camera chose it by metering its training views), ``fixed`` (set by the user) or
+    ``metered`` (a capture that reports none: its mean flux shown at 18 % grey, as a camera's
+    display meters). A non-oracle row may read this block (a SPAD user knows the exposure each
+    capture was taken with), never the scene's images."""
+    if how not in EXPOSURE_KINDS:
+        raise ValueError(f"exposure how={how!r}: use one of {EXPOSURE_KINDS}")
+    if not (math.isfinite(photons_per_frame) and photons_per_frame > 0):
+        raise ValueError(f"exposure photons_per_frame={photons_per_frame!r}: must be finite and > 0")
+    return {"photons_per_frame": float(photons_per_frame), "how": how, **details}
+
+
+def camera_exposure(record: dict, where: str = "spc.json") -> float:
+    """The exposure the camera reports (:func:`exposure_record`): photons per pixel and frame at
+    scene linear intensity 1. A simulated folder written before the block existed gives q T times
+    its flux scale (the same number)."""
+    block = record.get("exposure")
+    if block:
+        return float(block["photons_per_frame"])
+    if record.get("flux_scale"):
+        p = record.get("params") or record["spc_params"]  # spc.json's or augment.json's name
+        return float(p["q"] * p["exposure_s"] * record["flux_scale"])
+    raise ValueError(
+        f"{where} reports no camera exposure (no 'exposure' block, no flux scale): written by an older "
+        "spc3d; delete that SPC folder so simulate_scene / the capture import writes it anew"
+    )
 
 
 HOT_FILE = "hot_pixels.png"

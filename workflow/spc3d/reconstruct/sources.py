@@ -17,9 +17,9 @@ MSE their mean (:mod:`spc3d.names`, ``SUFFIXES``).
 
 Every source yields targets aligned with the scene's cameras; only training views are returned
 (every 8th view is held out for evaluation, see :func:`spc3d.cameras.split_views`). Only ``gt``
-reads the scene's images: the others see the frames, q, T, dcr and what was learnt on the training
-scenes (the display gain of mle / bernoulli comes from :mod:`spc3d.inputs.exposure`, not from the
-simulator's flux scale, which was set from the ground truth).
+reads the scene's images: the others see the frames, q, T, dcr, the exposure the camera reports
+and what was learnt on the training scenes (the display gain of mle / bernoulli comes from
+:mod:`spc3d.inputs.exposure`: that exposure times a level fitted on the training scenes).
 """
 
 from __future__ import annotations
@@ -168,8 +168,8 @@ def bit_fractions(spc_dir: Path, names: list[str], frames: int) -> np.ndarray:
 
 
 def bernoulli_objective(spc_dir: Path, gain: float) -> BernoulliObjective:
-    """The SPAD likelihood with the camera's q, T and dcr (spc.json) and the metered display gain:
-    rendered linear intensity l means flux gain * l (the simulator's flux scale is not used)."""
+    """The SPAD likelihood with the camera's q, T and dcr (spc.json) and the display gain of the
+    camera's reported exposure: rendered linear intensity l means flux gain * l."""
     p = read_spc_record(spc_dir)["params"]
     return BernoulliObjective(
         flux_scale=gain, q=p["q"], exposure_s=p["exposure_s"], dark_count_rate=p["dark_count_rate"]

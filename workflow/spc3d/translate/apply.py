@@ -1,14 +1,15 @@
 """Applying a trained stage-1 model to a scene.
 
 ``translate_scene`` (rule ``translate_scene``) turns every view's binary input of a scene (the mean
-of its first K SPC frames, K = 1 by default) into sRGB with a trained model and writes
-``results/translate/{scene}/{method}/`` (atomically):
+of its first K SPC frames, K = 1 by default) into a camera image with a trained model and shows it
+at the exposure the scene's camera reports (:mod:`.camera`: a dark scene displays dark), then
+writes ``results/translate/{scene}/{method}/`` (atomically):
 
     images/{view}.png   one image per view, named like the scene's views (stage 2's source)
     prior/{view}.png    with a physics prior (:mod:`.prior`): the prior alone, what the network's
                         residual was added to (scored beside the translation, never a stage-2 source)
     translate.json      method, model folder, frames, self-ensemble size, per-image inference time,
-                        the prior's settings
+                        the prior's settings, the exposure it was displayed at
 
 ``ensemble`` (``stage1.ensemble``) averages the model's outputs over flips of the input, each
 flipped back (:func:`self_ensemble`; the geometric self-ensemble of EDSR, Lim et al. 2017): 1 = one
@@ -33,6 +34,8 @@ import torch
 from torch import Tensor
 
 from spc3d import io, llff
+from spc3d.physics.record import camera_exposure, read_spc_record
+from spc3d.translate.camera import from_camera
 from spc3d.translate.data import binary_input
 from spc3d.translate.model_io import load_translator
 
@@ -74,6 +77,7 @@ def translate_scene(
         torch.set_num_threads(threads)
     method, model = load_translator(model_dir)
     pattern, valid = input_sensor(model_dir, spc_dir)
+    exposure = camera_exposure(read_spc_record(spc_dir), f"{Path(spc_dir) / 'spc.json'}")
     names = llff.read_scene(scene_dir, with_images=False).names
     times = []
     residual = model.prior is not None and model.trainable  # the prior alone is the output of ``prior`` itself
@@ -85,12 +89,12 @@ def translate_scene(
             x = torch.from_numpy(binary_input(Path(spc_dir) / "frames" / f"{name}.npz", frames, pattern, valid))
             x = x.permute(2, 0, 1)[None].to(model.device)
             t0 = time.perf_counter()
-            y = self_ensemble(model.translate, x, ensemble)[0]
+            y = from_camera(self_ensemble(model.translate, x, ensemble)[0], exposure)
             times.append(time.perf_counter() - t0)
             io.write_image(Path(tmp) / "images" / f"{name}.png", y.permute(1, 2, 0).cpu().numpy())
             if residual:
                 with torch.no_grad():
-                    base = model.prior(x)[0].clamp(0.0, 1.0)
+                    base = from_camera(model.prior(x)[0], exposure)
                 io.write_image(Path(tmp) / "prior" / f"{name}.png", base.permute(1, 2, 0).cpu().numpy())
         prior = None if model.prior is None else {"sigma": model.prior.sigma, "gain": model.prior.gain.tolist()}
         record = {
@@ -103,6 +107,8 @@ def translate_scene(
             "seconds_per_image": float(np.mean(times)),
             "device": str(model.device),
             "prior": prior,
+            "exposure": exposure,
+            "display": "camera image shown at the scene's reported exposure (spc3d.translate.camera)",
             "sensor": None if pattern is None else pattern.name,
         }
         io.write_json(Path(tmp) / "translate.json", record)

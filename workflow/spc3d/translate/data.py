@@ -20,7 +20,9 @@ from torch import Tensor
 
 from spc3d import io
 from spc3d.physics import sensors, spc
+from spc3d.physics.record import camera_exposure
 from spc3d.physics.sensors import CFAPattern
+from spc3d.translate.camera import to_camera
 
 
 def binary_input(
@@ -73,7 +75,8 @@ def sensor_pattern(sensor: dict | None) -> CFAPattern | None:
 def load_pairs(
     augment_dirs: list[str | os.PathLike], frames: int, sensor: dict | None = None
 ) -> tuple[list[Tensor], list[Tensor]]:
-    """All pairs of the given augment folders: binary and rgb lists of (3, H, W) float32 tensors.
+    """All pairs of the given augment folders: binary and rgb lists of (3, H, W) float32 tensors,
+    the rgb as the camera's exposure shows it (the translators' domain, :mod:`.camera`).
 
     Scenes may differ in size (LLFF captures keep their aspect ratio): training crops a fixed
     square from every pair, so only the crop must fit. ``sensor``: the inputs as that sensor
@@ -86,11 +89,12 @@ def load_pairs(
         names = sorted(p.stem for p in (folder / "frames").glob("*.npz"))
         if not names:
             raise FileNotFoundError(f"{folder}/frames holds no .npz pairs: run the augment_scene rule first")
-        record = io.read_json(folder / "augment.json") if pattern is not None else None
+        record = io.read_json(folder / "augment.json")
+        exposure = camera_exposure(record, f"{folder / 'augment.json'}")
         for i, name in enumerate(names):
             r = io.read_rgb(folder / "rgb" / f"{name}.png")
             drawn = {}
-            if record is not None:
+            if pattern is not None:
                 stream = f"{record['scene']}/sensor"
                 drawn = sensor_draws(r, record["flux_scale"], record["spc_params"], record["seed"], stream, i)
             b = binary_input(folder / "frames" / f"{name}.npz", frames, pattern, **drawn)
@@ -99,7 +103,7 @@ def load_pairs(
                     f"{folder}: pair {name} has binary {b.shape} but rgb {r.shape}; rerun the augment_scene rule"
                 )
             binary.append(chw(b))
-            rgb.append(chw(r))
+            rgb.append(to_camera(chw(r), exposure))
     return binary, rgb
 
 

@@ -4,7 +4,8 @@
 ``build_translator`` builds its Translator; ``check_pretrained`` loads published weights early.
 ``write_model_folder`` writes a trained translator's folder (``results/models/{method}/``, atomically):
 
-    model.pt      the kept networks (every module's state) + method name + resolved Config
+    model.pt      the kept networks (every module's state) + method name + resolved Config + the
+                  domain of their outputs (``camera``: :mod:`.camera`)
     train.json    the training's record (:func:`spc3d.translate.train.train_translator`)
     curve.csv     the losses every ``log_every`` iterations and the validation PSNR / L1
     curve.png     the training curve (:mod:`.curves`)
@@ -24,11 +25,14 @@ import torch
 from spc3d import io
 from spc3d.training import build_config, default_device
 from spc3d.translate import TRANSLATORS
+from spc3d.translate.camera import DOMAIN
 from spc3d.translate.curves import plot_curve
 
 
-def model_config(method: str, settings: dict):
-    """The method's Config: ``preset: paper`` starts from the published sizes; other keys override."""
+def model_config(method: str, settings: dict, frames: int | None = None):
+    """The method's Config: ``preset: paper`` starts from the published sizes; other keys override.
+    A Config with a ``frames`` field (a method that must know K: ``classical``) takes ``frames``, the
+    job's stage1.frames (a sweep point's K), never its own settings block's: one K per run."""
     if method not in TRANSLATORS:
         raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(TRANSLATORS)}")
     module = TRANSLATORS[method]
@@ -37,6 +41,13 @@ def model_config(method: str, settings: dict):
     settings.pop("checkpoint", None)
     if preset not in (None, "paper"):
         raise ValueError(f"stage1.{method}.preset={preset!r}: use 'paper' or leave it out (CPU default)")
+    has_frames = any(f.name == "frames" for f in dataclasses.fields(module.Config))
+    if has_frames and "frames" in settings:
+        raise ValueError(
+            f"stage1.{method}.frames: the frames per input are stage1.frames for every method; set K there"
+        )
+    if has_frames and frames is not None:
+        settings["frames"] = frames
     base = (
         module.Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in module.PAPER.items()})
         if preset == "paper"
@@ -68,7 +79,8 @@ def write_model_folder(out_dir, model, record: dict, curve: list[dict], modules:
     with io.atomic_path(out_dir, is_dir=True) as tmp:
         tmp = Path(tmp)
         tmp.mkdir(parents=True, exist_ok=True)
-        torch.save({"method": record["method"], "config": record["settings"], "modules": modules}, tmp / "model.pt")
+        saved = {"method": record["method"], "config": record["settings"], "modules": modules, "domain": DOMAIN}
+        torch.save(saved, tmp / "model.pt")
         io.write_json(tmp / "train.json", record)
         io.write_text(tmp / "curve.csv", frame.to_csv(index=False, float_format="%.6g"))
         plot_curve(frame, tmp / "curve.png", record["method"], record.get("model_step"))
@@ -80,6 +92,11 @@ def load_translator(model_dir: str | os.PathLike, device: torch.device | None = 
     if not path.is_file():
         raise FileNotFoundError(f"{path} is missing: train the method first (rule train_translator)")
     saved = io.load_torch(path, "trained stage-1 model")
+    if saved.get("domain") != DOMAIN:
+        raise ValueError(
+            f"{path} was trained to output display images, not camera images (spc3d.translate.camera): it "
+            f"predates the exposure-aware display; delete {Path(model_dir)} so the workflow trains it again"
+        )
     method = saved["method"]
     cfg = build_config(TRANSLATORS[method].Config, saved["config"], f"{path} config")
     if any(f.name == "vgg_loss" for f in dataclasses.fields(cfg)):

@@ -5,9 +5,9 @@ of a random training scene, a fresh random affine map from the augmentation's di
 (:func:`spc3d.inputs.augment.sample_params`, zoom / rotation / shear / flip), a random ``crop`` window of
 the warped view (only that window is warped: :func:`spc3d.inputs.augment.warp_linear`), and a fresh
 Bernoulli sample of ``frames`` 1-bit frames of exactly that window at the scene's exposure (its
-``flux_scale`` and physics from ``spc.json``), averaged as the fixed pairs' input is. The RGB
-target is the warped window in sRGB, so input and target are pixel-aligned as in a fixed pair,
-but no sample is ever seen twice.
+``flux_scale`` and physics from ``spc.json``), averaged as the fixed pairs' input is. The target
+is the warped window as the camera's reported exposure shows it (:mod:`.camera`), so input and
+target are pixel-aligned as in a fixed pair, but no sample is ever seen twice.
 
 One numpy PCG64 stream, seeded by the run's seed, draws everything in a fixed order; its state
 is in :meth:`OnlineSampler.state`, so a resumed run continues the same sequence bit for bit.
@@ -31,7 +31,8 @@ from spc3d import llff
 from spc3d.cameras import split_views
 from spc3d.inputs.augment import AugmentSettings, sample_params, warp_linear
 from spc3d.physics import sensors, spc
-from spc3d.physics.record import params_from_record, read_spc_record
+from spc3d.physics.record import camera_exposure, params_from_record, read_spc_record
+from spc3d.translate.camera import to_camera
 from spc3d.translate.data import chw, sensor_pattern
 
 
@@ -43,6 +44,7 @@ class SceneSource:
     views: list[np.ndarray]  # its training views, linear light, (H, W, 3) float64
     flux_scale: float  # photons/s at linear 1.0 (the scene's exposure, from spc.json)
     params: spc.SPCParams  # its physics, with frames = the K frames averaged into the input
+    exposure: float  # photons per frame at linear 1 the camera reports (the targets' domain, .camera)
 
 
 def load_sources(
@@ -63,7 +65,8 @@ def load_sources(
         train, _ = split_views(len(scene.names))
         views = [spc.srgb_to_linear(scene.images[i]).astype(np.float64) for i in train]
         physics = dataclasses.replace(params_from_record(record), frames=frames)
-        sources.append(SceneSource(scene_dir.name, views, float(record["flux_scale"]), physics))
+        exposure = camera_exposure(record, f"{spc_dir / 'spc.json'}")
+        sources.append(SceneSource(scene_dir.name, views, float(record["flux_scale"]), physics, exposure))
     return sources
 
 
@@ -103,11 +106,11 @@ class OnlineSampler:
 
     def sample(self) -> tuple[SceneSource, Tensor, Tensor]:
         """One fresh pair: its scene, the K-frame mean of a Bernoulli sample of the crop and the crop
-        in sRGB, both (3, crop, crop)."""
+        as the camera shows it (:mod:`.camera`), both (3, crop, crop)."""
         source, linear = self.window()
         srgb = spc.linear_to_srgb(linear).astype(np.float32)
         self.drawn += 1
-        return source, chw(self.input(srgb, source, self.rng)), chw(srgb)
+        return source, chw(self.input(srgb, source, self.rng)), to_camera(chw(srgb), source.exposure)
 
     def input(self, srgb: np.ndarray, source: SceneSource, rng: np.random.Generator) -> np.ndarray:
         """(H, W, 3) input of a fresh Bernoulli sample of ``srgb``: the K-frame mean, or as the
@@ -124,7 +127,10 @@ class OnlineSampler:
         binary = torch.stack([b for _, b, _ in pairs])
         if self.paired:
             return binary, torch.stack([r for _, _, r in pairs])
-        rgb = [chw(spc.linear_to_srgb(self.window()[1]).astype(np.float32)) for _ in range(self.batch)]
+        rgb = []
+        for _ in range(self.batch):
+            source, linear = self.window()
+            rgb.append(to_camera(chw(spc.linear_to_srgb(linear).astype(np.float32)), source.exposure))
         return binary, torch.stack(rgb)
 
     def calibration_pairs(self):
@@ -134,7 +140,7 @@ class OnlineSampler:
         for source in self.sources:
             for linear in source.views:
                 srgb = spc.linear_to_srgb(np.clip(linear, 0.0, 1.0)).astype(np.float32)
-                yield chw(self.input(srgb, source, rng)), chw(srgb)
+                yield chw(self.input(srgb, source, rng)), to_camera(chw(srgb), source.exposure)
 
     def describe(self) -> dict:
         """For train.json: the mode, the samples drawn (all distinct), the scenes and their views."""

@@ -29,8 +29,9 @@ from torch import Tensor
 from spc3d import io, llff
 from spc3d.cameras import split_views
 from spc3d.evaluation.metrics import psnr
-from spc3d.physics.record import read_spc_record
+from spc3d.physics.record import camera_exposure, read_spc_record
 from spc3d.training import build_config
+from spc3d.translate.camera import from_camera
 from spc3d.translate.data import binary_input, chw, sensor_draws, sensor_pattern
 
 
@@ -58,6 +59,7 @@ class ValidationView:
     name: str  # scene/view
     binary: Tensor  # (3, H, W) K-frame mean of its stored SPC frames
     rgb: Tensor  # (3, H, W) ground truth sRGB
+    exposure: float  # photons per frame at linear 1 its camera reports: a translation's display (.camera)
 
 
 def load_views(
@@ -70,6 +72,7 @@ def load_views(
     for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
         names = llff.read_scene(scene_dir, with_images=False).names
         record = read_spc_record(spc_dir)
+        exposure = camera_exposure(record, f"{spc_dir / 'spc.json'}")
         for i in split_views(len(names))[1]:
             name = names[i]
             rgb = io.read_rgb(scene_dir / "images" / f"{name}.png")
@@ -78,17 +81,20 @@ def load_views(
                 stream, seed = f"{scene_dir.name}/sensor-validation", record.get("seed") or 0
                 drawn = sensor_draws(rgb, record["flux_scale"], record["params"], seed, stream, int(i))
             binary = binary_input(spc_dir / "frames" / f"{name}.npz", frames, pattern, **drawn)
-            views.append(ValidationView(f"{scene_dir.name}/{name}", chw(binary), chw(rgb)))
+            views.append(ValidationView(f"{scene_dir.name}/{name}", chw(binary), chw(rgb), exposure))
     return views
 
 
 def score(translate: Callable[[Tensor], Tensor], views: list[ValidationView]) -> dict[str, float]:
-    """Mean PSNR (dB) and L1 error of ``translate`` ((B, 3, H, W) binary -> sRGB in [0, 1], e.g. a
-    model's ``translate``) on ``views`` (views of one size batched)."""
+    """Mean PSNR (dB) and L1 error of ``translate`` ((B, 3, H, W) binary -> camera image in [0, 1],
+    e.g. a model's ``translate``) on ``views`` (views of one size batched), each output displayed
+    at its view's exposure (:func:`.camera.from_camera`) and compared with the ground truth, as an
+    evaluation scene's translation is scored."""
     psnrs, l1s = [], []
     for size in dict.fromkeys(tuple(v.binary.shape) for v in views):
         group = [v for v in views if tuple(v.binary.shape) == size]
-        out = translate(torch.stack([v.binary for v in group])).cpu()
+        camera = translate(torch.stack([v.binary for v in group])).cpu()
+        out = from_camera(camera, torch.tensor([v.exposure for v in group], dtype=torch.float64))
         for pred, v in zip(out, group):
             psnrs.append(psnr(pred, v.rgb))
             l1s.append(float((pred - v.rgb).abs().mean()))
