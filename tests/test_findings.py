@@ -1,5 +1,7 @@
-"""The findings: claims decided on paired runs by the exact sign-flip test, Holm over a claim's
-comparisons, DESCRIPTIVE ONLY below MIN_RUNS, equal budgets only (cross-budget claims labelled)."""
+"""The findings: claims decided on paired runs by the exact sign-flip test against the smallest
+effect of interest δ (one-sided at 2.5 %, equivalence by two one-sided tests), Holm over a claim's
+comparisons per family, DESCRIPTIVE ONLY below MIN_RUNS, equal budgets only (cross-budget claims
+labelled)."""
 
 import json
 import math
@@ -11,10 +13,14 @@ from spc3d import io
 from spc3d.evaluation.findings import (
     MIN_RUNS,
     N_RANDOM,
+    effect_p,
     holm,
+    holm_families,
     interval,
     needed_runs,
+    one_sided_p,
     sign_flip_p,
+    smallest_p,
     verdict,
     write_findings,
 )
@@ -56,19 +62,108 @@ def test_interval_is_the_inverted_test():
             assert sign_flip_p(d - (lo - eps)) <= 0.05 and sign_flip_p(d - (hi + eps)) <= 0.05  # just outside: not
 
 
+def test_one_sided_p_on_small_known_cases():
+    assert one_sided_p([1.0, 2.0, 3.0]) == 1 / 8  # only the observed pattern reaches mean 2: half the two-sided 0.25
+    assert one_sided_p([1.0, 2.0, 3.0], greater=False) == 1.0
+    assert one_sided_p(np.arange(1.0, 7.0)) == 1 / 64 == smallest_p(6, one_sided=True)
+    assert one_sided_p([0.5, 1.0, 1.5], shift=1.0) == 0.75  # d - 1 = (-0.5, 0, 0.5): sums 0, 1, -1, 0 (twice)
+    assert one_sided_p(np.zeros(8)) == one_sided_p(np.zeros(8), greater=False) == 1.0  # ties count
+    batch = np.array([[1.0, 2.0, 3.0], [-1.0, -2.0, -3.0]])
+    assert np.array_equal(one_sided_p(batch), [1 / 8, 1.0])  # vectorised over leading axes
+    many = np.arange(1.0, 21.0)  # n > 16: Monte-Carlo, (1 + count) / (2 + 2B) over the patterns and their mirrors
+    assert one_sided_p(many) == pytest.approx(sign_flip_p(many) / 2) and one_sided_p(many) <= 3 / (2 + 2 * N_RANDOM)
+    # δ = 0.25 against runs 0.1 dB apart: short of δ (1/64), above -δ (1/64), not above δ (1)
+    assert effect_p(np.full(6, 0.1), 0.25) == (1.0, 1 / 64, 1 / 64)
+    p_holds, p_short, p_low = effect_p(batch, 0.5)
+    assert p_holds.shape == p_short.shape == p_low.shape == (2,)
+    with pytest.raises(ValueError, match="must be finite and ≥ 0"):
+        effect_p([1.0, 2.0], -0.1)
+    with pytest.raises(ValueError, match="finite paired difference"):
+        one_sided_p([1.0, math.nan])
+
+
+def test_one_sided_tests_agree_with_the_interval():
+    """Rejecting at 2.5 % one-sided is the two-sided 95 % interval clearing the bound."""
+    rng = np.random.default_rng(3)
+    for n, draws in ((6, 4), (9, 4), (12, 4), (18, 1)):  # 18: Monte-Carlo patterns
+        for _ in range(draws):
+            d = rng.normal(0.3, 0.5, n)
+            lo, hi = interval(d)
+            towards = one_sided_p(d, greater=bool(d.mean() > 0))
+            assert towards == pytest.approx(sign_flip_p(d) / 2, rel=1e-12)
+            for delta in rng.uniform(0.0, 0.8, 4):
+                p_holds, p_short, p_low = effect_p(d, delta)
+                assert (lo > delta) == (p_holds <= 0.025), (n, d, delta)
+                assert (hi < delta) == (p_short <= 0.025), (n, d, delta)
+                assert (lo > -delta) == (p_low <= 0.025), (n, d, delta)
+
+
 def test_holm_against_a_hand_computation():
     p = [0.01, 0.04, 0.03, 0.005]
     # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1 = 0.02, 0.03, 0.06, 0.04; made monotone: 0.06 for the last
     assert holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
     np.testing.assert_allclose(holm([[0.5, 0.6], [0.01, 0.02]]), [[1.0, 1.0], [0.02, 0.02]])  # capped at 1, per row
-    assert [needed_runs(m) for m in (1, 2, 4, 8)] == [6, 7, 8, 9]  # 2 / 2^N ≤ 0.05 / m
+    assert [needed_runs(m) for m in (1, 2, 4, 8)] == [6, 7, 8, 9]  # 1 / 2^N ≤ 0.025 / m
+    holds, short, equivalent = holm_families([[0.01, 0.5]], [[0.9, 0.004]], [[0.001, 0.02]])
+    np.testing.assert_allclose(holds, [[0.02, 0.5]])
+    np.testing.assert_allclose(short, [[0.9, 0.008]])
+    np.testing.assert_allclose(equivalent, [[0.9, 0.04]])  # Holm of max(p_short, p_low) = (0.9, 0.02)
 
 
 def test_verdict_rules():
-    assert verdict([1.0, 2.0], [0.01, 0.03], 6) == "HOLDS"
-    assert verdict([1.0, 2.0], [0.01, 0.3], 6) == "INCONCLUSIVE"
-    assert verdict([1.0, -2.0], [0.3, 0.03], 6) == "DOES NOT HOLD"
-    assert verdict([1.0], [0.01], MIN_RUNS - 1) == "DESCRIPTIVE ONLY"
+    # Holm-adjusted p per comparison of each family (holds: H0 Δ ≤ δ, short: H0 Δ ≥ δ, equivalent:
+    # H0 |Δ| ≥ δ), each tested at 0.025
+    assert verdict([0.005, 0.015], [1.0, 1.0], [1.0, 1.0], 6) == "HOLDS"
+    assert verdict([0.005, 0.15], [1.0, 0.9], [1.0, 0.9], 6) == "INCONCLUSIVE"
+    assert verdict([0.03], [0.97], [0.97], 6) == "INCONCLUSIVE"  # 0.03 > 0.025
+    assert verdict([0.15, 1.0], [0.9, 0.015], [0.9, 0.3], 6) == "DOES NOT HOLD"  # short of δ, not within ±δ
+    assert verdict([0.15, 1.0], [0.9, 0.015], [0.9, 0.02], 6) == "EQUIVALENT"  # short of δ, within ±δ
+    assert verdict([1.0, 1.0], [0.01, 0.02], [0.01, 0.3], 6) == "DOES NOT HOLD"  # one failing is not equivalent
+    assert verdict([1.0, 1.0], [0.3, 0.5], [0.01, 0.02], 6) == "INCONCLUSIVE"  # equivalence alone does not fail
+    assert verdict([0.005], [1.0], [1.0], MIN_RUNS - 1) == "DESCRIPTIVE ONLY"
+    batch = verdict([[0.005], [1.0], [1.0]], [[1.0], [0.01], [0.01]], [[1.0], [0.5], [0.01]], 6)
+    assert list(batch) == ["HOLDS", "DOES NOT HOLD", "EQUIVALENT"]  # vectorised over claims
+
+
+def _decide(diffs: list, smallest_effect: float) -> str:
+    """The verdict of one claim whose comparisons have these paired run differences."""
+    families = holm_families(*zip(*(effect_p(d, smallest_effect) for d in diffs)))
+    return str(verdict(*families, min(len(d) for d in diffs)))
+
+
+def test_equivalence_and_the_margin_on_known_effects():
+    rng = np.random.default_rng(5)
+
+    def runs(mean, sd):
+        return rng.normal(mean, sd, 12)
+
+    assert _decide([runs(0.0, 0.05)], 0.25) == "EQUIVALENT"  # no effect: the rows differ by less than δ
+    assert _decide([runs(1.0, 0.1)], 0.25) == "HOLDS"
+    small = runs(0.15, 0.02)  # a real effect, smaller than δ
+    assert _decide([small], 0.25) == "EQUIVALENT" and _decide([small], 0.0) == "HOLDS"
+    assert _decide([runs(-1.0, 0.1)], 0.25) == "DOES NOT HOLD"
+    assert _decide([runs(0.25, 0.5)], 0.25) == "INCONCLUSIVE"
+    # two comparisons: one clears δ and the other is equivalent, or one falls below -δ
+    assert _decide([runs(1.0, 0.1), runs(0.0, 0.05)], 0.25) == "EQUIVALENT"
+    assert _decide([runs(0.0, 0.05), runs(-1.0, 0.1)], 0.25) == "DOES NOT HOLD"
+    assert _decide([runs(1.0, 0.1), runs(2.0, 0.1)], 0.25) == "HOLDS"
+
+
+def test_without_a_margin_the_two_sided_rule_and_never_equivalent():
+    """δ = 0: a one-comparison claim HOLDS (DOES NOT HOLD) exactly when the two-sided test rejects at
+    5 % with a positive (negative) mean, and EQUIVALENT cannot happen."""
+    rng = np.random.default_rng(2)
+    for n in (6, 8, 11):
+        d = rng.normal(rng.uniform(-1.5, 1.5, (1500, 1)), 1.0, (1500, n))
+        p_holds, p_short, p_low = effect_p(d, 0.0)
+        holds, short, equivalent = holm_families(p_holds[:, None], p_short[:, None], p_low[:, None])
+        v = verdict(holds, short, equivalent, n)
+        p, mean = sign_flip_p(d), d.mean(axis=1)
+        old = np.select(
+            [(mean > 0) & (p <= 0.05), (mean < 0) & (p <= 0.05)], ["HOLDS", "DOES NOT HOLD"], "INCONCLUSIVE"
+        )
+        assert np.array_equal(v, old), n
+        assert (equivalent >= 0.5).all() and "EQUIVALENT" not in v
 
 
 # --- coverage and power under simulation ---------------------------------------------------------
@@ -88,11 +183,16 @@ NULLS = {
 }
 
 
+def _verdicts(d: np.ndarray, smallest_effect: float = 0.0) -> np.ndarray:
+    """The verdicts of one-comparison claims, one per replicate (row of paired run differences)."""
+    p_holds, p_short, p_low = effect_p(d, smallest_effect)
+    return verdict(*holm_families(p_holds[:, None], p_short[:, None], p_low[:, None]), d.shape[1])
+
+
 def _rejection_rate(d: np.ndarray) -> float:
-    """Fraction of replicates (rows) whose one-comparison claim gets a verdict (HOLDS or DOES NOT HOLD)."""
-    p = sign_flip_p(d)[:, None]
-    v = verdict(d.mean(axis=1)[:, None], holm(p), d.shape[1])
-    return float(np.isin(v, ["HOLDS", "DOES NOT HOLD"]).mean())
+    """Fraction of replicates (rows) whose one-comparison claim gets a verdict (HOLDS or DOES NOT HOLD)
+    with δ = 0: the two one-sided tests at 2.5 % together, the two-sided test at 5 %."""
+    return float(np.isin(_verdicts(d), ["HOLDS", "DOES NOT HOLD"]).mean())
 
 
 def test_coverage_false_positives_and_power_by_run_count():
@@ -120,6 +220,24 @@ def test_coverage_false_positives_and_power_by_run_count():
         assert rate[name, 10, 2.0] > rate[name, 10, 0.5], name  # power rises with the shift
         assert rate[name, 10, 1.0] > rate[name, 6, 1.0], name  # and with the runs
     assert rate["normal", 10, 1.5] > 0.5
+
+
+def test_false_positives_at_the_margin():
+    """True effect exactly δ: HOLDS at most 2.5 % of the time, and so is the claimed effect wrongly
+    excluded (DOES NOT HOLD or EQUIVALENT); true effect exactly -δ: EQUIVALENT at most 2.5 %. Under
+    every null (symmetric about the true effect), at n = 6 (the smallest p is 1/64) and 10."""
+    delta, reps, scale = 0.25, 4000, 0.4  # run differences of sd 0.4 dB x the null's
+    rng = np.random.default_rng(11)
+    slack = 3 * math.sqrt(0.025 * 0.975 / reps)
+    for name, (draw, sd) in NULLS.items():
+        noise = draw(rng, (reps, 10)) * scale / sd
+        for n in (6, 10):
+            at_delta = _verdicts(delta + noise[:, :n], delta)
+            assert np.mean(at_delta == "HOLDS") <= 0.025 + slack, (name, n)
+            assert np.isin(at_delta, ["DOES NOT HOLD", "EQUIVALENT"]).mean() <= 0.025 + slack, (name, n)
+            assert np.mean(_verdicts(-delta + noise[:, :n], delta) == "EQUIVALENT") <= 0.025 + slack, (name, n)
+        inside = _verdicts(0.1 * noise, delta)  # no effect, small noise: equivalence has power
+        assert np.mean(inside == "EQUIVALENT") > 0.9, name
 
 
 # --- the findings files --------------------------------------------------------------------------
@@ -155,6 +273,26 @@ def _by_id(results: dict) -> dict:
     return {r["id"]: r for r in results["claims"]}
 
 
+def _two_sided_verdict(entry: dict) -> str:
+    """A claim's verdict by the rule without δ: Holm over its comparisons' two-sided p at 5 %, HOLDS when
+    every one is rejected with a positive mean, DOES NOT HOLD when one is with a negative mean."""
+    if entry["verdict"] == "NOT RUN" or entry["n"] < MIN_RUNS:
+        return entry["verdict"] if entry["verdict"] == "NOT RUN" else "DESCRIPTIVE ONLY"
+    means, adjusted = [c["mean"] for c in entry["comparisons"]], holm([c["p"] for c in entry["comparisons"]])
+    if any(m < 0 and a <= 0.05 for m, a in zip(means, adjusted)):
+        return "DOES NOT HOLD"
+    return "HOLDS" if all(m > 0 and a <= 0.05 for m, a in zip(means, adjusted)) else "INCONCLUSIVE"
+
+
+def _at_zero_margin(files, stem, **kwargs) -> dict:
+    """The findings with δ = 0: every claim and Δ-over-baseline entry gets the two-sided rule's verdict."""
+    out = write_findings(files, stem, NERF, smallest_effect=0.0, **kwargs)
+    entries = out["claims"] + out["over_prior"] + out["over_classical"]
+    assert [e["verdict"] for e in entries] == [_two_sided_verdict(e) for e in entries]
+    assert all(e["verdict"] != "EQUIVALENT" for e in entries) and out["smallest_effect_db"] == 0.0
+    return out
+
+
 def test_one_run_is_descriptive_only(tmp_path):
     files = [
         _record(tmp_path, f"pix2pixhd+{NERF}", "courtyard", 0, 22.0),
@@ -177,21 +315,32 @@ def test_one_run_is_descriptive_only(tmp_path):
         "| **DESCRIPTIVE ONLY** | pix2pixhd+nerf-grid vs pix2pixhd+3dgs | +1.00 | range [+1.00, +1.00] | – | 1 | 1 |"
         in md
     )
+    _at_zero_margin(files, tmp_path / "zero")
 
 
 def test_verdicts_on_six_paired_runs_with_holm(tmp_path):
     offsets = {f"pix2pixhd+{NERF}": 3.0, "pix2pixhd+3dgs": 2.0, f"none-x1+{NERF}": -4.0, "restormer+3dgs": 2.5}
     offsets |= {"bernoulli+3dgs": 1.0, "gt+3dgs": 10.0}
-    claims = _by_id(write_findings(_rows(tmp_path, offsets), tmp_path / "findings", NERF))
+    files = _rows(tmp_path, offsets)
+    claims = _by_id(write_findings(files, tmp_path / "findings", NERF))
     assert claims["two-stage-nerf"]["verdict"] == "HOLDS" and claims["two-stage-nerf"]["n"] == 6
-    assert claims["two-stage-nerf"]["decisive"]["adjusted"] == 2 / 64
+    # one-sided against δ: the smallest p at n = 6, 1/64 (half the two-sided 2/64), from the "holds" family
+    assert claims["two-stage-nerf"]["decisive"]["holm_holds"] == 1 / 64
+    assert claims["two-stage-nerf"]["family"] == "holds"
     assert claims["two-stage-nerf"]["decisive"]["low"] == pytest.approx(7.0, abs=0.1)  # [min, max] of the runs
-    best = claims["best-nerf"]  # m = 2 at n = 6: Holm needs p ≤ 0.025, the smallest p is 0.031
+    best = claims["best-nerf"]  # m = 2 at n = 6: Holm needs p ≤ 0.0125, the smallest one-sided p is 0.016
     assert best["m"] == 2 and best["verdict"] == "INCONCLUSIVE" and best["note"] == "needs n ≥ 7 for 2 comparisons"
     assert claims["best-3dgs"]["verdict"] == "DOES NOT HOLD"  # restormer + 3DGS is better
     assert claims["best-3dgs"]["decisive"]["worse"] == "restormer+3dgs"
+    assert claims["best-3dgs"]["family"] == "short"  # the Holm p of H0 Δ ≥ δ is shown
     assert "gt+3dgs" not in str(claims)
     assert "residual networks" in claims["best-nerf"]["claim"]
+    zero = _by_id(_at_zero_margin(files, tmp_path / "zero"))
+    assert [zero[k]["verdict"] for k in ("two-stage-nerf", "best-nerf", "best-3dgs")] == [
+        "HOLDS",
+        "INCONCLUSIVE",
+        "DOES NOT HOLD",
+    ]
 
 
 def test_equal_budgets_only_and_cross_budget_claims_labelled(tmp_path):
@@ -199,7 +348,8 @@ def test_equal_budgets_only_and_cross_budget_claims_labelled(tmp_path):
     offsets |= {"mle-k16+3dgs": 9.0, "pix2pixhd+3dgs": 2.0, "none+3dgs": -1.0, "none-x1-mse+3dgs": -6.0}
     offsets |= {"prior+3dgs": 0.5, "bernoulli+3dgs@mle-k16": 5.0}
     budgets = {"mle+3dgs": {"capture_factor": 4}, "none+3dgs": {"capture_factor": 4}, "mle-k16+3dgs": {"frames": 16}}
-    claims = _by_id(write_findings(_rows(tmp_path, offsets, budgets), tmp_path / "findings", NERF))
+    files = _rows(tmp_path, offsets, budgets)
+    claims = _by_id(write_findings(files, tmp_path / "findings", NERF))
     spad_mle = claims["spad-mle"]
     assert [c["worse"] for c in spad_mle["comparisons"]] == ["mle-x1+3dgs", "mle-x1-mse+3dgs"]
     assert "(vs mle-x1+3dgs, mle-x1-mse+3dgs)" in spad_mle["claim"]
@@ -212,6 +362,7 @@ def test_equal_budgets_only_and_cross_budget_claims_labelled(tmp_path):
     spad = claims["spad-two-stage"]  # pix2pixhd is better than the SPAD likelihood here; the prior is not
     assert {c["worse"] for c in spad["comparisons"]} == {"pix2pixhd+3dgs", "prior+3dgs"}
     assert spad["verdict"] == "INCONCLUSIVE" and spad["note"] == "needs n ≥ 7 for 2 comparisons"
+    _at_zero_margin(files, tmp_path / "zero")
 
 
 def test_unequal_budget_pairs_are_set_aside_and_mixed_budgets_refused(tmp_path):
@@ -253,10 +404,61 @@ def test_published_block_and_the_prior_table(tmp_path):
     assert prior["pix2pixhd-pub", "stage 1"]["decisive"]["mean"] == pytest.approx(-1.0)
     assert prior["pix2pixhd-pub", "stage 1"]["verdict"] == "DOES NOT HOLD"
     assert prior["pix2pixhd", "stage 1"]["verdict"] == "HOLDS" and prior["pix2pixhd", "3dgs"]["m"] == 1
-    assert prior["pix2pixhd-pub", "3dgs"]["verdict"] == "INCONCLUSIVE"  # ±0.05 dB of noise around 0
+    # ±0.05 dB of noise around 0: within ±δ (EQUIVALENT); without δ nothing can be said (INCONCLUSIVE)
+    assert prior["pix2pixhd-pub", "3dgs"]["verdict"] == "EQUIVALENT"
+    assert prior["pix2pixhd-pub", "3dgs"]["family"] == "equivalent"
+    zero = _at_zero_margin(files, tmp_path / "zero", stage1_files=stage1)
+    assert {r["id"]: r["verdict"] for r in zero["over_prior"]}["over-prior:pix2pixhd-pub:3dgs"] == "INCONCLUSIVE"
     md = (tmp_path / "findings.md").read_text()
-    assert "## Δ over the untrained prior" in md
+    assert "## Δ over the baselines\n\n### Δ over the untrained prior (`prior`)" in md
     assert "| pix2pixhd-pub | published networks | stage 1 | **DOES NOT HOLD** | -1.00 |" in md
+    assert "No other stage-1 method ran beside the `classical` rows in this run." in md
+    assert out["over_classical"] == []
+
+
+def test_the_classical_baseline(tmp_path):
+    """Every translator over ``classical`` and ``classical`` over ``prior``, at stage 1 and per model;
+    ``classical`` is a baseline, not a translator of the claims."""
+    offsets = {"pix2pixhd+3dgs": 2.0, "classical+3dgs": 1.0, "prior+3dgs": 0.0, f"classical+{NERF}": 0.5}
+    offsets |= {f"prior+{NERF}": 0.4, "restormer+3dgs": 1.05}
+    files = _rows(tmp_path, offsets)
+    stage1 = []
+    for scene, seed in ((s, k) for s in SCENES for k in SEEDS):
+        for source, psnr in (("pix2pixhd", 22.0), ("classical", 21.0), ("prior", 20.0)):
+            stage1.append(str(tmp_path / f"s1-{source}-{scene}-{seed}.json"))
+            io.write_json(
+                stage1[-1], {"scene": scene, "source": source, "seed": seed, "frames": 1, "mean": {"psnr": psnr}}
+            )
+    out = write_findings(files, tmp_path / "findings", NERF, stage1_files=stage1)
+    over = {(r["baseline"], r["translator"], r["stage"]): r for r in out["over_prior"] + out["over_classical"]}
+    assert set(over) == {
+        ("prior", "pix2pixhd", "stage 1"),
+        ("prior", "pix2pixhd", "3dgs"),
+        ("prior", "restormer", "3dgs"),
+        ("prior", "classical", "stage 1"),
+        ("prior", "classical", "3dgs"),
+        ("prior", "classical", NERF),
+        ("classical", "pix2pixhd", "stage 1"),
+        ("classical", "pix2pixhd", "3dgs"),
+        ("classical", "restormer", "3dgs"),
+    }
+    assert all(r["baseline"] == "prior" for r in out["over_prior"])  # tools read over_prior as before
+    assert over["prior", "classical", "3dgs"]["block"] == "non-learned"
+    assert over["prior", "classical", "3dgs"]["id"] == "over-prior:classical:3dgs"
+    assert over["classical", "pix2pixhd", "3dgs"]["verdict"] == "HOLDS"  # +1 dB
+    assert over["classical", "restormer", "3dgs"]["verdict"] == "EQUIVALENT"  # +0.05 dB
+    assert over["prior", "classical", NERF]["verdict"] == "EQUIVALENT"  # +0.1 dB: under δ
+    assert over["prior", "classical", "stage 1"]["verdict"] == "HOLDS"
+    claims = _by_id(out)
+    assert "classical" not in str(claims["best-3dgs"]) and "classical" not in str(claims["spad-two-stage"])
+    md = (tmp_path / "findings.md").read_text()
+    assert "### Δ over the classical method (`classical`)" in md
+    assert (
+        "| classical | non-learned | nerf-grid | **EQUIVALENT** | +0.13 | [+0.09, +0.19] | 0.016 (H0: Δ ∉ (−δ, δ)) |"
+        in md
+    )
+    html = (tmp_path / "findings.html").read_text()
+    assert "<h4>Δ over the classical method (classical)</h4>" in html
 
 
 def test_the_three_files_are_written(tmp_path):
@@ -270,6 +472,23 @@ def test_the_three_files_are_written(tmp_path):
     assert "| claim | by | verdict | decisive comparison | Δ PSNR (dB) | 95 % interval (or range) | Holm p |" in md
     html = (tmp_path / "findings.html").read_text()
     assert html.startswith("<!DOCTYPE html>") and "<b>HOLDS</b>" in html and "Δ over the untrained prior" in html
+
+
+def test_the_smallest_effect_is_stated_everywhere(tmp_path):
+    files = _rows(tmp_path, {"bernoulli+3dgs": 1.0, "mle-x1+3dgs": 0.0})
+    out = write_findings(files, tmp_path / "findings", NERF)
+    assert out["smallest_effect_db"] == 0.25 and io.read_json(tmp_path / "findings.json")["smallest_effect_db"] == 0.25
+    md = (tmp_path / "findings.md").read_text()
+    first, legend = md.splitlines()[2], md.split("\n\n")[3]
+    assert "δ = 0.25 dB" in first and legend.startswith("δ = 0.25 dB, the smallest effect of interest.")
+    assert "| **HOLDS** | bernoulli+3dgs vs mle-x1+3dgs | +1.01 | [+0.95, +1.08] | 0.016 (H0: Δ ≤ δ) | 6 | 1 |" in md
+    html = (tmp_path / "findings.html").read_text()
+    assert html.count("δ = 0.25 dB") == 2  # the opening line and the legend
+    out = write_findings(files, tmp_path / "wide", NERF, smallest_effect=1.5)  # +1 dB is within ±1.5 dB
+    assert "δ = 1.5 dB" in (tmp_path / "wide.md").read_text() and out["smallest_effect_db"] == 1.5
+    assert _by_id(out)["spad-mle"]["verdict"] == "EQUIVALENT"
+    with pytest.raises(ValueError, match="smallest_effect"):
+        write_findings(files, tmp_path / "bad", NERF, smallest_effect=-0.25)
 
 
 # --- two findings runs compared (spc3d.evaluation.shift) ------------------------------------------
@@ -298,7 +517,7 @@ def test_shift_of_a_run_against_itself_is_nil(tmp_path):
 
     run = _findings_run(tmp_path / "a", {f"pix2pixhd+{NERF}": 3.0, f"none-x1+{NERF}": -4.0})
     text = write_shift(run, run, names=("x", "x"))
-    assert "Old: x; new: x. Of 9 claims and Δ-over-prior entries, 0 changed verdict and 0 moved" in text
+    assert "Old: x; new: x. Of 9 claims and Δ-over-baseline entries, 0 changed verdict and 0 moved" in text
     assert "| two-stage-nerf" not in text and f"pix2pixhd+{NERF} vs none-x1+{NERF} | HOLDS | HOLDS |" in text
     assert f"| pix2pixhd+{NERF} | 6 | +0.00 | [+0.00, +0.00] | 1.000 |" in text
     assert (run / "tables" / "findings_shift.md").read_text() == text

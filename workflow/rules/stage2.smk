@@ -111,6 +111,7 @@ rule write_all_tables:
         expand("results/tables/findings.{ext}", ext=["md", "json"]),
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
+        smallest_effect=config["findings"]["smallest_effect_db"],
     log:
         "logs/tables/write_all_tables.log",
     conda:
@@ -123,6 +124,7 @@ rule tables:
     """Regenerate the tables from the metrics already on disk; never trains or evaluates anything."""
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
+        smallest_effect=config["findings"]["smallest_effect_db"],
         metrics=get_eval_outputs(),
         stage1=get_stage1_outputs(),
         folder="results/tables",

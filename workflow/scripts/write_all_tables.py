@@ -29,5 +29,5 @@ with logged(snakemake.log[0]):
     else:
         metrics, stage1 = list(snakemake.input.metrics), list(snakemake.input.stage1)
         folder = Path(snakemake.output[0]).parent
-    write_all_tables(metrics, stage1, folder, p.nerf_variant, LABELS)
+    write_all_tables(metrics, stage1, folder, p.nerf_variant, LABELS, smallest_effect=p.smallest_effect)
     stopping_table(metrics, Path(folder) / "stopping")

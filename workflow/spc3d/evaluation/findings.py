@@ -7,30 +7,55 @@ of evidence, not many. A claim compares two rows on the runs both have: one pair
 difference (dB) per run.
 
 **The test** is the exact sign-flip permutation test (Fisher 1935, Pitman 1937); its statistic is
-the mean paired difference. If the two rows are exchangeable within a run (no method difference),
-each paired difference is symmetric about 0 whatever its distribution, so the 2^n sign patterns are
-equally likely and the two-sided p (the fraction of patterns whose |mean| reaches the observed one)
-is exact: no normality, no large n. A t-interval is not used: at small n it is liberal for
-light-tailed or lumpy differences (with ±1 differences at n = 3, t rejects 25 % of the time, the
-same flaw as a percentile bootstrap over views). Up to 16 runs every pattern is enumerated; above,
-2^16 random patterns (fixed seed) give p = (1 + count) / (1 + B). The 95 % interval is the test
-inverted: the shifts δ whose test on d − δ is not rejected at 5 % (ends found by bisection).
+the mean paired difference. If the paired differences are symmetric about a shift s (for s = 0:
+the two rows are exchangeable within a run), the differences minus s have 2^n equally likely sign
+patterns whatever their distribution, so the p-values below are exact: no normality, no large n.
+A t-interval is not used: at small n it is liberal for light-tailed or lumpy differences (with ±1
+differences at n = 3, t rejects 25 % of the time, the same flaw as a percentile bootstrap over
+views). Up to 16 runs every pattern is enumerated; above, B = 2^16 random patterns (fixed seed)
+give p = (1 + count) / (1 + B) two-sided and (1 + count) / (2 + 2B) one-sided, counting each
+pattern and its mirror. The 95 % interval is the two-sided test inverted: the shifts whose test on
+d − shift is not rejected at 5 % (ends found by bisection).
 
-**The price is discreteness.** The smallest two-sided p is 2 / 2^n: n = 5 gives 0.0625 (it can
-never reject at 5 %), n = 6 gives 0.031, n = 9 gives 0.0039. Hence ``MIN_RUNS`` = 6, the smallest n
-at which the test can reject at all; at n = 6 with every run agreeing in sign the interval is
+**Effects that matter.** A claim "A beats B" means "A beats B by at least δ", the smallest effect
+of interest (``SMALLEST_EFFECT`` = 0.25 dB PSNR by default; config ``findings.smallest_effect_db``):
+a gain below δ is not one a reader would act on, and with enough runs any nonzero gain becomes
+"significant". Each comparison gets three one-sided p-values (:func:`effect_p`), each tested at
+α / 2 = 0.025, so that a rejection is exactly the 95 % interval clearing the bound:
+
+    p_holds   H0 Δ ≤ δ    rejected: Δ > δ   (the interval's lower end is above +δ)
+    p_short   H0 Δ ≥ δ    rejected: Δ < δ   (the claimed effect is excluded)
+    p_low     H0 Δ ≤ −δ   rejected: Δ > −δ
+
+A comparison is equivalent when p_short and p_low both reject (two one-sided tests, TOST): the
+rows differ by less than δ either way. With δ = 0 a one-comparison claim gets the two-sided 5 %
+test's verdict (HOLDS or DOES NOT HOLD by the sign of the difference) and equivalence is impossible.
+
+**The price is discreteness.** The smallest one-sided p is 1 / 2^n: n = 5 gives 0.031 (it can
+never reject at 0.025), n = 6 gives 0.016, n = 9 gives 0.002. Hence ``MIN_RUNS`` = 6, the smallest n
+at which a test can reject at all; at n = 6 with every run agreeing in sign the interval is
 exactly [min, max] of the run differences. With fewer paired runs a claim is DESCRIPTIVE ONLY: its
 mean difference, the range [min, max] of its run differences (a range, not an interval) and n.
 
-**A claim** has m comparisons (better row, worse row); their p-values are Holm-adjusted:
+**A claim** has m comparisons (better row, worse row); each family of p-values (p_holds, p_short,
+and max(p_short, p_low) for equivalence) is Holm-adjusted over them (:func:`holm_families`):
 
-    HOLDS             every comparison has a positive mean and adjusted p ≤ 0.05
-    DOES NOT HOLD     some comparison has a negative mean and adjusted p ≤ 0.05
+    HOLDS             every comparison's adjusted p_holds ≤ 0.025
+    EQUIVALENT        else some comparison's adjusted p_short ≤ 0.025, and every such comparison
+                      is equivalent (adjusted max(p_short, p_low) ≤ 0.025): the claimed advantage
+                      over that row is smaller than δ either way
+    DOES NOT HOLD     else some comparison's adjusted p_short ≤ 0.025 (one of them not equivalent)
     INCONCLUSIVE      otherwise
     DESCRIPTIVE ONLY  the claim's smallest paired n < MIN_RUNS
 
-Holm's first step needs a p ≤ 0.05 / m, so m comparisons need n ≥ N runs with 2 / 2^N ≤ 0.05 / m
-(:func:`needed_runs`); a claim short of that says so.
+Holm's first step needs a p ≤ 0.025 / m, so m comparisons need n ≥ N runs with 1 / 2^N ≤ 0.025 / m
+(:func:`needed_runs`); a claim short of that says so. Holm per family keeps each family's error
+rate at 0.025, so a claim wrongly held or wrongly failed is at most 5 % together.
+
+**Baselines.** Every translator's Δ over the two non-learned stage-1 methods, the untrained
+``prior`` and ``classical`` (and ``classical`` over ``prior``), at stage 1 and through each 3D
+model, is a one-comparison claim of its own (:func:`over_baseline`): a method that does not beat
+them learnt nothing the physics did not give.
 
 **Budgets.** A row's budget is (K binary frames per view, S sensor pixels per image pixel per axis),
 read from its records. Comparisons are between rows of equal budget only, except in claims marked
@@ -51,19 +76,26 @@ from spc3d import io
 from spc3d.names import STAGE1_METHODS, as_read
 
 METRIC = "psnr"
-ALPHA = 0.05  # two-sided level of every test (and 1 - the intervals' level)
-MIN_RUNS = 6  # the smallest n whose smallest sign-flip p (2 / 2^n) is ≤ ALPHA
+ALPHA = 0.05  # 1 - the intervals' level; the two-sided level of sign_flip_p
+LEVEL = ALPHA / 2  # the level of every one-sided test: a rejection is the 95 % interval clearing its bound
+SMALLEST_EFFECT = 0.25  # δ (dB PSNR): a claim "A beats B" means by at least δ (config findings.smallest_effect_db)
+MIN_RUNS = 6  # the smallest n whose smallest one-sided sign-flip p (1 / 2^n) is ≤ LEVEL
 EXACT_UP_TO = 16  # enumerate the 2^n sign patterns up to this n, else Monte-Carlo
 N_RANDOM = 2**16  # random sign patterns above EXACT_UP_TO
 RANDOM_SEED = 0
 TIE_RTOL = 1e-9  # |pattern mean| within this fraction of mean |d| of the observed counts as a tie
 BISECT_RTOL = 1e-7  # interval ends to this fraction of the differences' range
 PRESET = "workflow/presets/findings.yaml"
-TRANSLATORS = tuple(m for m in STAGE1_METHODS if m != "prior" and not m.endswith("-pub"))  # the default networks
+BASELINES = {"prior": "the prior", "classical": "the classical method"}  # the non-learned stage-1 methods
+TRANSLATORS = tuple(m for m in STAGE1_METHODS if m not in BASELINES and not m.endswith("-pub"))  # default networks
 PUBLISHED = tuple(f"{m}-pub" for m in TRANSLATORS)
 BLOCKS = ((TRANSLATORS, "residual networks"), (PUBLISHED, "published networks"))
 DESCRIPTIVE = "DESCRIPTIVE ONLY"
 NOT_RUN = "NOT RUN"
+DECIDED = ("HOLDS", "EQUIVALENT", "DOES NOT HOLD", "INCONCLUSIVE")  # the verdicts of n ≥ MIN_RUNS
+# The Holm family whose p a verdict shows, and its null hypothesis in the tables.
+FAMILY = {"HOLDS": "holds", "INCONCLUSIVE": "holds", "DOES NOT HOLD": "short", "EQUIVALENT": "equivalent"}
+NULLS = {"holds": "Δ ≤ δ", "short": "Δ ≥ δ", "equivalent": "Δ ∉ (−δ, δ)"}  # no "|": cells of Markdown tables
 
 
 # --- runs ------------------------------------------------------------------------------------------
@@ -155,12 +187,19 @@ def _patterns(n: int) -> np.ndarray:
     return signs
 
 
+def _flat(d, who: str) -> np.ndarray:
+    """``d`` (..., n) as rows (R, n) of finite paired differences."""
+    d = np.asarray(d, dtype=np.float64)
+    if d.ndim == 0 or d.shape[-1] == 0 or not np.isfinite(d).all():
+        raise ValueError(f"{who}: need ≥ 1 finite paired difference per test, got shape {d.shape}")
+    return d.reshape(-1, d.shape[-1])
+
+
 def sign_flip_p(d) -> np.ndarray | float:
     """Two-sided sign-flip p of the mean of ``d`` (..., n) against 0, over the last axis."""
     d = np.asarray(d, dtype=np.float64)
-    if d.ndim == 0 or d.shape[-1] == 0 or not np.isfinite(d).all():
-        raise ValueError(f"sign_flip_p: need ≥ 1 finite paired difference per test, got shape {d.shape}")
-    n, flat = d.shape[-1], d.reshape(-1, d.shape[-1])
+    flat = _flat(d, "sign_flip_p")
+    n = flat.shape[1]
     signs = _patterns(n)
     tol = TIE_RTOL * np.abs(flat).mean(axis=1, keepdims=True)
     observed = np.abs(flat.mean(axis=1, keepdims=True)) - tol
@@ -173,16 +212,65 @@ def sign_flip_p(d) -> np.ndarray | float:
     return float(p[0]) if d.ndim == 1 else p.reshape(d.shape[:-1])
 
 
-def smallest_p(n: int) -> float:
-    """The smallest two-sided p the test can give with n runs: 2 / 2^n (Monte-Carlo: 1 / (1 + B))."""
-    return 2.0 / 2.0**n if n <= EXACT_UP_TO else 1.0 / (1 + N_RANDOM)
+def _tails(x) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided sign-flip p of the mean of ``x`` (..., n) over the last axis, both ways: (p of
+    H0 mean ≤ 0, p of H0 mean ≥ 0), over every sign pattern and its mirror. Where the observed mean
+    is beyond the tie tolerance, the p in its direction is exactly half :func:`sign_flip_p`'s."""
+    x = np.asarray(x, dtype=np.float64)
+    flat = _flat(x, "one-sided sign-flip p")
+    n = flat.shape[1]
+    signs = _patterns(n)
+    tol = TIE_RTOL * np.abs(flat).mean(axis=1, keepdims=True)
+    observed = flat.mean(axis=1, keepdims=True)
+    above, below = np.empty(len(flat)), np.empty(len(flat))
+    step = max(1, 2**22 // len(signs))  # (step, P) pattern means at a time
+    for i in range(0, len(flat), step):
+        means = flat[i : i + step] @ signs.T / n  # (step, P); the mirrors' are -means
+        high, low = observed[i : i + step] - tol[i : i + step], observed[i : i + step] + tol[i : i + step]
+        above[i : i + step] = (means >= high).sum(axis=1) + (means <= -high).sum(axis=1)
+        below[i : i + step] = (means <= low).sum(axis=1) + (means >= -low).sum(axis=1)
+    patterns = 2 * len(signs)
+    if n <= EXACT_UP_TO:
+        above, below = above / patterns, below / patterns
+    else:
+        above, below = (1 + above) / (2 + patterns), (1 + below) / (2 + patterns)
+    if x.ndim == 1:
+        return float(above[0]), float(below[0])
+    return above.reshape(x.shape[:-1]), below.reshape(x.shape[:-1])
+
+
+def one_sided_p(d, shift: float = 0.0, greater: bool = True) -> np.ndarray | float:
+    """One-sided sign-flip p of the mean Δ of ``d`` (..., n) over the last axis: of H0 Δ ≤ ``shift``
+    (``greater``: rejecting shows Δ > shift) or of H0 Δ ≥ ``shift``. Rejecting at ALPHA / 2 is the
+    same as ``shift`` lying outside :func:`interval` on that side."""
+    above, below = _tails(np.asarray(d, dtype=np.float64) - shift)
+    return above if greater else below
+
+
+def effect_p(d, smallest_effect: float = SMALLEST_EFFECT) -> tuple:
+    """(p_holds, p_short, p_low) of the mean Δ of ``d`` (..., n) against δ = ``smallest_effect``:
+    the one-sided sign-flip p of H0 Δ ≤ δ, of H0 Δ ≥ δ and of H0 Δ ≤ −δ."""
+    if not (math.isfinite(smallest_effect) and smallest_effect >= 0):
+        raise ValueError(f"effect_p: the smallest effect of interest must be finite and ≥ 0, got {smallest_effect}")
+    d = np.asarray(d, dtype=np.float64)
+    p_holds, p_short = _tails(d - smallest_effect)
+    p_low = _tails(d + smallest_effect)[0] if smallest_effect else p_holds
+    return p_holds, p_short, p_low
+
+
+def smallest_p(n: int, one_sided: bool = False) -> float:
+    """The smallest p the test can give with n runs: 2 / 2^n two-sided, 1 / 2^n one-sided
+    (Monte-Carlo: 1 / (1 + B), 1 / (2 + 2B))."""
+    if n <= EXACT_UP_TO:
+        return (1.0 if one_sided else 2.0) / 2.0**n
+    return 1.0 / (2 + 2 * N_RANDOM) if one_sided else 1.0 / (1 + N_RANDOM)
 
 
 def needed_runs(m: int, alpha: float = ALPHA) -> int:
-    """The fewest paired runs with which a claim of m comparisons can reach a verdict (Holm's
-    first step needs p ≤ alpha / m): the smallest N with 2 / 2^N ≤ alpha / m."""
+    """The fewest paired runs with which a claim of m comparisons can reach a verdict: Holm's first
+    step needs a one-sided p ≤ (alpha / 2) / m, so the smallest N with 1 / 2^N ≤ (alpha / 2) / m."""
     n = 1
-    while smallest_p(n) > alpha / m:
+    while smallest_p(n, one_sided=True) > alpha / 2 / m:
         n += 1
     return n
 
@@ -224,16 +312,27 @@ def holm(p) -> np.ndarray:
     return out
 
 
-def verdict(means, adjusted, n: int, alpha: float = ALPHA) -> np.ndarray:
-    """The verdict of claims (...) from their comparisons' means and Holm-adjusted p (..., m) and
-    the claims' smallest paired n."""
-    means, adjusted = np.asarray(means, dtype=np.float64), np.asarray(adjusted, dtype=np.float64)
+def holm_families(p_holds, p_short, p_low) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The comparisons' (..., m) p-values Holm-adjusted over the last axis, family by family: p_holds,
+    p_short, and the equivalence p max(p_short, p_low) (two one-sided tests)."""
+    p_short = np.asarray(p_short, dtype=np.float64)
+    return holm(p_holds), holm(p_short), holm(np.maximum(p_short, p_low))
+
+
+def verdict(holds, short, equivalent, n: int, alpha: float = ALPHA) -> np.ndarray:
+    """The verdict of claims (...) from their comparisons' Holm-adjusted p (..., m) of each family
+    (:func:`holm_families`), each tested at alpha / 2, and the claims' smallest paired n: HOLDS when
+    every comparison clears δ; else, where some comparison falls short of δ, EQUIVALENT when each
+    that does is within ±δ, else DOES NOT HOLD; else INCONCLUSIVE."""
+    holds, short, equivalent = (np.asarray(p, dtype=np.float64) for p in (holds, short, equivalent))
     if n < MIN_RUNS:
-        return np.full(means.shape[:-1], DESCRIPTIVE)
-    rejected = adjusted <= alpha
-    fails = ((means < 0) & rejected).any(axis=-1)
-    holds = ((means > 0) & rejected).all(axis=-1)
-    return np.select([fails, holds], ["DOES NOT HOLD", "HOLDS"], "INCONCLUSIVE")
+        return np.full(holds.shape[:-1], DESCRIPTIVE)
+    level = alpha / 2
+    failing = short <= level
+    fails = failing.any(axis=-1)
+    equal = fails & (~failing | (equivalent <= level)).all(axis=-1)
+    held = (holds <= level).all(axis=-1)
+    return np.select([held, equal, fails], ["HOLDS", "EQUIVALENT", "DOES NOT HOLD"], "INCONCLUSIVE")
 
 
 # --- claims ------------------------------------------------------------------------------------------
@@ -287,7 +386,7 @@ def claims(rows: dict[str, Row], nerf: str) -> list[Claim]:
     two_stage = [f"{t}+{m}" for t in block for m in models]
     # The strongest two-stage rows: the residual networks (the project's default) and their untrained
     # start; the published ones are compared in Δ over the prior. Fewer comparisons also keep the claim
-    # decidable at the findings preset's 9 runs (Holm over 10: 2/2^9 <= 0.05/10).
+    # decidable at the findings preset's 9 runs (Holm over 10, one-sided: 1/2^9 <= 0.025/10).
     strongest = [f"{t}+{m}" for t in (*TRANSLATORS, "prior") for m in models]
     denoisers = [block[TRANSLATORS.index(d)] for d in ("restormer", "diffusion")]
     mle = mle_rows(rows, "bernoulli+3dgs")
@@ -335,12 +434,18 @@ class Comparison:
     low: float | None = None  # interval (n ≥ MIN_RUNS) or range [min, max] of the run differences
     high: float | None = None
     bounds: str = "range"  # "interval" or "range"
-    p: float = 1.0  # sign-flip p; 1 without paired runs
-    adjusted: float = 1.0  # Holm-adjusted over the claim's comparisons
+    p: float = 1.0  # two-sided sign-flip p against no difference; 1 without paired runs
+    p_holds: float = 1.0  # one-sided p of H0 Δ ≤ δ (rejected: the claim's margin is shown)
+    p_short: float = 1.0  # of H0 Δ ≥ δ (rejected: the claimed effect is excluded)
+    p_low: float = 1.0  # of H0 Δ ≤ −δ (rejected with p_short: equivalent, |Δ| < δ)
+    holm_holds: float = 1.0  # Holm-adjusted over the claim's comparisons, family by family
+    holm_short: float = 1.0
+    holm_equivalent: float = 1.0  # of max(p_short, p_low)
 
 
-def compare(rows: dict[str, Row], better: str, worse: str) -> Comparison:
-    """The paired runs of two rows: mean difference, its interval (or range below MIN_RUNS), p."""
+def compare(rows: dict[str, Row], better: str, worse: str, smallest_effect: float = SMALLEST_EFFECT) -> Comparison:
+    """The paired runs of two rows: mean difference, its interval (or range below MIN_RUNS), the
+    two-sided p against 0 and the one-sided p against δ = ``smallest_effect`` (:func:`effect_p`)."""
     d = paired(rows[better], rows[worse])
     if d.size == 0:
         return Comparison(better, worse, 0)
@@ -348,59 +453,87 @@ def compare(rows: dict[str, Row], better: str, worse: str) -> Comparison:
         low, high, bounds = float(d.min()), float(d.max()), "range"
     else:
         (low, high), bounds = interval(d), "interval"
-    return Comparison(better, worse, int(d.size), float(d.mean()), low, high, bounds, sign_flip_p(d))
+    p_holds, p_short, p_low = effect_p(d, smallest_effect)
+    return Comparison(
+        better, worse, int(d.size), float(d.mean()), low, high, bounds, sign_flip_p(d), p_holds, p_short, p_low
+    )
 
 
-def decisive(comps: list[Comparison], outcome: str) -> Comparison:
-    """The comparison that decides: the failing one for DOES NOT HOLD, the closest one (smallest
-    mean) when descriptive, else the one with the largest adjusted p."""
+def decisive(comps: list[Comparison], outcome: str, alpha: float = ALPHA) -> Comparison:
+    """The comparison that decides: for DOES NOT HOLD and EQUIVALENT the failing one with the
+    strongest evidence (smallest Holm p_short; for DOES NOT HOLD among those not equivalent), the
+    closest one (smallest mean) when descriptive, else the one with the largest Holm p_holds."""
     scored = [c for c in comps if c.mean is not None] or comps
-    if outcome == "DOES NOT HOLD":
-        return min((c for c in scored if c.mean < 0 and c.adjusted <= ALPHA), key=lambda c: (c.adjusted, c.mean))
+    if outcome in ("DOES NOT HOLD", "EQUIVALENT"):
+        failing = [c for c in scored if c.holm_short <= alpha / 2]
+        if outcome == "DOES NOT HOLD":
+            failing = [c for c in failing if c.holm_equivalent > alpha / 2]
+        return min(failing, key=lambda c: (c.holm_short, c.mean))
     if outcome == DESCRIPTIVE:
         return min(scored, key=lambda c: (c.mean is not None, c.mean or 0.0))
-    return max(scored, key=lambda c: (c.adjusted, -c.mean))
+    return max(scored, key=lambda c: (c.holm_holds, -c.mean))
 
 
-def evaluate(claim: Claim, rows: dict[str, Row]) -> dict:
-    """A claim decided: its comparisons (rows of equal budget unless cross-budget), Holm, verdict."""
+def evaluate(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLEST_EFFECT) -> dict:
+    """A claim decided: its comparisons (rows of equal budget unless cross-budget), Holm per family,
+    the verdict against δ = ``smallest_effect``; ``family`` names the Holm p the tables show."""
     present = [(a, b) for a, b in claim.pairs if a in rows and b in rows and rows[a].scored and rows[b].scored]
     equal = [(a, b) for a, b in present if claim.cross_budget or rows[a].budget == rows[b].budget]
     out = {"id": claim.id, "claim": claim.text, "by": claim.by, "cross_budget": claim.cross_budget, "m": len(equal)}
     out["unequal_budget"] = [[a, b] for a, b in present if (a, b) not in equal]
     if not equal:
         why = "no row of equal budget in this run" if present else "rows not in this run"
-        return out | {"verdict": NOT_RUN, "note": why, "n": 0, "decisive": None, "comparisons": []}
-    comps = [compare(rows, a, b) for a, b in equal]
-    for c, adj in zip(comps, holm([c.p for c in comps])):
-        c.adjusted = float(adj)
+        return out | {"verdict": NOT_RUN, "note": why, "n": 0, "family": None, "decisive": None, "comparisons": []}
+    comps = [compare(rows, a, b, smallest_effect) for a, b in equal]
+    families = holm_families(*([getattr(c, f) for c in comps] for f in ("p_holds", "p_short", "p_low")))
+    for c, (h, s, e) in zip(comps, zip(*families)):
+        c.holm_holds, c.holm_short, c.holm_equivalent = float(h), float(s), float(e)
     n = min(c.n for c in comps)
-    outcome = str(verdict([c.mean or 0.0 for c in comps], [c.adjusted for c in comps], n))
+    outcome = str(verdict(*families, n))
     need = needed_runs(len(comps))
     note = f"needs n ≥ {need} for {len(comps)} comparisons" if n < need and need > MIN_RUNS else ""
     return out | {
         "verdict": outcome,
         "note": note,
         "n": n,
+        "family": FAMILY.get(outcome),
         "decisive": decisive(comps, outcome).__dict__,
         "comparisons": [c.__dict__ for c in comps],
     }
 
 
-def over_prior(rows: dict[str, Row], stage1: dict[str, Row], nerf: str) -> list[dict]:
-    """Δ PSNR of every translator that ran over the untrained prior, at stage 1 and in each model;
-    each is its own one-comparison claim."""
+def over_baseline(
+    rows: dict[str, Row],
+    stage1: dict[str, Row],
+    nerf: str,
+    baseline: str = "prior",
+    smallest_effect: float = SMALLEST_EFFECT,
+) -> list[dict]:
+    """Δ PSNR of every translator that ran over a non-learned ``baseline`` (a key of BASELINES), and
+    of the baselines listed after it (``classical`` over ``prior``), at stage 1 and in each model;
+    each is its own one-comparison claim against δ = ``smallest_effect``."""
+    later = list(BASELINES)[list(BASELINES).index(baseline) + 1 :]
+    methods = [(t, label) for block, label in BLOCKS for t in block] + [(b, "non-learned") for b in later]
     out = []
-    for t, label in ((t, label) for block, label in BLOCKS for t in block):
+    for t, label in methods:
         for stage, table, better, worse in (
-            ("stage 1", stage1, t, "prior"),
-            ("3dgs", rows, f"{t}+3dgs", "prior+3dgs"),
-            (nerf, rows, f"{t}+{nerf}", f"prior+{nerf}"),
+            ("stage 1", stage1, t, baseline),
+            ("3dgs", rows, f"{t}+3dgs", f"{baseline}+3dgs"),
+            (nerf, rows, f"{t}+{nerf}", f"{baseline}+{nerf}"),
         ):
             if better in table and worse in table:
-                claim = Claim(f"over-prior:{t}:{stage}", "ours", f"{t} over the prior ({stage})", ((better, worse),))
-                out.append(evaluate(claim, table) | {"translator": t, "block": label, "stage": stage})
+                text = f"{t} over {BASELINES[baseline]} ({stage})"
+                claim = Claim(f"over-{baseline}:{t}:{stage}", "ours", text, ((better, worse),))
+                entry = evaluate(claim, table, smallest_effect)
+                out.append(entry | {"translator": t, "block": label, "baseline": baseline, "stage": stage})
     return out
+
+
+def over_prior(
+    rows: dict[str, Row], stage1: dict[str, Row], nerf: str, smallest_effect: float = SMALLEST_EFFECT
+) -> list[dict]:
+    """:func:`over_baseline` for the untrained ``prior``."""
+    return over_baseline(rows, stage1, nerf, "prior", smallest_effect)
 
 
 # --- the base of the findings ------------------------------------------------------------------------
@@ -423,32 +556,49 @@ def base(rows: dict[str, Row]) -> str:
     return f"{len(runs)} run{'' if len(runs) == 1 else 's'} ({where})"
 
 
-def header(rows: dict[str, Row], results: list[dict]) -> str:
-    """The opening line: the base (runs, scenes × seeds), the test, MIN_RUNS; and whether only descriptive."""
+def header(rows: dict[str, Row], results: list[dict], smallest_effect: float = SMALLEST_EFFECT) -> str:
+    """The opening line: the base (runs, scenes × seeds), δ, the test, MIN_RUNS; and whether only descriptive."""
     line = (
         f"Base: {base(rows)}; one PSNR per row and run (its held-out views averaged), claims pair the runs "
-        f"two rows share. Test: exact sign-flip permutation test of the mean paired difference, Holm over a "
-        f"claim's comparisons at 5 %, interval = the test inverted; a verdict needs ≥ MIN_RUNS = {MIN_RUNS} "
-        "paired runs."
+        f'two rows share. Smallest effect of interest δ = {smallest_effect:g} dB: "A beats B" means by more '
+        "than δ. Test: exact sign-flip permutation test of the mean paired difference, one-sided at 2.5 % "
+        "against ±δ, Holm over a claim's comparisons, interval = the two-sided test inverted (95 %); a verdict "
+        f"needs ≥ MIN_RUNS = {MIN_RUNS} paired runs."
     )
-    if not any(r["verdict"] in ("HOLDS", "DOES NOT HOLD", "INCONCLUSIVE") for r in results):
+    if not any(r["verdict"] in DECIDED for r in results):
         line += f" This run is descriptive only: n = {base(rows)}; a verdict needs ≥ {MIN_RUNS} paired runs ({PRESET})."
     return line
 
 
 # --- writing -----------------------------------------------------------------------------------------
 
-LEGEND = (
-    "HOLDS: every comparison favours the claim with Holm p ≤ 0.05; DOES NOT HOLD: one goes against it "
-    "with Holm p ≤ 0.05; INCONCLUSIVE: otherwise; DESCRIPTIVE ONLY: fewer than "
-    f"{MIN_RUNS} paired runs (the smallest exact p, 2/2^n, cannot reach 0.05), shown with the range of the run "
-    "differences instead of an interval. The decisive comparison is the one with the largest Holm p (for DOES "
-    "NOT HOLD the failing one; when descriptive the closest). Rows of equal budget (K frames, S× capture) only, "
-    "except cross-budget claims; rows on estimated poses enter no claim."
-)
+
+def legend(smallest_effect: float = SMALLEST_EFFECT) -> str:
+    """What the verdicts and columns mean, with δ."""
+    return (
+        f"δ = {smallest_effect:g} dB, the smallest effect of interest. HOLDS: every comparison beats its row by "
+        "more than δ (Holm p of H0: Δ ≤ δ at most 0.025: the 95 % interval lies above +δ); DOES NOT HOLD: "
+        "some comparison falls short of δ (Holm p of H0: Δ ≥ δ at most 0.025) and is not within ±δ; "
+        "EQUIVALENT: every comparison that falls short of δ is within ±δ (two one-sided tests, Holm p of "
+        "H0: Δ ∉ (−δ, δ) at most 0.025): the claimed advantage is smaller than δ either way; INCONCLUSIVE: "
+        f"otherwise; DESCRIPTIVE ONLY: fewer than {MIN_RUNS} paired runs (the smallest exact one-sided p, 1/2^n, "
+        "cannot reach 0.025), shown with the range of the run differences instead of an interval. The Holm p "
+        "shown is the decisive comparison's, of the null hypothesis named beside it. The decisive comparison "
+        "is the one with the largest Holm p (for DOES NOT HOLD and EQUIVALENT the failing one with the "
+        "strongest evidence; when descriptive the closest). Rows of equal budget (K frames, S× capture) only, "
+        "except cross-budget claims; rows on estimated poses enter no claim."
+    )
+
+
+LEGEND = legend()
 CLAIM_COLUMNS = ["claim", "by", "verdict", "decisive comparison", "Δ PSNR (dB)", "95 % interval (or range)",
                  "Holm p", "n (runs)", "m"]  # fmt: skip
-PRIOR_COLUMNS = ["translator", "block", "stage", "verdict", "Δ PSNR (dB)", "95 % interval (or range)", "p", "n (runs)"]
+PRIOR_COLUMNS = ["translator", "block", "stage", "verdict", "Δ PSNR (dB)", "95 % interval (or range)", "Holm p",
+                 "n (runs)"]  # fmt: skip
+BASELINE_TITLES = {
+    "prior": "Δ over the untrained prior (`prior`)",
+    "classical": "Δ over the classical method (`classical`)",
+}
 
 
 def p_text(p: float) -> str:
@@ -463,7 +613,8 @@ def _cells(r: dict) -> list[str]:
     if c["mean"] is None:
         return [f"**{r['verdict']}**{note}", f"{c['better']} vs {c['worse']}: no paired runs", "–", "–", "–", "0"]
     bounds = f"[{c['low']:+.2f}, {c['high']:+.2f}]"
-    p = "–" if r["verdict"] == DESCRIPTIVE else p_text(c["adjusted"])
+    family = r.get("family")
+    p = f"{p_text(c[f'holm_{family}'])} (H0: {NULLS[family]})" if family else "–"
     return [
         f"**{r['verdict']}**{note}",
         f"{c['better']} vs {c['worse']}",
@@ -488,13 +639,26 @@ def md_table(columns: list[str], cells: list[list[str]]) -> list[str]:
     return [f"| {' | '.join(columns)} |", "|" + "---|" * len(columns), *(f"| {' | '.join(c)} |" for c in cells)]
 
 
-def markdown(first_line: str, results: list[dict], prior: list[dict]) -> str:
+def _baselines(prior: list[dict], classical: list[dict]) -> list[tuple[str, str, list[dict]]]:
+    """(baseline, title, entries) of the Δ-over-baselines tables."""
+    return [(b, BASELINE_TITLES[b], entries) for b, entries in (("prior", prior), ("classical", classical))]
+
+
+def markdown(
+    first_line: str,
+    results: list[dict],
+    prior: list[dict],
+    classical: list[dict] | tuple = (),
+    smallest_effect: float = SMALLEST_EFFECT,
+) -> str:
     lines = ["# Findings", "", first_line, "", *md_table(CLAIM_COLUMNS, [claim_cells(r) for r in results])]
-    lines += ["", LEGEND, "", "## Δ over the untrained prior", ""]
-    if prior:
-        lines += md_table(PRIOR_COLUMNS, [prior_cells(r) for r in prior])
-    else:
-        lines.append("No translator ran beside the untrained prior (`prior` rows) in this run.")
+    lines += ["", legend(smallest_effect), "", "## Δ over the baselines"]
+    for baseline, title, entries in _baselines(prior, list(classical)):
+        lines += ["", f"### {title}", ""]
+        if entries:
+            lines += md_table(PRIOR_COLUMNS, [prior_cells(r) for r in entries])
+        else:
+            lines.append(f"No other stage-1 method ran beside the `{baseline}` rows in this run.")
     return "\n".join(lines) + "\n"
 
 
@@ -508,14 +672,23 @@ def _bold(cell: str) -> str:
     return f"<b>{cell[2:].replace('**', '</b>', 1)}" if cell.startswith("**") else cell
 
 
-def html(first_line: str, results: list[dict], prior: list[dict]) -> str:
+def html(
+    first_line: str,
+    results: list[dict],
+    prior: list[dict],
+    classical: list[dict] | tuple = (),
+    smallest_effect: float = SMALLEST_EFFECT,
+) -> str:
+    tables = "".join(
+        f"<h4>{title.replace('`', '')}</h4>{_html_table(PRIOR_COLUMNS, [prior_cells(r) for r in entries])}"
+        for _, title, entries in _baselines(prior, list(classical))
+    )
     return (
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>Findings</title><style>body{font-family:"
         "sans-serif;font-size:13px;margin:12px}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
         "padding:3px 6px}</style></head><body><h3>Findings: the claims, decided from the numbers</h3>"
-        f"<p>{first_line}</p>{_html_table(CLAIM_COLUMNS, [claim_cells(r) for r in results])}<p>{LEGEND}</p>"
-        f"<h3>Δ over the untrained prior</h3>{_html_table(PRIOR_COLUMNS, [prior_cells(r) for r in prior])}"
-        "</body></html>\n"
+        f"<p>{first_line}</p>{_html_table(CLAIM_COLUMNS, [claim_cells(r) for r in results])}"
+        f"<p>{legend(smallest_effect)}</p><h3>Δ over the baselines</h3>{tables}</body></html>\n"
     )
 
 
@@ -524,25 +697,34 @@ def write_findings(
     stem: str | os.PathLike,
     nerf_variant: str,
     stage1_files: list[str | os.PathLike] | tuple = (),
+    smallest_effect: float = SMALLEST_EFFECT,
 ) -> dict:
-    """``stem``.md, .json and .html: every claim decided on paired runs, and the Δ-over-prior table.
-    Returns what the JSON holds."""
-    stem = Path(stem)
-    rows = read_rows(metrics_files)
-    results = [evaluate(c, rows) for c in claims(rows, nerf_variant)]
-    prior = over_prior(rows, read_stage1(stage1_files), nerf_variant)
-    first_line = header(rows, results + prior)
+    """``stem``.md, .json and .html: every claim decided on paired runs against the smallest effect
+    of interest δ = ``smallest_effect`` (dB PSNR), and the Δ-over-baselines tables (``over_prior``,
+    ``over_classical``). Returns what the JSON holds."""
+    stem, delta = Path(stem), float(smallest_effect)
+    if not (math.isfinite(delta) and delta >= 0):
+        raise ValueError(f"write_findings: smallest_effect (dB) must be finite and ≥ 0, got {smallest_effect!r}")
+    rows, stage1 = read_rows(metrics_files), read_stage1(stage1_files)
+    results = [evaluate(c, rows, delta) for c in claims(rows, nerf_variant)]
+    prior = over_baseline(rows, stage1, nerf_variant, "prior", delta)
+    classical = over_baseline(rows, stage1, nerf_variant, "classical", delta)
+    first_line = header(rows, results + prior + classical, delta)
     out = {
         "metric": METRIC,
         "alpha": ALPHA,
+        "level": LEVEL,
+        "smallest_effect_db": delta,
         "min_runs": MIN_RUNS,
         "test": "exact sign-flip permutation test of the mean paired run difference (Monte-Carlo above "
-        f"{EXACT_UP_TO} runs); Holm over a claim's comparisons; interval = the test inverted",
+        f"{EXACT_UP_TO} runs), one-sided at alpha / 2 against ±smallest_effect_db; Holm over a claim's "
+        "comparisons, family by family; equivalence by two one-sided tests; interval = the two-sided test inverted",
         "base": first_line,
         "claims": results,
         "over_prior": prior,
+        "over_classical": classical,
     }
     io.write_json(stem.with_suffix(".json"), out)
-    io.write_text(stem.with_suffix(".md"), markdown(first_line, results, prior))
-    io.write_text(stem.with_suffix(".html"), html(first_line, results, prior))
+    io.write_text(stem.with_suffix(".md"), markdown(first_line, results, prior, classical, delta))
+    io.write_text(stem.with_suffix(".html"), html(first_line, results, prior, classical, delta))
     return out

@@ -7,7 +7,7 @@ the findings preset before and after it and asking, entry by entry:
   (scene, seed) both have, with the findings' own test and interval
   (:func:`spc3d.evaluation.findings.interval`). Both runs draw the same SPC frames for a given
   scene and seed, so the pairing removes the scene and the noise draw; what is left is the code.
-- **claims** and the **Δ-over-prior** entries of both runs' ``findings.json``: whether the verdict
+- **claims** and the **Δ-over-baseline** entries of both runs' ``findings.json``: whether the verdict
   changed, and whether the new estimate lies outside the old 95 % interval ("moved beyond it").
 
 The result is ``tables/findings_shift.md`` in the new run's results folder
@@ -53,7 +53,8 @@ def row_shifts(old: dict[str, Row], new: dict[str, Row]) -> list[dict]:
 
 
 def _entries(findings: dict) -> dict[str, dict]:
-    return {e["id"]: e for e in findings.get("claims", []) + findings.get("over_prior", [])}
+    entries = findings.get("claims", []) + findings.get("over_prior", []) + findings.get("over_classical", [])
+    return {e["id"]: e for e in entries}
 
 
 def _same_pair(entry: dict, comparison: dict) -> dict | None:
@@ -63,7 +64,7 @@ def _same_pair(entry: dict, comparison: dict) -> dict | None:
 
 
 def claim_shifts(old: dict, new: dict) -> list[dict]:
-    """Every claim and Δ-over-prior entry of ``new`` beside the same entry of ``old`` (matched by id):
+    """Every claim and Δ-over-baseline entry of ``new`` beside the same entry of ``old`` (matched by id):
     the new decisive comparison against the old run's comparison of the same two rows. "Beyond" is
     None where the old run has no such comparison or only a range (fewer than MIN_RUNS runs)."""
     before, out = _entries(old), []
@@ -118,7 +119,7 @@ def markdown(rows: list[dict], claims: list[dict], old_name: str, new_name: str)
     lines = [
         "# Findings shift",
         "",
-        f"Old: {old_name}; new: {new_name}. Of {len(claims)} claims and Δ-over-prior entries, "
+        f"Old: {old_name}; new: {new_name}. Of {len(claims)} claims and Δ-over-baseline entries, "
         f"{changed} changed verdict and {moved} moved beyond the old 95 % interval (new estimate outside it).",
         "",
         *md_table(CLAIM_COLUMNS, [claim_cells(c) for c in claims]),

@@ -31,9 +31,10 @@ PROTOCOL = (
     "K = binary frames per view a row consumed, and S x S sensor pixels behind each image pixel where a row read "
     "the frame taken at S x the resolution (the paper-faithful single stage); ranks (bold best, italic second) "
     "only among rows of equal budget (K, S); oracle rows read the ground truth and are not ranked. No other row "
-    "reads the evaluation scene's ground truth or its scored views' frames: the MLE and SPAD-likelihood rows "
-    "display their flux at a gain metered from their own training views' frames (mean flux / k, k fitted on the "
-    "training scenes). Poses: ground truth for every row. Mean ± std over n runs (scenes × seeds)."
+    "reads the evaluation scene's ground truth or its scored views' frames: every photon-fed row but the raw "
+    "binary frame is displayed at the exposure the camera reports (translators: their camera image at that "
+    "exposure; MLE: k × the exposure, k fitted on the training scenes; SPAD likelihood: the exposure itself), "
+    "so a dark scene displays dark. Poses: ground truth for every row. Mean ± std over n runs (scenes × seeds)."
 )
 
 # Paper Table 2 (single-stage), then the variants of its baseline and the rows this project adds.
@@ -522,10 +523,12 @@ def write_all_tables(
     folder: str | os.PathLike,
     nerf_variant: str,
     labels: dict[str, str] = LABELS,
+    smallest_effect: float | None = None,
 ) -> None:
     """single_stage.*, two_stage.*, estimated_poses.*, stage1.*, no_reference.* and the findings
-    (findings.md / .json / .html) in ``folder``."""
-    from spc3d.evaluation.findings import write_findings
+    (findings.md / .json / .html) in ``folder``; the findings decide against the smallest effect of
+    interest ``smallest_effect`` (dB PSNR; None: the findings' SMALLEST_EFFECT)."""
+    from spc3d.evaluation.findings import SMALLEST_EFFECT, write_findings
 
     folder = Path(folder)
     single_stage_table(metrics_files, folder / "single_stage", nerf_variant)
@@ -536,4 +539,5 @@ def write_all_tables(
     else:  # every evaluation scene is a capture without reference views: nothing to score before 3D
         write_text_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
     no_reference_table(metrics_files, folder / "no_reference")
-    write_findings(metrics_files, folder / "findings", nerf_variant, stage1_files=stage1_files)
+    delta = SMALLEST_EFFECT if smallest_effect is None else smallest_effect
+    write_findings(metrics_files, folder / "findings", nerf_variant, stage1_files=stage1_files, smallest_effect=delta)
