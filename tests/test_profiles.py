@@ -70,11 +70,12 @@ def test_slurm_profile_dry_run(tmp_path):
     assert proc.returncode == 0, out[-4000:]
     assert "This was a dry-run" in out and "envs/spc3d-gpu.yaml" in out  # the profile's conda_env=gpu
     jobs = job_blocks(out)
-    assert len(jobs["train_translator"]) == 6 and len(jobs["evaluate"]) >= 14
+    assert len(jobs["train_translator"]) == 7 and len(jobs["evaluate"]) >= 14
     for rule in ("train_translator", "reconstruct"):  # GPU jobs: --gpus=1 on the GPU partition, more memory
         for block in jobs[rule]:
             res = resources(block)
-            gpus = "0" if "model=3dgs" in block else "1"  # 3DGS rasterizes on CPU threads
+            # 3DGS rasterizes on CPU threads; the untrained stage-1 methods have no network
+            gpus = "0" if re.search(r"model=3dgs|method=(prior|classical)\b", block) else "1"
             assert res["gpu"] == gpus and "slurm_partition" not in res, (rule, res)
             assert int(res["mem_mb"]) == 32000 and int(res["runtime"]) >= 720, (rule, res)
     res = resources(jobs["evaluate"][0])

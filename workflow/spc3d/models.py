@@ -35,7 +35,7 @@ class TranslatorSpec:
     label: str  # the tables' name
     module: str
     width_field: str | None = None  # the Config field the sweeps' width knob sets (None: no network)
-    trained: bool = True  # False: nothing to train (the prior), so no published (-pub) form either
+    trained: bool = True  # False: nothing to train (prior, classical), so no published (-pub) form either
     # Config fields whose sum n makes the Translator's ``multiple`` 2**n: its training crops' sides
     # must be multiples of it (checked at parse time, spc3d.config.check_crops); () for a network
     # that pads its input (Restormer, the diffusion restorer) or has none (the prior).
@@ -94,6 +94,13 @@ for _spec in (
     TranslatorSpec("diffusion", "Diffusion (DiffBIR stand-in)", "spc3d.translate.diffusion", "base_channels"),
     TranslatorSpec(
         "prior", "Physics prior (blurred MLE, no training)", "spc3d.translate.blurred_mle", None, trained=False
+    ),
+    TranslatorSpec(
+        "classical",
+        "Classical denoiser (best of NLM / wavelet / TV / Gaussian after a VST, then MLE)",
+        "spc3d.translate.classical",
+        None,
+        trained=False,
     ),
     ReconstructorSpec(
         "3dgs",

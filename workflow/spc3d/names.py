@@ -18,9 +18,10 @@ class ConfigError(ValueError):
     """A config value that passed the JSON schema but is still wrong (e.g. an unknown scene)."""
 
 
-# Stage-1 methods and stage-2 models: the model specs' names (spc3d.models). ``prior`` is the
-# translators' untrained start (the blurred-MLE physics prior alone): a method without training, so
-# that what learning adds is a row of its own. PLAIN_SOURCES: the stage-2 sources without stage 1.
+# Stage-1 methods and stage-2 models: the model specs' names (spc3d.models). The untrained methods
+# (a spec's ``trained`` False) are rows of their own that show what learning adds: ``prior``, the
+# translators' untrained start (the blurred-MLE physics prior alone), and ``classical``, the best
+# non-learned denoiser. PLAIN_SOURCES: the stage-2 sources without stage 1.
 STAGE1_METHODS = tuple(models.TRANSLATORS)
 TRAINED_METHODS = tuple(n for n, spec in models.TRANSLATORS.items() if spec.trained)  # with a published form
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")

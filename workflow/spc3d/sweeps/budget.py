@@ -19,7 +19,8 @@ from spc3d.names import STAGE1_METHODS
 from spc3d.training import build_config
 
 # From the model specs (spc3d.models): the translator's main width (``width`` knob) per stage-1
-# method with a network (not ``prior``), and the stage-2 settings counted in iterations (``iters``).
+# method with a network (not the untrained ``prior`` / ``classical``), and the stage-2 settings counted
+# in iterations (``iters``).
 WIDTH_KEYS = {name: spec.width_field for name, spec in models.TRANSLATORS.items() if spec.width_field}
 ITERATION_FIELD = {name: spec.iteration_field for name, spec in models.RECONSTRUCTORS.items()}
 SCHEDULE_FIELDS = {name: spec.schedule_fields for name, spec in models.RECONSTRUCTORS.items()}
@@ -46,7 +47,7 @@ def translator_settings(settings: dict, train: dict, method: str, knobs: dict, s
     if method not in STAGE1_METHODS:
         raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(STAGE1_METHODS)}")
     settings = dict(settings)
-    if "width" in knobs and method in WIDTH_KEYS:  # the prior alone has no network to widen
+    if "width" in knobs and method in WIDTH_KEYS:  # an untrained method has no network to widen
         settings[WIDTH_KEYS[method]] = knobs["width"]
     train = dataclasses.asdict(build_config(TrainSettings, dict(train), "stage1.train"))
     if "steps" in knobs:

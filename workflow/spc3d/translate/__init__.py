@@ -6,6 +6,8 @@
     restormer   MDTA + GDFN transformer denoiser trained with L1 (loads official weights by path)
     diffusion   a compact conditional DDPM/DDIM restorer: the offline stand-in for DiffBIR
     prior       the physics prior alone (blurred MLE at a fitted gain): the others' untrained start
+    classical   the best non-learned denoiser: binomial VST, NLM / wavelet / TV / Gaussian, MLE
+                (chosen on the training scenes' held-out views; like ``prior``, nothing is trained)
 
 Each module holds ``Config`` (CPU-budget defaults), ``PAPER`` (the published sizes) and
 ``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks` (the VGG

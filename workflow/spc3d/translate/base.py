@@ -24,8 +24,12 @@ K > 1: the average of K frames) to an sRGB image of the same size. Each model fi
         load_pretrained(path)         optional: published weights given by path (Restormer)
         prior: PhysicsPrior | None    the physics prior its output is a residual over (``prior_sigma``
                                       > 0 in its Config; :mod:`.prior`), else None
-        trainable: bool               False for a method without a network (``prior``): training
-                                      fits its prior's gain and takes no step
+        trainable: bool               False for a method without a network (``prior``, ``classical``):
+                                      training is its fit_untrained alone and takes no step
+        fit_untrained(pairs, validate) -> dict | None
+                                      what is fitted before any step (an untrained method's whole
+                                      training): by default the prior's gain; ``classical`` selects
+                                      its denoiser there. Returns a record for train.json or None
 
 ``TranslatorBase`` supplies ``translate`` (pad, run, crop back, clamp), ``state`` / ``load`` for
 checkpoints, ``parameter_count``, and the physics prior (``make_prior`` builds it, ``with_prior``
@@ -38,6 +42,7 @@ from __future__ import annotations
 
 import abc
 import copy
+from collections.abc import Callable, Iterable
 
 import torch
 import torch.nn.functional as F
@@ -121,6 +126,20 @@ class TranslatorBase(abc.ABC):
         if signed:
             return residual + to_signed(self.prior(from_signed(binary)))
         return residual + self.prior(binary)
+
+    def fit_untrained(
+        self, pairs: Callable[[], Iterable[tuple[Tensor, Tensor]]], validate: Callable[[Callable], dict] | None
+    ) -> dict | None:
+        """What is fitted before any optimisation step, on the training data alone (all the training of
+        a method that is not ``trainable``): by default the physics prior's gain, when there is a prior.
+        ``pairs()`` gives a fresh iterable of the training (binary, sRGB) pairs on every call;
+        ``validate(translate)`` scores a (B, 3, H, W) -> (B, 3, H, W) function on the training scenes'
+        held-out views ({"val_psnr", "val_l1"}; None without validation). Returns a record for
+        train.json (``selection``), or None."""
+        del validate  # the prior's gain needs no validation
+        if self.prior is not None:
+            self.prior.fit(pairs())
+        return None
 
     @abc.abstractmethod
     def modules(self) -> dict[str, nn.Module]:

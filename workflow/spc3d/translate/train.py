@@ -13,7 +13,8 @@ scenes' held-out views, keeps the best model and stops early (:mod:`.validate`).
     train.json    seed, resolved model, training and validation settings, the data (mode, samples
                   drawn, distinct samples), the validation curve, best step, stop step and reason
                   (``patience`` / ``budget``), wall time, parameter counts, peak memory, final
-                  losses, resume point
+                  losses, resume point; ``selection``: what the model's ``fit_untrained`` returned
+                  (``classical``: every candidate denoiser's score and time, and the one chosen)
     curve.csv     the losses every ``log_every`` iterations and the validation PSNR / L1
     curve.png     the training curve (a figure a person would rather look at than the csv; :mod:`.curves`)
 
@@ -300,6 +301,7 @@ class TrainingSetup:
     meta: dict  # method, seed, frames, data, resolved model, training and validation settings (fingerprinted)
     pairs: int | None  # fixed pairs (None online)
     validator: Validator | None = None
+    selection: dict | None = None  # what the model's fit_untrained returned (classical: its selection table)
 
 
 def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> TrainingSetup:
@@ -311,16 +313,17 @@ def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> Train
     seed_everything(job.seed)
     data = job.data
     pretrained = job.settings.get("checkpoint")
-    cfg, s = model_config(job.method, job.settings), train_settings(job.train, job.method, pretrained)
+    cfg, s = model_config(job.method, job.settings, job.frames), train_settings(job.train, job.method, pretrained)
     model = build_translator(job.method, cfg, default_device(), vgg_weights)
     if not model.trainable:
-        s = dataclasses.replace(s, iterations=0)  # the prior alone: its gain fit is all there is
+        s = dataclasses.replace(s, iterations=0)  # an untrained method: its fit_untrained is all there is
     if pretrained:
         model.load_pretrained(pretrained)
     sampler = make_sampler(data, s, job.frames, job.seed, model.paired)
-    if model.prior is not None:
-        model.prior.fit(sampler.calibration_pairs())  # the training data's gain (restored as it is on resume)
     validator = make_validator(data, job.validation, job.frames, s.iterations)
+    validate = (lambda translate: score(translate, validator.views)) if validator else None
+    # the prior's gain on the training data (restored as it is on resume); an untrained method's whole fit
+    selection = model.fit_untrained(sampler.calibration_pairs, validate)
     meta = {
         "method": job.method,
         "seed": job.seed,
@@ -347,7 +350,7 @@ def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> Train
         else None
     )
     pairs = len(sampler.binary) if isinstance(sampler, PairSampler) else None
-    return TrainingSetup(model, sampler, s, ckpt, meta, pairs, validator)
+    return TrainingSetup(model, sampler, s, ckpt, meta, pairs, validator, selection)
 
 
 def prior_record(model, validator: Validator | None) -> dict | None:
@@ -379,6 +382,7 @@ def train_translator(job: TranslatorJob, vgg_weights: dict | None = None) -> dic
     record = {
         **setup.meta,
         "prior": prior_record(setup.model, setup.validator),
+        "selection": setup.selection,
         "pairs": setup.pairs,
         "augment_dirs": list(job.data.augment_dirs),
         "data": setup.sampler.describe(),
