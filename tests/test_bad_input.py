@@ -111,7 +111,7 @@ CASES = [
     ),
     Case(
         "missing-llff-folder",
-        r"llff_scenes\.gone: /nonexistent/gone is not an LLFF folder",
+        r"llff_scenes\.gone: the folder /nonexistent/gone does not exist",
         {"llff_scenes": {"gone": "/nonexistent/gone"}, "scenes": {"eval": ["gone"]}},
     ),
     Case(

@@ -40,7 +40,7 @@ def test_default_config_names_only_known_scenes():
         ({"scenes": {"train": ["tabletop"], "eval": ["tabletop"]}}, r"share \['tabletop'\]"),
         (
             {"scenes": {"train": [], "eval": ["fern"]}, "llff_scenes": {"fern": "/nonexistent/fern"}},
-            r"llff_scenes.fern: /nonexistent/fern is not an LLFF folder",
+            r"llff_scenes.fern: the folder /nonexistent/fern does not exist",
         ),
     ],
 )
@@ -60,10 +60,11 @@ def test_dry_run_lists_the_dag(tmp_path):
     }
     assert counts["prepare_scene"] == 4 and counts["simulate_scene"] == 4 and counts["augment_scene"] == 3
     assert counts["colmap_poses"] == 12 and counts["write_summary"] == 1
-    assert counts["reconstruct"] == 25 and counts["evaluate"] == 25 and counts["write_all_tables"] == 1
+    assert counts["reconstruct"] == 27 and counts["evaluate"] == 27 and counts["write_all_tables"] == 1
     assert counts["estimate_poses"] == 1  # three rows posed by COLMAP on the 16-frame MLE images
-    # five translators and the untrained prior; scored before 3D with none, none-x1, mle, mle-x1, mle-k16
-    assert counts["train_translator"] == 6 and counts["translate_scene"] == 6 and counts["score_images"] == 11
+    # five translators, the untrained prior and the classical denoiser; scored before 3D with none, none-x1,
+    # mle, mle-x1, mle-k16
+    assert counts["train_translator"] == 7 and counts["translate_scene"] == 7 and counts["score_images"] == 12
     assert counts["calibrate_display"] == 3 and counts["write_display"] == 3  # K = 1, K = 16, the capture frame
     assert counts["qualitative_figure"] == 1 and "tables" not in counts  # `tables` is an explicit target only
 
@@ -165,12 +166,14 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "preset,reconstructs,translators", [("smoke", 10, 4), ("llff-cpu", 25, 6), ("paper", 75, 18), ("findings", 216, 33)]
+    "preset,reconstructs,translators",
+    [("smoke", 10, 4), ("llff-cpu", 27, 7), ("paper", 81, 21), ("findings", 234, 36), ("findings-llff", 160, 56)],
 )
 def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
-    """Every preset passes the schema and plans its DAG (the paper preset: 25 combinations x 3 seeds,
-    each seed with its own translators: a repeat redraws everything random; the findings preset: 24
-    combinations x 3 evaluation scenes x 3 seeds, 11 translators per seed)."""
+    """Every preset passes the schema and plans its DAG (the paper preset: 27 combinations x 3 seeds,
+    each seed with its own translators: a repeat redraws everything random; the findings preset: 26
+    combinations x 3 evaluation scenes x 3 seeds, 12 translators per seed; the real-scene preset: 20
+    combinations x 4 scenes x 2 seeds, 7 stage-1 methods per fold and seed)."""
     path = REPO / "workflow" / "presets" / f"{preset}.yaml"
     if "../shared/data/llff" in path.read_text() and not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
         pytest.skip("the preset reads the LLFF scenes of ../shared")

@@ -14,10 +14,11 @@ resolve_paths(config, workflow.basedir)
 from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
+from spc3d.models import TRANSLATORS as STAGE1_SPECS
 from spc3d.names import PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation
 from snakemake.io import apply_wildcards
 
-from spc3d.jobs import benchmark_path, folder_files, llff_input_files, scene_specs
+from spc3d.jobs import benchmark_path, folder_files, llff_input_files, scene_fold, scene_specs, training_folds
 from spc3d.sweeps.plan import OVERLAY_PATTERN, PointSettings, photon_budget, sweep_scenes
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
@@ -26,7 +27,11 @@ LPIPS_WEIGHTS = {net: f"results/cache/lpips/lpips_v0.1_{net}.npz" for net in ("a
 SCENE_SPECS = scene_specs(config, sorted(LAYOUTS))
 TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])
-ALL_SCENES = TRAIN_SCENES + EVAL_SCENES
+ALL_SCENES = list(dict.fromkeys(TRAIN_SCENES + EVAL_SCENES))
+# The training scenes of each evaluation scene: all of scenes.train (fold ""), or with
+# scenes.leave_one_out all but the scene itself ("-without-{scene}": its translators and display level).
+LEAVE_ONE_OUT = config["scenes"]["leave_one_out"]
+FOLDS = training_folds(TRAIN_SCENES, EVAL_SCENES, LEAVE_ONE_OUT)
 # Captured SPAD scenes (config `captures`): their translators are trained for their sensor (one
 # model folder per sensor: results/models-rggb/...), and one without reference views is not scored.
 SENSORS = {f"-{s['sensor_tag']}": s["sensor"] for s in SCENE_SPECS.values() if s["kind"] == "capture"}
@@ -60,6 +65,7 @@ wildcard_constraints:
     model="|".join(STAGE2_MODELS),
     method=f"({'|'.join(STAGE1_METHODS)})(-pub)?",  # "-pub": the published network (prior_sigma: 0)
     rep="(-seed[0-9]+)?",
+    fold=f"({'|'.join(FOLDS)})",  # "" or "-without-{scene}": the training scenes of a model folder / display level
     budget="k[0-9]+|capture",  # a metered display: the first K frames, or the capture-resolution frame
     sensor=f"({'|'.join(SENSORS)})?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
     overlay=OVERLAY_PATTERN,  # "" (the grid) or a sweep point's settings, "sweeps/tradeoff/iters~300/.../"
@@ -233,9 +239,24 @@ def get_augment_count(wildcards):
     return split_count(config["augment"]["count"], len(TRAIN_SCENES), TRAIN_SCENES.index(wildcards.scene))
 
 
+def fold_of(wildcards):
+    """The fold of a job's evaluation scene ("" for a sweep point: its own training scenes)."""
+    return "" if overlay_of(wildcards) else scene_fold(wildcards.scene, TRAIN_SCENES, LEAVE_ONE_OUT)
+
+
+def training_scenes(wildcards):
+    """The training scenes of a fold's model folder or display level (a sweep point's: tradeoff.train_scenes)."""
+    return POINTS.train if overlay_of(wildcards) else FOLDS[wildcards.fold]
+
+
+def get_display_calibration(wildcards):
+    """The display level of the scene's fold at the display's budget."""
+    return f"results/{overlay_of(wildcards)}calibration{fold_of(wildcards)}/display-{wildcards.budget}{wildcards.rep}.json"
+
+
 def get_display_training(wildcards):
     """Scene and SPC folders of the training scenes the display level is fitted on."""
-    root, scenes = f"results/{overlay_of(wildcards)}", POINTS.train if overlay_of(wildcards) else TRAIN_SCENES
+    root, scenes = f"results/{overlay_of(wildcards)}", training_scenes(wildcards)
     return {"scenes": expand(f"{root}scenes/{{scene}}", scene=scenes),
             "spc": expand(f"{root}spc/{{scene}}{{rep}}", scene=scenes, rep=wildcards.rep)}
 
@@ -258,7 +279,8 @@ def get_summary_colmap():
 
 
 def get_summary_roles():
-    return ["train"] * len(TRAIN_SCENES) + ["eval"] * len(EVAL_SCENES)
+    """Each scene's role, in ALL_SCENES' order (leave-one-out: a scene both trains and is evaluated)."""
+    return [" + ".join(r for r, names in (("train", TRAIN_SCENES), ("eval", EVAL_SCENES)) if s in names) for s in ALL_SCENES]
 
 
 def get_translator_base(wildcards):
@@ -298,7 +320,7 @@ def get_translator_data(wildcards):
     """The training data of a translator: the augmented pairs (stage1.data: fixed) and, for online
     samples or validation (on their held-out views), the training scenes and their SPC folders."""
     data, inputs = get_translator_data_kind(wildcards), {}
-    root, scenes = f"results/{overlay_of(wildcards)}", POINTS.train if overlay_of(wildcards) else TRAIN_SCENES
+    root, scenes = f"results/{overlay_of(wildcards)}", training_scenes(wildcards)
     if data == "fixed":
         inputs["pairs"] = expand(f"{root}augment/{{scene}}{{rep}}", scene=scenes, rep=wildcards.rep)
     if data == "online" or get_translator_validation(wildcards)["every"] > 0:
@@ -318,7 +340,8 @@ def get_augment_ranges(wildcards):
 
 
 def get_translator_checkpoint(wildcards):
-    return f"results/{overlay_of(wildcards)}checkpoints/models{wildcards.sensor}/{wildcards.method}{wildcards.rep}/checkpoint.pt"
+    return (f"results/{overlay_of(wildcards)}checkpoints/models{wildcards.sensor}{wildcards.fold}/"
+            f"{wildcards.method}{wildcards.rep}/checkpoint.pt")
 
 
 def get_translator_sensor(wildcards):
@@ -327,9 +350,9 @@ def get_translator_sensor(wildcards):
 
 
 def get_translator_model(wildcards):
-    """The model trained for the scene's sensor."""
+    """The model trained for the scene's sensor on the scene's fold of training scenes."""
     sensor = "" if overlay_of(wildcards) else scene_sensor(wildcards.scene)
-    return f"results/{overlay_of(wildcards)}models{sensor}/{wildcards.method}{wildcards.rep}"
+    return f"results/{overlay_of(wildcards)}models{sensor}{fold_of(wildcards)}/{wildcards.method}{wildcards.rep}"
 
 
 def get_stage1_images(wildcards):
@@ -367,6 +390,11 @@ def point_benchmarks(points):
             | {"benchmarks": [str(benchmark_path(apply_wildcards(workflow.get_rule(rule).log[0], wildcards)))
                               for rule, wildcards in p["jobs"]]}
             for p in points]
+
+
+def get_translator_gpus(wildcards):
+    """A network trains on CUDA when present; the untrained methods (prior, classical) need no GPU."""
+    return int(STAGE1_SPECS[parse_source(wildcards.method).base].trained)
 
 
 def get_stage2_gpus(wildcards):

@@ -1,5 +1,5 @@
 # The inputs every combination reads: scene folders (prepare_scene), their SPC frames (simulate_scene),
-# the metered MLE displays of the physics rows (calibrate_display, write_display) and the augmented
+# the MLE displays of the physics rows (calibrate_display, write_display) and the augmented
 # training pairs of stage 1 (augment_scene). Library: spc3d.inputs.build, spc3d.inputs.exposure, spc3d.inputs.augment.
 
 rule prepare_scene:
@@ -39,17 +39,17 @@ rule simulate_scene:
 
 
 rule calibrate_display:
-    """The display level k of the metered MLE (g = mean flux / k), fitted on the training scenes at one
-    budget: their first K frames ("k{K}") or their capture-resolution frame ("capture")."""
+    """The display level k of the MLE (g = k x the reported exposure's flux), fitted on a fold's training
+    scenes at one budget: their first K frames ("k{K}") or their capture-resolution frame ("capture")."""
     input:
         unpack(get_display_training),
     output:
-        "results/{overlay}calibration/display-{budget}{rep}.json",
+        "results/{overlay}calibration{fold}/display-{budget}{rep}.json",
     params:
         frames=get_display_frames,
         capture=get_display_capture,
     log:
-        "logs/calibrate_display/{overlay}{budget}{rep}.log",
+        "logs/calibrate_display/{overlay}{budget}{fold}{rep}.log",
     threads: 1
     priority: 10
     conda:
@@ -60,10 +60,10 @@ rule calibrate_display:
 
 rule write_display:
     """A scene's MLE images of one budget (first K frames, or the capture-resolution frame) at the
-    gain metered on its training views (no ground truth: spc3d.inputs.exposure)."""
+    gain of its reported exposure and its fold's level (no ground truth: spc3d.inputs.exposure)."""
     input:
         spc="results/{overlay}spc/{scene}{rep}",
-        calibration="results/{overlay}calibration/display-{budget}{rep}.json",
+        calibration=get_display_calibration,
     output:
         directory("results/{overlay}mle/{scene}/{budget}{rep}"),
     params:

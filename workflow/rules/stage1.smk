@@ -11,11 +11,11 @@ rule train_translator:
         pretrained=get_translator_pretrained,
     output:
         report(
-            directory("results/{overlay}models{sensor}/{method}{rep}"),
+            directory("results/{overlay}models{sensor}{fold}/{method}{rep}"),
             patterns=["{figure,curve}.png"],
             caption="../report/curve.rst",
             category="4. Stage 1 training",
-            labels={"translator": "{method}{sensor}", "figure": "training curve"},
+            labels={"translator": "{method}{sensor}{fold}", "figure": "training curve"},
         ),
     params:
         method=get_translator_base,
@@ -30,10 +30,10 @@ rule train_translator:
         checkpoint=get_translator_checkpoint,
         policy=config["checkpoints"],
     log:
-        "logs/train_translator/{overlay}{method}{sensor}{rep}.log",
+        "logs/train_translator/{overlay}{method}{sensor}{fold}{rep}.log",
     threads: 1
     resources:
-        gpu=1,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
+        gpu=get_translator_gpus,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it
     priority: 10  # eight stage-2 jobs wait on the translators: start them before other training
     conda:
         ENV

@@ -109,17 +109,58 @@ def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path =
                     f"({', '.join(builtin_layouts)}), add it to llff_scenes as name: folder, "
                     "or to captures as name: capture folder"
                 )
-    overlap = set(config["scenes"]["train"]) & set(config["scenes"]["eval"])
-    if overlap:
-        raise ConfigError(f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out")
-    check_disjoint_content(config["scenes"]["train"], config["scenes"]["eval"])
+    train, evaluate = config["scenes"]["train"], config["scenes"]["eval"]
+    overlap = set(train) & set(evaluate)
+    if overlap and not config["scenes"].get("leave_one_out"):
+        raise ConfigError(
+            f"scenes.train and scenes.eval share {sorted(overlap)}: evaluation scenes must be held out "
+            "(or set scenes.leave_one_out: true to evaluate each on translators trained without it)"
+        )
+    leave_one_out = bool(config["scenes"].get("leave_one_out"))
+    folds = training_folds(train, evaluate, leave_one_out)
+    for scene in evaluate:
+        check_disjoint_content(folds[scene_fold(scene, train, leave_one_out)], [scene])
     return specs
+
+
+FOLD_PREFIX = "-without-"
+
+
+def scene_fold(scene: str, train: list[str], leave_one_out: bool) -> str:
+    """The tag of the training scenes an evaluation scene is evaluated with: "" for all of
+    ``train``, ``-without-{scene}`` for ``train`` less the scene itself (leave-one-scene-out)."""
+    return f"{FOLD_PREFIX}{scene}" if leave_one_out and scene in train else ""
+
+
+def training_folds(train: list[str], evaluate: list[str], leave_one_out: bool) -> dict[str, list[str]]:
+    """Fold tag -> its training scenes, for the folds the evaluation scenes use (:func:`scene_fold`);
+    "" (all of ``train``) is always there, for the sweeps and the data summary. A fold left with no
+    training scene is refused (a translator needs data)."""
+    folds = {"": list(train)}
+    for scene in evaluate:
+        fold = scene_fold(scene, train, leave_one_out)
+        if not fold:
+            continue
+        folds[fold] = [s for s in train if s != scene]
+        if not folds[fold]:
+            raise ConfigError(
+                f"scenes.leave_one_out: evaluating {scene!r} leaves no training scene (scenes.train = {train}); "
+                "list at least two scenes in scenes.train"
+            )
+    return folds
 
 
 def real_scene_spec(name: str, path: Path, res: dict) -> dict:
     """The spec of a real RGB scene: an LLFF folder (checked now, not in a job) or a COLMAP-format one."""
     from spc3d.inputs.build import scene_layout
 
+    if not Path(path).is_dir():
+        raise ConfigError(
+            f"llff_scenes.{name}: the folder {path} does not exist (a relative path is taken from the "
+            "repository root). Point it at an LLFF folder (images_<factor>/ and poses_bounds.npy) or a "
+            "COLMAP-format one; the real-scene presets read the four LLFF scenes of ../shared/data/llff "
+            "beside the repository, and workflow/presets/findings.yaml needs no data"
+        )
     try:
         layout = scene_layout(path)
     except FileNotFoundError as e:

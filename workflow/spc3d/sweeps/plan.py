@@ -113,10 +113,14 @@ def sweep_scenes(
     """(evaluation scene, training scenes) of the sweeps: ``tradeoff.scene`` / ``train_scenes`` or the
     first of ``scenes.eval`` / ``scenes.train``; every name must be ``known`` and the two disjoint.
     A sweep simulates its scene at every budget, so its default is the first evaluation scene that is
-    not a capture (or, when all are, the first known scene outside the training ones)."""
+    not a capture (or, when all are, the first known scene outside the training ones). Defaulted
+    training scenes leave the sweep's scene out (leave-one-scene-out: it may be among scenes.train)."""
+    given = train is not None
     train = list(train_scenes if train is None else train)
     simulated = [s for s in eval_scenes if s in known] or [s for s in known if s not in train]
     scene = scene or simulated[0]
+    if not given:
+        train = [s for s in train if s != scene]
     for key, names in (("tradeoff.scene", [scene]), ("tradeoff.train_scenes", train)):
         for name in names:
             if name not in known:
@@ -146,7 +150,7 @@ def point_jobs(combo: str, value: str, scene: str, train: list[str], frames: int
     if trained and not train:
         raise ValueError(f"{combo}: source {source!r} needs training scenes (tradeoff.train_scenes is empty)")
     scenes = [scene, *train] if trained else [scene]
-    common = {"overlay": value, "rep": "", "sensor": "", "poses": ""}
+    common = {"overlay": value, "rep": "", "sensor": "", "fold": "", "poses": ""}  # a point: its own training scenes
     jobs = [("prepare_scene", {"scene": s}) for s in scenes]
     if source != "gt":
         jobs += [("simulate_scene", {"scene": s}) for s in scenes]

@@ -1,0 +1,68 @@
+"""Leave-one-scene-out: each evaluation scene's translators and display level are fitted on the
+training scenes without it (spc3d.jobs.training_folds), and the real-scene preset refuses a missing
+LLFF folder by name before any job."""
+
+import pytest
+from snakemake.utils import update_config, validate
+
+from spc3d.config import check_config, read_yaml, resolve_paths
+from spc3d.inputs.scenes import LAYOUTS
+from spc3d.jobs import scene_fold, scene_specs, training_folds
+from spc3d.names import ConfigError
+
+from conftest import LLFF_ROOT, REPO, run_snakemake
+
+SCHEMA_PATH = REPO / "workflow" / "schemas" / "config.schema.yaml"
+PRESET = REPO / "workflow" / "presets" / "findings-llff.yaml"
+LLFF = ("fern", "flower", "fortress", "trex")
+
+
+def test_each_scene_is_evaluated_without_itself():
+    folds = training_folds(list(LLFF), list(LLFF), True)
+    assert folds[""] == list(LLFF)  # all of them: the sweeps' and the data summary's
+    for scene in LLFF:
+        assert scene_fold(scene, list(LLFF), True) == f"-without-{scene}"
+        assert folds[f"-without-{scene}"] == [s for s in LLFF if s != scene]
+    # An evaluation scene outside scenes.train uses all of it; without leave_one_out there are no folds.
+    assert scene_fold("courtyard", list(LLFF), True) == ""
+    assert training_folds(["a", "b"], ["c"], False) == {"": ["a", "b"]}
+    assert training_folds([], ["c"], False) == {"": []}  # no translator at all: allowed (oracle-only runs)
+    with pytest.raises(ConfigError, match="evaluating 'a' leaves no training scene"):
+        training_folds(["a"], ["a"], True)
+
+
+def _config(*changes, base=REPO) -> dict:
+    config = read_yaml(REPO / "config.yaml")
+    for change in changes:
+        update_config(config, change if isinstance(change, dict) else read_yaml(change))
+    check_config(config, read_yaml(SCHEMA_PATH))
+    validate(config, schema=str(SCHEMA_PATH))
+    resolve_paths(config, base)
+    return config
+
+
+def test_an_overlap_needs_leave_one_out_and_content_stays_disjoint_per_fold():
+    overlap = {"scenes": {"train": ["tabletop", "orchard"], "eval": ["tabletop"]}}
+    with pytest.raises(ConfigError, match=r"share \['tabletop'\].*scenes.leave_one_out: true"):
+        scene_specs(_config(overlap), sorted(LAYOUTS))
+    # The built-in training layouts share textures with each other: leaving one out is refused too.
+    loso = {"scenes": {"train": ["tabletop", "orchard"], "eval": ["tabletop"], "leave_one_out": True}}
+    with pytest.raises(ConfigError, match="share content"):
+        scene_specs(_config(loso), sorted(LAYOUTS))
+
+
+def test_the_real_scene_preset_refuses_a_missing_llff_folder_by_name(tmp_path):
+    """A clone without ../shared beside it: the parse stops naming the scene, the folder and the way out."""
+    with pytest.raises(ConfigError, match=r"llff_scenes\.fern: the folder .*shared/data/llff/fern does not exist"):
+        scene_specs(_config(PRESET, base=tmp_path / "clone"), sorted(LAYOUTS))
+
+
+@pytest.mark.skipif(not (LLFF_ROOT / "fern").is_dir(), reason="needs the LLFF scenes of ../shared")
+def test_the_real_scene_preset_plans_one_fold_per_scene(tmp_path):
+    """Dry run of the preset: four folds of translators and display levels, each scene evaluated once per seed."""
+    proc = run_snakemake(tmp_path, "-n", "--quiet", "rules", "--cores", "1", "--configfile", str(PRESET))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    config = _config(PRESET)
+    folds = training_folds(config["scenes"]["train"], config["scenes"]["eval"], config["scenes"]["leave_one_out"])
+    assert sorted(folds) == ["", *sorted(f"-without-{s}" for s in LLFF)]
+    assert config["seeds"] * len(config["scenes"]["eval"]) >= 8  # runs per row: a verdict's minimum and then some
