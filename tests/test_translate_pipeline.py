@@ -15,7 +15,7 @@ from torch import nn
 
 from spc3d import io, translate
 from spc3d.checkpoints import CheckpointPolicy
-from spc3d.evaluation import tables
+from spc3d.evaluation import figures, tables
 from spc3d.evaluation.figures import pick_view, qualitative_figure
 from spc3d.evaluation.stage1 import score_images
 from spc3d.inputs.augment import AugmentSettings, augment_scene
@@ -348,6 +348,22 @@ def test_qualitative_figure(world, tmp_path):
     recons = {"gt+3dgs": str(recon), "mle-k4+3dgs@mle-k4": str(tmp_path / "unposed")}
     qualitative_figure(world / "scenes" / "gallery", world / "spc" / "gallery", recons, out, labels=LABELS)
     assert io.read_image(out).shape[2] in (3, 4)
+
+
+def test_long_panel_titles_wrap_inside_their_panels():
+    """Row labels as long as the tables' wrap to several lines and no two titles of a row overlap."""
+    long = "Physics prior (blurred MLE, the translators' untrained start) + nerf-grid\n23.58 dB"
+    assert all(len(line) <= figures.TITLE_CHARS for line in figures.wrap_title(long).split("\n")[:-1])
+    assert figures.wrap_title("short\n1.00 dB") == "short\n1.00 dB"
+    panels = [(long, np.full((24, 32, 3), 0.5))] * 7
+    fig = figures.panel_figure(panels, "scene", per_row=6)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    boxes = [ax.title.get_window_extent(renderer) for ax in fig.axes if ax.get_title()]
+    assert len(boxes) == 7
+    for a, b in zip(boxes[:5], boxes[1:6]):  # neighbours in the first row
+        assert a.x1 <= b.x0, (a, b)
+    assert all(box.y1 <= fig.bbox.y1 for box in boxes)  # inside the figure
 
 
 def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):

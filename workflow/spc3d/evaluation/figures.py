@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -57,17 +58,35 @@ def qualitative_figure(
     return view
 
 
+TITLE_CHARS = 34  # characters per title line at 7 pt in a 2.4-inch panel: longer labels wrap
+TITLE_LINE_IN = 0.13  # height of one 7-pt title line (inches)
+
+
+def wrap_title(label: str, width: int = TITLE_CHARS) -> str:
+    """``label`` with each of its lines wrapped at ``width`` characters (words kept whole), so long
+    row names stay inside their panel instead of running into the next one's title."""
+    return "\n".join(textwrap.fill(line, width, break_long_words=False) or line for line in label.split("\n"))
+
+
 def _draw(panels: list[tuple[str, np.ndarray]], out_png, title: str, per_row: int) -> None:
+    save_png(panel_figure(panels, title, per_row), out_png, dpi=120)
+
+
+def panel_figure(panels: list[tuple[str, np.ndarray]], title: str, per_row: int):
+    """A figure of titled image panels, ``per_row`` to a row, each title wrapped to its panel."""
     plt = pyplot()
     cols = min(per_row, len(panels))
     rows = math.ceil(len(panels) / cols)
     h, w = panels[0][1].shape[:2]
-    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, 2.4 * rows * h / w + 0.5 * rows), squeeze=False)
+    titles = [wrap_title(label) for label, _ in panels]
+    lines = max(t.count("\n") + 1 for t in titles)
+    height = rows * (2.4 * h / w + lines * TITLE_LINE_IN + 0.2)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.4 * cols, height + 0.4), squeeze=False)
     for ax in axes.flat:
         ax.axis("off")
-    for ax, (label, img) in zip(axes.flat, panels):
+    for ax, label, (_, img) in zip(axes.flat, titles, panels):
         ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
         ax.set_title(label, fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    save_png(fig, out_png, dpi=120)
+    return fig
