@@ -82,3 +82,15 @@ def test_a_missing_run_in_a_docs_file_names_that_file(tmp_path):
     with pytest.raises(SystemExit, match=r"gone\.md does not exist.*docs/results\.md"):
         main([str(tmp_path), str(readme)])
     assert "old" in readme.read_text()  # an error in one document leaves every document as it was
+
+
+def test_a_kept_run_leaves_its_blocks_as_they_are(tmp_path):
+    (tmp_path / "res" / "tables").mkdir(parents=True)
+    (tmp_path / "res" / "tables" / "t.md").write_text("# Title\n\n| new | 1 |\n")
+    readme = tmp_path / "README.md"
+    kept = "<!-- generated: trade:tables/t.md -->\n| old | 0 |\n\n*Copied ... (2026-01-01).*\n<!-- /generated -->\n"
+    readme.write_text("<!-- generated: tables/t.md -->\nold\n<!-- /generated -->\n" + kept)
+    assert run_tool(tmp_path / "res", readme, "--keep", "trade") == 0
+    text = readme.read_text()
+    assert "| new | 1 |" in text and text.endswith(kept)  # the kept run's block is untouched
+    assert run_tool(tmp_path / "res", readme, "--keep") == 2  # --keep without a name: the usage

@@ -1,6 +1,6 @@
 """Copy generated result tables into the README and docs/, between markers, so their numbers are never typed.
 
-    python workflow/tools/readme_results.py RESULTS_DIR [README.md] [--run NAME=DIR ...]
+    python workflow/tools/readme_results.py RESULTS_DIR [README.md] [--run NAME=DIR ...] [--keep NAME ...]
 
 Every block of the README, and of every ``docs/*.md`` beside it, of the form
 
@@ -13,7 +13,9 @@ naming the file and its date; the document's own text says which run that was. A
 ``NAME:tables/findings.md`` is read from the results of another run, given as ``--run NAME=DIR``
 (e.g. the findings preset's). The README defaults to ``./README.md``; its ``docs/`` folder is found
 next to it. A missing file or run is an error naming it and the document that asks for it, and
-then no document is written; otherwise each document is written atomically.
+then no document is written; otherwise each document is written atomically. ``--keep NAME``
+leaves the blocks of run NAME as they are (a run not repeated this time; its blocks keep the
+provenance line that names their date).
 """
 
 from __future__ import annotations
@@ -33,9 +35,12 @@ def provenance(results: Path, path: Path, run: str = "") -> str:
     return f"*Copied by `workflow/tools/readme_results.py` from {where}`results/{rel}` ({when}).*"
 
 
-def body(runs: dict[str, Path], ref: str, doc: Path = Path("README.md")) -> str:
-    """The text for a block of ``doc`` naming ``ref`` (``[RUN:]path`` in a run's results)."""
+def body(runs: dict[str, Path], ref: str, doc: Path = Path("README.md"), kept: str | None = None) -> str:
+    """The text for a block of ``doc`` naming ``ref`` (``[RUN:]path`` in a run's results); ``kept``:
+    the block's current text, returned as it is when its run is kept (``runs[run]`` is None)."""
     run, _, rel = ref.rpartition(":")
+    if run in runs and runs[run] is None:
+        return kept
     if run not in runs:
         raise SystemExit(f"{doc}: a block names run {run!r} ({ref}): give its results as --run {run}=DIR")
     results = runs[run]
@@ -54,7 +59,9 @@ def documents(readme: Path) -> list[Path]:
 
 def refresh(runs: dict[str, Path], doc: Path) -> tuple[str, int]:
     """``doc``'s text with every generated block replaced, and how many there were."""
-    return BLOCK.subn(lambda m: m.group(1) + body(runs, m.group("path"), doc) + m.group(4), doc.read_text())
+    return BLOCK.subn(
+        lambda m: m.group(1) + body(runs, m.group("path"), doc, m.group("body")) + m.group(4), doc.read_text()
+    )
 
 
 def write_atomically(path: Path, text: str) -> None:
@@ -63,8 +70,9 @@ def write_atomically(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
-def parse_args(argv: list[str]) -> tuple[dict[str, Path], Path] | None:
-    """({run name: results dir}, README) from the command line ("" is RESULTS_DIR); None if malformed."""
+def parse_args(argv: list[str]) -> tuple[dict[str, Path | None], Path] | None:
+    """({run name: results dir, or None for a kept run}, README) from the command line ("" is
+    RESULTS_DIR); None if malformed."""
     plain, runs = [], {}
     args = iter(argv)
     for arg in args:
@@ -73,6 +81,11 @@ def parse_args(argv: list[str]) -> tuple[dict[str, Path], Path] | None:
             if not (name and eq and folder):
                 return None
             runs[name] = Path(folder)
+        elif arg == "--keep":
+            name = next(args, "")
+            if not name:
+                return None
+            runs[name] = None
         else:
             plain.append(arg)
     if not plain or len(plain) > 2:
@@ -91,7 +104,7 @@ def main(argv: list[str]) -> int:
         raise SystemExit(f"{readme} does not exist: give the README's path")
     # Every document is rendered before any is written: a missing file or run changes nothing.
     refreshed = [(doc, *refresh(runs, doc)) for doc in documents(readme)]
-    sources = ", ".join(map(str, runs.values()))
+    sources = ", ".join(str(d) for d in runs.values() if d is not None)
     for doc, text, count in refreshed:
         if text != doc.read_text():
             write_atomically(doc, text)
