@@ -37,20 +37,25 @@ at which a test can reject at all; at n = 6 with every run agreeing in sign the 
 exactly [min, max] of the run differences. With fewer paired runs a claim is DESCRIPTIVE ONLY: its
 mean difference, the range [min, max] of its run differences (a range, not an interval) and n.
 
-**A claim** has m comparisons (better row, worse row); each family of p-values (p_holds, p_short,
-and max(p_short, p_low) for equivalence) is Holm-adjusted over them (:func:`holm_families`):
+**A claim** has m comparisons (better row, worse row), and claims that *every* one of them
+clears δ ("A beats every other two-stage row"). Its p-values are adjusted for the claim's
+comparisons (:func:`claim_families`) according to what each verdict asserts:
 
-    HOLDS             every comparison's adjusted p_holds ≤ 0.025
-    EQUIVALENT        else some comparison's adjusted p_short ≤ 0.025, and every such comparison
-                      is equivalent (adjusted max(p_short, p_low) ≤ 0.025): the claimed advantage
-                      over that row is smaller than δ either way
-    DOES NOT HOLD     else some comparison's adjusted p_short ≤ 0.025 (one of them not equivalent)
+    HOLDS             every comparison's p_holds ≤ 0.025, unadjusted: the claim is the intersection
+                      of its comparisons, so it is wrongly held only if every one of them is, and
+                      testing each at 0.025 keeps that ≤ 0.025 (the intersection-union test,
+                      Berger 1982); Holm here would only cost power
+    EQUIVALENT        else some comparison's Holm-adjusted p_short ≤ 0.025 (asserting that *some*
+                      comparison fails is a union over them: Holm keeps it ≤ 0.025), and every such
+                      comparison is equivalent (Holm-adjusted max(p_short, p_low) ≤ 0.025): the
+                      claimed advantage over that row is smaller than δ either way
+    DOES NOT HOLD     else some comparison's Holm-adjusted p_short ≤ 0.025 (one not equivalent)
     INCONCLUSIVE      otherwise
     DESCRIPTIVE ONLY  the claim's smallest paired n < MIN_RUNS
 
-Holm's first step needs a p ≤ 0.025 / m, so m comparisons need n ≥ N runs with 1 / 2^N ≤ 0.025 / m
-(:func:`needed_runs`); a claim short of that says so. Holm per family keeps each family's error
-rate at 0.025, so a claim wrongly held or wrongly failed is at most 5 % together.
+A claim wrongly held or wrongly failed is then at most 5 % together. Holm's first step needs a
+p ≤ 0.025 / m, so showing a failure among m comparisons needs n ≥ N runs with 1 / 2^N ≤ 0.025 / m
+(:func:`needed_runs`); a claim short of that says so. HOLDS needs only MIN_RUNS whatever m.
 
 **Baselines.** Every translator's Δ over the two non-learned stage-1 methods, the untrained
 ``prior`` and ``classical`` (and ``classical`` over ``prior``), at stage 1 and through each 3D
@@ -267,8 +272,9 @@ def smallest_p(n: int, one_sided: bool = False) -> float:
 
 
 def needed_runs(m: int, alpha: float = ALPHA) -> int:
-    """The fewest paired runs with which a claim of m comparisons can reach a verdict: Holm's first
-    step needs a one-sided p ≤ (alpha / 2) / m, so the smallest N with 1 / 2^N ≤ (alpha / 2) / m."""
+    """The fewest paired runs with which a failure among m comparisons can be shown (DOES NOT HOLD,
+    EQUIVALENT): Holm's first step needs a one-sided p ≤ (alpha / 2) / m, so the smallest N with
+    1 / 2^N ≤ (alpha / 2) / m. HOLDS, an intersection-union test, needs MIN_RUNS whatever m."""
     n = 1
     while smallest_p(n, one_sided=True) > alpha / 2 / m:
         n += 1
@@ -312,16 +318,18 @@ def holm(p) -> np.ndarray:
     return out
 
 
-def holm_families(p_holds, p_short, p_low) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The comparisons' (..., m) p-values Holm-adjusted over the last axis, family by family: p_holds,
-    p_short, and the equivalence p max(p_short, p_low) (two one-sided tests)."""
-    p_short = np.asarray(p_short, dtype=np.float64)
-    return holm(p_holds), holm(p_short), holm(np.maximum(p_short, p_low))
+def claim_families(p_holds, p_short, p_low) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The comparisons' (..., m) p-values adjusted for the claim over the last axis, family by
+    family: p_holds as it is (the claim holds only if every comparison does: an intersection-union
+    test needs no adjustment), p_short and the equivalence p max(p_short, p_low) (two one-sided
+    tests) Holm-adjusted (a failure is asserted of some comparison: a union over them)."""
+    p_holds, p_short = (np.asarray(p, dtype=np.float64) for p in (p_holds, p_short))
+    return p_holds.copy(), holm(p_short), holm(np.maximum(p_short, p_low))
 
 
 def verdict(holds, short, equivalent, n: int, alpha: float = ALPHA) -> np.ndarray:
-    """The verdict of claims (...) from their comparisons' Holm-adjusted p (..., m) of each family
-    (:func:`holm_families`), each tested at alpha / 2, and the claims' smallest paired n: HOLDS when
+    """The verdict of claims (...) from their comparisons' adjusted p (..., m) of each family
+    (:func:`claim_families`), each tested at alpha / 2, and the claims' smallest paired n: HOLDS when
     every comparison clears δ; else, where some comparison falls short of δ, EQUIVALENT when each
     that does is within ±δ, else DOES NOT HOLD; else INCONCLUSIVE."""
     holds, short, equivalent = (np.asarray(p, dtype=np.float64) for p in (holds, short, equivalent))
@@ -438,9 +446,9 @@ class Comparison:
     p_holds: float = 1.0  # one-sided p of H0 Δ ≤ δ (rejected: the claim's margin is shown)
     p_short: float = 1.0  # of H0 Δ ≥ δ (rejected: the claimed effect is excluded)
     p_low: float = 1.0  # of H0 Δ ≤ −δ (rejected with p_short: equivalent, |Δ| < δ)
-    holm_holds: float = 1.0  # Holm-adjusted over the claim's comparisons, family by family
-    holm_short: float = 1.0
-    holm_equivalent: float = 1.0  # of max(p_short, p_low)
+    adj_holds: float = 1.0  # adjusted for the claim (claim_families): p_holds as it is (intersection-union)
+    adj_short: float = 1.0  # Holm over the claim's comparisons
+    adj_equivalent: float = 1.0  # Holm, of max(p_short, p_low)
 
 
 def compare(rows: dict[str, Row], better: str, worse: str, smallest_effect: float = SMALLEST_EFFECT) -> Comparison:
@@ -461,22 +469,22 @@ def compare(rows: dict[str, Row], better: str, worse: str, smallest_effect: floa
 
 def decisive(comps: list[Comparison], outcome: str, alpha: float = ALPHA) -> Comparison:
     """The comparison that decides: for DOES NOT HOLD and EQUIVALENT the failing one with the
-    strongest evidence (smallest Holm p_short; for DOES NOT HOLD among those not equivalent), the
-    closest one (smallest mean) when descriptive, else the one with the largest Holm p_holds."""
+    strongest evidence (smallest adjusted p_short; for DOES NOT HOLD among those not equivalent), the
+    closest one (smallest mean) when descriptive, else the one with the largest p_holds."""
     scored = [c for c in comps if c.mean is not None] or comps
     if outcome in ("DOES NOT HOLD", "EQUIVALENT"):
-        failing = [c for c in scored if c.holm_short <= alpha / 2]
+        failing = [c for c in scored if c.adj_short <= alpha / 2]
         if outcome == "DOES NOT HOLD":
-            failing = [c for c in failing if c.holm_equivalent > alpha / 2]
-        return min(failing, key=lambda c: (c.holm_short, c.mean))
+            failing = [c for c in failing if c.adj_equivalent > alpha / 2]
+        return min(failing, key=lambda c: (c.adj_short, c.mean))
     if outcome == DESCRIPTIVE:
         return min(scored, key=lambda c: (c.mean is not None, c.mean or 0.0))
-    return max(scored, key=lambda c: (c.holm_holds, -c.mean))
+    return max(scored, key=lambda c: (c.adj_holds, -c.mean))
 
 
 def evaluate(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLEST_EFFECT) -> dict:
-    """A claim decided: its comparisons (rows of equal budget unless cross-budget), Holm per family,
-    the verdict against δ = ``smallest_effect``; ``family`` names the Holm p the tables show."""
+    """A claim decided: its comparisons (rows of equal budget unless cross-budget), their p adjusted
+    per family, the verdict against δ = ``smallest_effect``; ``family`` names the p the tables show."""
     present = [(a, b) for a, b in claim.pairs if a in rows and b in rows and rows[a].scored and rows[b].scored]
     equal = [(a, b) for a, b in present if claim.cross_budget or rows[a].budget == rows[b].budget]
     out = {"id": claim.id, "claim": claim.text, "by": claim.by, "cross_budget": claim.cross_budget, "m": len(equal)}
@@ -485,13 +493,14 @@ def evaluate(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLE
         why = "no row of equal budget in this run" if present else "rows not in this run"
         return out | {"verdict": NOT_RUN, "note": why, "n": 0, "family": None, "decisive": None, "comparisons": []}
     comps = [compare(rows, a, b, smallest_effect) for a, b in equal]
-    families = holm_families(*([getattr(c, f) for c in comps] for f in ("p_holds", "p_short", "p_low")))
+    families = claim_families(*([getattr(c, f) for c in comps] for f in ("p_holds", "p_short", "p_low")))
     for c, (h, s, e) in zip(comps, zip(*families)):
-        c.holm_holds, c.holm_short, c.holm_equivalent = float(h), float(s), float(e)
+        c.adj_holds, c.adj_short, c.adj_equivalent = float(h), float(s), float(e)
     n = min(c.n for c in comps)
     outcome = str(verdict(*families, n))
     need = needed_runs(len(comps))
-    note = f"needs n ≥ {need} for {len(comps)} comparisons" if n < need and need > MIN_RUNS else ""
+    short = outcome == "INCONCLUSIVE" and n < need
+    note = f"a failure among {len(comps)} comparisons needs n ≥ {need}" if short and need > MIN_RUNS else ""
     return out | {
         "verdict": outcome,
         "note": note,
@@ -577,23 +586,24 @@ def legend(smallest_effect: float = SMALLEST_EFFECT) -> str:
     """What the verdicts and columns mean, with δ."""
     return (
         f"δ = {smallest_effect:g} dB, the smallest effect of interest. HOLDS: every comparison beats its row by "
-        "more than δ (Holm p of H0: Δ ≤ δ at most 0.025: the 95 % interval lies above +δ); DOES NOT HOLD: "
-        "some comparison falls short of δ (Holm p of H0: Δ ≥ δ at most 0.025) and is not within ±δ; "
-        "EQUIVALENT: every comparison that falls short of δ is within ±δ (two one-sided tests, Holm p of "
-        "H0: Δ ∉ (−δ, δ) at most 0.025): the claimed advantage is smaller than δ either way; INCONCLUSIVE: "
-        f"otherwise; DESCRIPTIVE ONLY: fewer than {MIN_RUNS} paired runs (the smallest exact one-sided p, 1/2^n, "
-        "cannot reach 0.025), shown with the range of the run differences instead of an interval. The Holm p "
-        "shown is the decisive comparison's, of the null hypothesis named beside it. The decisive comparison "
-        "is the one with the largest Holm p (for DOES NOT HOLD and EQUIVALENT the failing one with the "
-        "strongest evidence; when descriptive the closest). Rows of equal budget (K frames, S× capture) only, "
-        "except cross-budget claims; rows on estimated poses enter no claim."
+        "more than δ (each p of H0: Δ ≤ δ at most 0.025: its 95 % interval lies above +δ; unadjusted, as the "
+        "claim needs every one of them, an intersection-union test); DOES NOT HOLD: some comparison falls short "
+        "of δ (Holm p of H0: Δ ≥ δ at most 0.025) and is not within ±δ; EQUIVALENT: every comparison that falls "
+        "short of δ is within ±δ (two one-sided tests, Holm p of H0: Δ ∉ (−δ, δ) at most 0.025): the claimed "
+        "advantage is smaller than δ either way; INCONCLUSIVE: otherwise; DESCRIPTIVE ONLY: fewer than "
+        f"{MIN_RUNS} paired runs (the smallest exact one-sided p, 1/2^n, cannot reach 0.025), shown with the "
+        "range of the run differences instead of an interval. The adjusted p shown is the decisive comparison's, "
+        "of the null hypothesis named beside it. The decisive comparison is the one with the largest p of "
+        "H0: Δ ≤ δ (for DOES NOT HOLD and EQUIVALENT the failing one with the strongest evidence; when "
+        "descriptive the closest). Rows of equal budget (K frames, S× capture) only, except cross-budget "
+        "claims; rows on estimated poses enter no claim."
     )
 
 
 LEGEND = legend()
 CLAIM_COLUMNS = ["claim", "by", "verdict", "decisive comparison", "Δ PSNR (dB)", "95 % interval (or range)",
-                 "Holm p", "n (runs)", "m"]  # fmt: skip
-PRIOR_COLUMNS = ["translator", "block", "stage", "verdict", "Δ PSNR (dB)", "95 % interval (or range)", "Holm p",
+                 "adjusted p", "n (runs)", "m"]  # fmt: skip
+PRIOR_COLUMNS = ["translator", "block", "stage", "verdict", "Δ PSNR (dB)", "95 % interval (or range)", "p",
                  "n (runs)"]  # fmt: skip
 BASELINE_TITLES = {
     "prior": "Δ over the untrained prior (`prior`)",
@@ -606,7 +616,7 @@ def p_text(p: float) -> str:
 
 
 def _cells(r: dict) -> list[str]:
-    """(verdict, decisive comparison, Δ, interval or range, Holm p, n) of a decided claim."""
+    """(verdict, decisive comparison, Δ, interval or range, adjusted p, n) of a decided claim."""
     c, note = r["decisive"], f" ({r['note']})" if r["note"] else ""
     if c is None:
         return [f"**{r['verdict']}**", r["note"], "–", "–", "–", "0"]
@@ -614,7 +624,7 @@ def _cells(r: dict) -> list[str]:
         return [f"**{r['verdict']}**{note}", f"{c['better']} vs {c['worse']}: no paired runs", "–", "–", "–", "0"]
     bounds = f"[{c['low']:+.2f}, {c['high']:+.2f}]"
     family = r.get("family")
-    p = f"{p_text(c[f'holm_{family}'])} (H0: {NULLS[family]})" if family else "–"
+    p = f"{p_text(c[f'adj_{family}'])} (H0: {NULLS[family]})" if family else "–"
     return [
         f"**{r['verdict']}**{note}",
         f"{c['better']} vs {c['worse']}",
