@@ -571,7 +571,8 @@ def header(rows: dict[str, Row], results: list[dict], smallest_effect: float = S
         f"Base: {base(rows)}; one PSNR per row and run (its held-out views averaged), claims pair the runs "
         f'two rows share. Smallest effect of interest δ = {smallest_effect:g} dB: "A beats B" means by more '
         "than δ. Test: exact sign-flip permutation test of the mean paired difference, one-sided at 2.5 % "
-        "against ±δ, Holm over a claim's comparisons, interval = the two-sided test inverted (95 %); a verdict "
+        "against ±δ (a claim holds when each of its comparisons does; a failure is Holm-adjusted over them), "
+        "interval = the two-sided test inverted (95 %); a verdict "
         f"needs ≥ MIN_RUNS = {MIN_RUNS} paired runs."
     )
     if not any(r["verdict"] in DECIDED for r in results):
