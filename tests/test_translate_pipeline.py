@@ -299,7 +299,7 @@ def test_two_stage_and_stage1_tables(tmp_path):
     assert "**23.00**" in md and "*22.00*" in md and "DiffBIR stand-in" in md and "22.7" in md
     s1 = []
     for i, (src, p, K) in enumerate(
-        [("pix2pixhd", 21.0, 1), ("mle", 19.0, 1), ("none", 9.0, 1), ("mle-k16", 24.0, 16)]
+        [("pix2pixhd", 21.0, 1), ("mle", 19.0, 1), ("none", 9.0, 1), ("mle-k16", 24.0, 16), ("pix2pixhd-pub", 8.0, 1)]
     ):
         s1.append(str(tmp_path / f"s{i}.json"))
         io.write_json(
@@ -312,8 +312,16 @@ def test_two_stage_and_stage1_tables(tmp_path):
             },
         )
     df = tables.stage1_table(s1, tmp_path / "stage1", LABELS)
-    assert list(df["approach"]) == ["Pix2PixHD", "MLE", "binary frame (no stage 1)", "MLE"]
-    assert list(df["combination"]) == ["pix2pixhd", "mle", "none", "mle-k16"] and list(df["K"]) == [1, 1, 1, 16]
+    # every source once: the published network is not added again as the spec's "-pub" twin
+    assert list(df["approach"]) == [
+        "Pix2PixHD",
+        "MLE",
+        "binary frame (no stage 1)",
+        "Pix2PixHD; the published network",
+        "MLE",
+    ]
+    assert list(df["combination"]) == ["pix2pixhd", "mle", "none", "pix2pixhd-pub", "mle-k16"]
+    assert list(df["K"]) == [1, 1, 1, 1, 16]
     md = (tmp_path / "stage1.md").read_text()
     assert "**21.00**" in md and "**24.00**" in md and "MLE (K = 16)" in md
     # Translators with their physics prior: one "prior" row per blur, its runs the scenes x seeds

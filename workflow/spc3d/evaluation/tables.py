@@ -186,7 +186,8 @@ def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str, unlisted: b
     rows = []
     for label, src, family, paper, _ in spec:
         model = nerf_variant if family == "nerf" else family
-        if src in TRAINED_METHODS and f"{src}-pub+{model}" in summary.index:
+        pub = f"{src}-pub+{model}"
+        if src in TRAINED_METHODS and pub in summary.index and pub not in listed:  # once, if spec lacks it
             rows.append((f"{label} — published network (prior_sigma 0)", f"{src}-pub", family, paper, "published"))
     listed |= {f"{src}+{nerf_variant if fam == 'nerf' else fam}" for _, src, fam, *_ in rows}
     for combo in summary.index:
@@ -401,6 +402,11 @@ def stage1_row(rec: dict, combination: str, mean: dict) -> dict:
     }
 
 
+def stage1_role(source: str) -> str:
+    """A stage-1 row's block: the oracle, the published networks (their own block, as in Table 1), ours."""
+    return "oracle" if source == "gt" else "published" if parse_source(source).pub else "ours"
+
+
 def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> pd.DataFrame:
     """Stage-1 image quality of the held-out views before 3D, one row per source (best first)."""
     rows, prior_rows, names = [], {}, {}
@@ -415,7 +421,7 @@ def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> 
     rows += prior_rows.values()
     summary = summarise(pd.DataFrame(rows, columns=["scene", "combination", "K", "S", "init", *METRICS]))
     spec = [
-        (row_label(src, labels), src, "image", None, "oracle" if src == "gt" else "ours")
+        (row_label(src, labels), src, "image", None, stage1_role(src))
         for src in summary.sort_values("psnr_mean", ascending=False).index
     ]
     df = table(summary.rename(index=lambda c: f"{c}+image"), spec, "image")
