@@ -202,12 +202,14 @@ def test_validation_stops_on_a_plateau_and_keeps_the_best(world, tmp_path):
     trainer = _grey_trainer(world)
     ckpt = Checkpoint(tmp_path / "ckpt.pt", {"job": "grey"})
     result = run(trainer, 40, ckpt, CheckpointPolicy(fraction=0, minutes=0))
-    # validations at 2, 4, ..: levels 0.1 0.3 0.45 0.3 0.35 0.2: best at step 6, then 3 without a better one
+    # validations at 0 (the untrained start), 2, 4, ..: levels 0 0.1 0.3 0.45 0.3 0.35 0.2: best at
+    # step 6, then 3 without a better one
     assert result["stopped_early"] and result["steps"] == 12
     assert trainer.validator.best["step"] == 6
     assert trainer.validator.best["modules"]["G"]["level"] == pytest.approx(0.45)
+    assert [h["iteration"] for h in trainer.validator.history] == [0, 2, 4, 6, 8, 10, 12]
     assert [round(h["val_psnr"], 3) for h in trainer.validator.history] == [
-        round(-20 * np.log10(abs(v - 0.5)), 3) for v in (0.1, 0.3, 0.45, 0.3, 0.35, 0.2)
+        round(-20 * np.log10(abs(v - 0.5)), 3) for v in (0.0, 0.1, 0.3, 0.45, 0.3, 0.35, 0.2)
     ]
     assert float(trainer.model.net.level.detach()) == pytest.approx(0.2)  # the last model is not the kept one
     assert trainer.curve[-1]["iteration"] == 12 and ckpt.record["saves"] == 1  # checkpointed at the stop
@@ -215,6 +217,19 @@ def test_validation_stops_on_a_plateau_and_keeps_the_best(world, tmp_path):
     rerun = run(again, 40, Checkpoint(tmp_path / "ckpt.pt", {"job": "grey"}))
     assert rerun["resumed_from"] == 12 and rerun["steps"] == 12 and rerun["stopped_early"]
     assert again.validator.best["step"] == 6
+
+
+def test_a_training_that_only_gets_worse_keeps_its_untrained_start(world):
+    """Step 0 is validated like any other: a translator never ends below the start it trained from."""
+    trainer = _grey_trainer(world, patience=2)
+    trainer.model.cfg = ScriptConfig(levels=(0.2, 0.1, 0.0))  # every step further from the 0.5 target
+    with torch.no_grad():
+        trainer.model.net.level.fill_(0.45)  # than the start
+    result = run(trainer, 40)
+    assert result["stopped_early"] and result["steps"] == 4  # two validations (2, 4) without beating step 0
+    assert trainer.validator.best["step"] == 0 and trainer.validator.history[0]["iteration"] == 0
+    assert trainer.validator.best["modules"]["G"]["level"] == pytest.approx(0.45)
+    assert trainer.validator.record()["best_step"] == 0
 
 
 def test_a_kill_between_the_best_and_the_stop_resumes_the_count(world, tmp_path):

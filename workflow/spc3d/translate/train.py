@@ -100,6 +100,8 @@ class TranslatorTrainer:
         self.model, self.sampler, self.s, self.validator, self.curve = model, sampler, s, validator, []
 
     def step(self, it: int) -> dict[str, float]:
+        if self.validator and not self.validator.history:  # the untrained start: kept until a step beats it
+            self.validator.update(0, self.model)
         self.model.train(True)
         self.model.set_lr_scale(lr_scale(it, self.s))
         binary, rgb = (x.to(self.model.device) for x in self.sampler())
