@@ -1,6 +1,8 @@
 # spc3d: binary single-photon-camera images -> colour novel views.
 # Thin on purpose: the stages live in workflow/rules/*.smk, the logic in the spc3d library.
+import os
 import sys
+from pathlib import Path
 
 from snakemake.utils import min_version
 
@@ -14,6 +16,11 @@ read_yaml(f"{workflow.basedir}/config.yaml")
 
 
 configfile: f"{workflow.basedir}/config.yaml"
+
+
+# `snakemake --cores 2 --cache`: trained translators are stored in and reused from this folder by
+# every workflow directory (the rules marked `cache: True`; docs/stage1.md#trained-once-reused).
+os.environ.setdefault("SNAKEMAKE_OUTPUT_CACHE", str(Path.home() / ".cache" / "spc3d" / "outputs"))
 
 
 # `snakemake --report results/report.html`: one self-contained page (captions in workflow/report/).

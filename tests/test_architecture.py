@@ -8,53 +8,19 @@
 - The workflow vocabulary stays torch-free.
 """
 
-import ast
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from spc3d.provenance import imported_modules, module_name
+
 from conftest import REPO
 
 PACKAGE = REPO / "workflow" / "spc3d"
 STAGE1 = ("spc3d.translate",)
 STAGE2 = ("spc3d.reconstruct", "spc3d.reconstruct.stage2", "spc3d.reconstruct.sources")
-
-
-def module_name(path: Path) -> str:
-    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-def type_checking_nodes(tree: ast.AST) -> set[int]:
-    """ids of the nodes under ``if TYPE_CHECKING:`` (imports for annotations only: never run)."""
-    skip = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            skip.update(id(n) for stmt in node.body for n in ast.walk(stmt))
-    return skip
-
-
-def imported_modules(path: Path) -> set[str]:
-    """Every module ``path`` imports (relative imports resolved; ``from x import y`` also counts x.y)."""
-    package = module_name(path) if path.name == "__init__.py" else module_name(path).rpartition(".")[0]
-    found = set()
-    tree = ast.parse(path.read_text())
-    skip = type_checking_nodes(tree)
-    for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
-                base = ".".join([*anchor, base] if base else anchor)
-            found.add(base)
-            found.update(f"{base}.{alias.name}" for alias in node.names)
-    return found
 
 
 def modules_of(prefix: str) -> list[Path]:
@@ -98,7 +64,7 @@ def test_workflow_vocabulary_does_not_import_torch():
 
 # Bottom to top: a module of a layer imports only modules of its own layer or of a lower one.
 LAYERS = (
-    ("models", "names", "io", "cameras", "llff", "colour", "plotting", "runtime"),
+    ("models", "names", "io", "cameras", "llff", "colour", "plotting", "runtime", "provenance"),
     ("checkpoints", "training"),
     ("physics",),
     ("poses",),

@@ -1,4 +1,5 @@
 # Config validation and the small named helpers the rules use (no logic in the rules themselves).
+import functools
 from pathlib import Path
 
 from snakemake.utils import validate
@@ -18,6 +19,7 @@ from spc3d.models import TRANSLATORS as STAGE1_SPECS
 from spc3d.names import PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation
 from snakemake.io import apply_wildcards
 
+from spc3d.provenance import closure_digest, entry_file
 from spc3d.jobs import benchmark_path, folder_files, llff_input_files, scene_fold, scene_specs, training_folds
 from spc3d.sweeps.plan import OVERLAY_PATTERN, PointSettings, photon_budget, sweep_scenes
 
@@ -339,9 +341,22 @@ def get_augment_ranges(wildcards):
     return {k: v for k, v in config["augment"].items() if k != "count"}
 
 
-def get_translator_checkpoint(wildcards):
-    return (f"results/{overlay_of(wildcards)}checkpoints/models{wildcards.sensor}{wildcards.fold}/"
-            f"{wildcards.method}{wildcards.rep}/checkpoint.pt")
+# The library code a translator's weights depend on (the scripts of its job and of the jobs upstream,
+# its model's module, every spc3d module they import): a param, so it keys Snakemake's between-workflow
+# cache (`--cache`) and reruns the training when that code changes (spc3d/provenance.py).
+TRAINING_SCRIPTS = [
+    Path(workflow.basedir) / "workflow" / "scripts" / f"{name}.py"
+    for name in ("prepare_scene", "simulate_scene", "augment_scene", "train_translator")
+]
+
+
+@functools.lru_cache(maxsize=None)
+def translator_code(method):
+    return closure_digest([*TRAINING_SCRIPTS, entry_file(STAGE1_SPECS[method].module)])
+
+
+def get_translator_code(wildcards):
+    return translator_code(get_translator_base(wildcards))
 
 
 def get_translator_sensor(wildcards):

@@ -27,10 +27,12 @@ rule train_translator:
         sensor=get_translator_sensor,
         validation=get_translator_validation,
         seed=get_seed,
-        checkpoint=get_translator_checkpoint,
-        policy=config["checkpoints"],
+        code=get_translator_code,  # the library code the weights depend on (spc3d/provenance.py)
     log:
         "logs/train_translator/{overlay}{method}{sensor}{fold}{rep}.log",
+    # `snakemake --cache` (SNAKEMAKE_OUTPUT_CACHE, else ~/.cache/spc3d/outputs): trained once per
+    # settings, training content, seed and code, then reused by any workflow directory
+    cache: True
     threads: 1
     resources:
         gpu=get_translator_gpus,  # CUDA when present; locally unlimited unless `--resources gpu=N` caps it

@@ -83,6 +83,15 @@ def write_benchmark(path: Path | None, wall_s: float, status: str) -> None:
     os.replace(tmp, path)
 
 
+def translator_checkpoint(model_dir: str | os.PathLike) -> Path:
+    """Where the training of ``results/{overlay}models{sensor}{fold}/{method}{rep}`` checkpoints:
+    ``results/{overlay}checkpoints/models{sensor}{fold}/{method}{rep}/checkpoint.pt``. Derived from
+    the output, not a param: where a training checkpoints never changes its weights, so it stays out
+    of the between-workflow cache's key."""
+    model_dir = Path(model_dir)
+    return model_dir.parent.parent / "checkpoints" / model_dir.parent.name / model_dir.name / "checkpoint.pt"
+
+
 def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
     """Scene name -> spec for :func:`spc3d.inputs.build.prepare_scene`, checking every name in the config."""
     res, llff_scenes, captures = config["resolution"], config["llff_scenes"], config.get("captures", {})

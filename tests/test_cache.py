@@ -1,0 +1,99 @@
+"""Trained once, reused: Snakemake's between-workflow cache for translators, and the code in its key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from spc3d import provenance
+from spc3d.jobs import translator_checkpoint
+
+from conftest import SMOKE, run_snakemake
+
+
+def _package(root: Path, files: dict[str, str]) -> Path:
+    for name, text in files.items():
+        (root / "spc3d" / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / "spc3d" / name).write_text(text)
+    return root / "spc3d"
+
+
+@pytest.fixture
+def fake_package(tmp_path, monkeypatch):
+    """spc3d as a tiny package: a script imports ``a``, which imports ``sub.b`` inside a function
+    (relatively) and nothing of ``c``."""
+    pkg = _package(
+        tmp_path,
+        {
+            "__init__.py": "",
+            "a.py": "def f():\n    from .sub import b\n    return b\n",
+            "sub/__init__.py": "",
+            "sub/b.py": "X = 1\n",
+            "c.py": "Y = 2\n",
+        },
+    )
+    monkeypatch.setattr(provenance, "ROOT", pkg)
+    script = tmp_path / "script.py"
+    script.write_text("from spc3d import a\n")
+    return pkg, script
+
+
+def test_the_closure_follows_imports_inside_functions_and_skips_the_rest(fake_package):
+    pkg, script = fake_package
+    names = {provenance.module_name(p) or p.name for p in provenance.closure([script])}
+    assert names == {"script.py", "spc3d", "spc3d.a", "spc3d.sub", "spc3d.sub.b"}
+
+
+def test_the_digest_changes_with_the_code_the_job_reaches_and_only_that(fake_package):
+    pkg, script = fake_package
+    before = provenance.closure_digest([script])
+    (pkg / "c.py").write_text("Y = 3\n")  # not imported: tables, figures
+    assert provenance.closure_digest([script]) == before
+    (pkg / "sub" / "b.py").write_text("X = 2\n")  # imported lazily by a: a loss, a layer
+    assert provenance.closure_digest([script]) != before
+
+
+def test_the_real_training_closure_has_the_training_code_and_not_the_tables():
+    scripts = Path(__file__).resolve().parents[1] / "workflow" / "scripts"
+    files = provenance.closure([scripts / "train_translator.py", provenance.entry_file("spc3d.translate.pix2pix")])
+    names = {provenance.module_name(p) for p in files}
+    assert {"spc3d.translate.train", "spc3d.translate.pix2pix", "spc3d.translate.networks"} <= names
+    assert "spc3d.evaluation.tables" not in names and "spc3d.translate.restormer" not in names
+
+
+def test_a_translator_checkpoints_beside_its_models_folder():
+    path = translator_checkpoint("results/sweeps/p1/models-cfa-without-fern/pix2pix-1")
+    assert path == Path("results/sweeps/p1/checkpoints/models-cfa-without-fern/pix2pix-1/checkpoint.pt")
+    assert translator_checkpoint("results/models/prior") == Path("results/checkpoints/models/prior/checkpoint.pt")
+
+
+@pytest.mark.slow
+def test_a_second_workflow_directory_trains_nothing_and_a_changed_setting_retrains(tmp_path, lpips_cache):
+    store = tmp_path / "store"
+    store.mkdir()
+    local = tmp_path / "local.yaml"
+    local.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
+    env = {"SNAKEMAKE_OUTPUT_CACHE": str(store)}
+
+    def train(work, *extra):
+        args = ["--cores", "2", "--configfile", str(SMOKE), str(local), *extra, "--cache", "--"]
+        done = run_snakemake(tmp_path / work, *args, "results/models/pix2pix", env=env)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return tmp_path / work / "results" / "models" / "pix2pix", done.stderr
+
+    first, log = train("w1")  # trained, then moved into the cache and linked back
+    assert "Moving output file results/models/pix2pix to cache" in log
+    entries = sorted(store.iterdir())
+    assert len(entries) == 1 and first.resolve() == entries[0].resolve()  # stored under its provenance hash
+
+    second, log = train("w2")  # same settings, another directory: fetched, not trained
+    assert "Symlinking output file results/models/pix2pix/model.pt from cache" in log and "to cache" not in log
+    assert "pix2pix: " not in log  # no training's progress bar
+    assert (second / "model.pt").resolve() == (entries[0] / "model.pt").resolve()
+    assert not (tmp_path / "w2" / "results" / "checkpoints").exists()  # no training ran there
+
+    third, log = train("w3", "--config", "seed=1")  # another seed: other weights, trained anew
+    assert "Moving output file results/models/pix2pix to cache" in log
+    assert len(list(store.iterdir())) == 2 and third.resolve() != entries[0].resolve()

@@ -1,0 +1,124 @@
+"""The library code behind a job, for keys that must change when its results could.
+
+Snakemake's between-workflow cache (``cache: True`` rules run with ``--cache``) keys an output on
+its rule's script, params and inputs, and those of every job upstream, but not on the library the
+scripts import: a changed loss in ``spc3d.translate`` would reuse weights trained before the change.
+:func:`closure_digest` closes that gap. It follows the ``spc3d`` imports of the given files
+statically (``ast``: imports inside functions count too, and nothing is imported or executed, so it
+is cheap at parse time), and hashes every module reached, with its packages' ``__init__``.
+A rule passes the digest as a param, so it enters the cache key (and Snakemake's ``params`` rerun
+trigger). Code outside the closure (tables, figures) can change without retraining anything.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import importlib.util
+from collections.abc import Iterable
+from pathlib import Path
+
+PACKAGE = "spc3d"
+ROOT = Path(__file__).resolve().parent  # the spc3d package folder
+
+
+def module_file(name: str) -> Path | None:
+    """The source of module ``spc3d[.a.b]`` (a ``.py`` file or a package's ``__init__.py``), or None."""
+    parts = name.split(".")
+    if parts[0] != PACKAGE:
+        return None
+    base = ROOT.joinpath(*parts[1:])
+    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
+        if parts[1:] and candidate.is_file() or not parts[1:] and candidate.name == "__init__.py":
+            return candidate
+    return None
+
+
+def entry_file(module: str) -> Path:
+    """The source of a registry's ``module`` (:func:`spc3d.models.import_module`'s forms: a dotted
+    name or a ``.py`` path), found without importing it."""
+    if module.endswith(".py"):
+        return Path(module).resolve()
+    found = module_file(module)
+    if found is None:  # a plugin's module outside spc3d (its parent packages are imported to find it)
+        spec = importlib.util.find_spec(module)
+        if spec is None or not spec.origin:
+            raise ModuleNotFoundError(f"model module {module!r}: not found")
+        found = Path(spec.origin)
+    return found
+
+
+def module_name(path: Path) -> str | None:
+    """``spc3d.a.b`` for a file of the package; None for a file outside it (a script)."""
+    try:
+        rel = path.resolve().relative_to(ROOT)
+    except ValueError:
+        return None
+    parts = [PACKAGE, *rel.with_suffix("").parts]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def type_checking_nodes(tree: ast.AST) -> set[int]:
+    """ids of the nodes under ``if TYPE_CHECKING:`` (imports for annotations only: never run)."""
+    skip = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    return skip
+
+
+def imported_names(path: Path) -> set[str]:
+    """Every dotted name a file imports when it runs, anywhere in it (imports inside functions count,
+    ``if TYPE_CHECKING`` ones do not); relative imports resolved against the file's own package, and
+    ``from a import b`` gives both ``a`` and ``a.b`` (``b`` may be a submodule or an attribute)."""
+    here = module_name(path)
+    package = here if path.name == "__init__.py" else here.rpartition(".")[0] if here else None
+    tree = ast.parse(path.read_text(), filename=str(path))
+    skip, out = type_checking_nodes(tree), set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                if package is None:
+                    continue
+                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join([*anchor, base] if base else anchor)
+            out |= {base} | {f"{base}.{a.name}" for a in node.names}
+    return out
+
+
+def imported_modules(path: Path) -> set[str]:
+    """The ``spc3d`` modules (files that exist) among :func:`imported_names`."""
+    return {name for name in imported_names(path) if module_file(name) is not None}
+
+
+def closure(files: Iterable[str | Path]) -> list[Path]:
+    """The given files and every ``spc3d`` source they reach through imports (packages' ``__init__``
+    included: importing ``a.b`` runs ``a``), sorted."""
+    todo, seen = [Path(f).resolve() for f in files], set()
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        for name in imported_modules(path):
+            parts = name.split(".")
+            for i in range(1, len(parts) + 1):  # the module and each package above it
+                file = module_file(".".join(parts[:i]))
+                if file is not None and file not in seen:
+                    todo.append(file)
+    return sorted(seen)
+
+
+def closure_digest(files: Iterable[str | Path]) -> str:
+    """sha256 over the names (relative to the package, or the file name for a script) and contents
+    of :func:`closure`'s files."""
+    h = hashlib.sha256()
+    for path in closure(files):
+        name = module_name(path) or path.name
+        h.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
