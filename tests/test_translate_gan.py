@@ -82,6 +82,17 @@ def test_train_step_finite_losses_and_updates_generator(method):
     assert any(not torch.equal(a, b) for a, b in zip(before, model.G.parameters()))
 
 
+def test_pix2pix_without_its_adversarial_term_is_an_l1_regressor():
+    """lambda_gan 0: the discriminator is neither trained nor consulted; G's loss is lambda_L1 * L1."""
+    model = make("pix2pix", lambda_gan=0.0)
+    d_before = [p.detach().clone() for p in model.D.parameters()]
+    binary, rgb = bits(2, 3, 16, 16), torch.rand(2, 3, 16, 16)
+    losses = model.train_step(binary, rgb)
+    assert all(torch.equal(a, b) for a, b in zip(d_before, model.D.parameters()))
+    assert losses["G_GAN"] == 0.0 and losses["loss"] == pytest.approx(model.cfg.lambda_L1 * losses["G_L1"])
+    assert "D_real" not in losses and not any(k.startswith("D_") for k in losses)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_learns_constant_colour(method):
     """Random bits -> one constant colour: a few dozen steps must cut the output's L1 error."""

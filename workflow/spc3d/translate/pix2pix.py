@@ -41,6 +41,7 @@ class Config:
     norm: str = "batch"  # instance / batch / none, in G and D; paper batch
     gan_mode: str = "vanilla"  # vanilla (BCE with logits) or lsgan (MSE); paper vanilla
     lambda_L1: float = 100.0  # weight of the L1 reconstruction term; paper 100
+    lambda_gan: float = 1.0  # weight of the adversarial term; 0: L1 only, D not trained (a deviation); paper 1
     pool_size: int = 0  # image history shown to D (0 = current batch only); paper 0
     lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
     beta1: float = 0.5  # Adam beta1; paper 0.5
@@ -58,6 +59,7 @@ PAPER: dict = {
     "norm": "batch",
     "gan_mode": "vanilla",
     "lambda_L1": 100.0,
+    "lambda_gan": 1.0,
     "pool_size": 0,
     "lr": 2e-4,
     "beta1": 0.5,
@@ -91,11 +93,12 @@ class Translator(PairedGANBase):
         check_multiple(binary, self.multiple, "pix2pix")
         x, y = to_signed(binary.to(self.device)), to_signed(rgb.to(self.device))
         fake = self.generate(x)  # (B, 3, h, w) in [-1, 1]
-        d_terms = conditional_d_step(self.D, self.opt_D, self.gan, self.pool, x, y, fake)
+        adversarial = self.cfg.lambda_gan > 0
+        d_terms = conditional_d_step(self.D, self.opt_D, self.gan, self.pool, x, y, fake) if adversarial else {}
         set_requires_grad([self.D], False)
-        g_gan = self.gan(self.D(torch.cat([x, fake], 1)), True)
+        g_gan = self.gan(self.D(torch.cat([x, fake], 1)), True) if adversarial else fake.new_zeros(())
         g_l1 = F.l1_loss(fake, y)
-        loss_g = g_gan + self.cfg.lambda_L1 * g_l1
+        loss_g = self.cfg.lambda_gan * g_gan + self.cfg.lambda_L1 * g_l1
         self.opt_G.zero_grad(set_to_none=True)
         loss_g.backward()
         self.opt_G.step()

@@ -1,0 +1,142 @@
+"""Learning curves of the stage-1 methods: validation gain over their untrained start, and CPU cost.
+
+    python benchmarks/learning_curves.py WORKDIR [--steps 10000] [--every 100]
+        [--methods pix2pix restormer ...] [--variants paper no-gan] [--configfile extra.yaml ...]
+        [--cores 2] [--at 100 300 1000 3000 10000]
+
+Trains each method with the workflow's own rule (``snakemake results/models/{method}``) on the
+training scenes of the default config (plus any ``--configfile``) for ``--steps`` steps at a
+constant learning rate (``decay_from: 1``: the curve of one long run reads as "what a budget of
+s steps reaches", without the final decay a run of that budget would add), validated every
+``--every`` steps from step 0 (the untrained start: the prior for the residual networks) and
+never stopped early. Variants: ``paper`` (each method's own losses) and ``no-gan`` (the
+adversarial terms off where a method has the switch: Pix2Pix ``lambda_gan: 0``), each in
+``WORKDIR/{variant}``; a second call reuses what a first built (Snakemake reruns nothing).
+
+Prints per method and variant the validation PSNR gain over step 0 at each of ``--at`` (the
+last validation at or before it), the best gain and its step, and the training's CPU seconds per
+step (user + sys of Snakemake's ``benchmarks/train_translator``, validation included), then writes
+``WORKDIR/learning_curves.csv`` and a figure ``WORKDIR/learning_curves.png``. Choices made from it
+are made on the training scenes' held-out views only: no evaluation scene is trained or scored.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+METHODS = ["pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion"]
+# variant -> per-method overrides; a method missing from a variant's dict is not run in it
+VARIANTS = {"paper": {m: {} for m in METHODS}, "no-gan": {"pix2pix": {"lambda_gan": 0.0}}}
+
+
+def overrides(args, variant: str) -> dict:
+    """The config a variant's folder runs: the long constant-rate budget, validation from step 0."""
+    stage1 = {
+        "train": {"iterations": args.steps, "decay_from": 1.0, "log_every": args.every},
+        "validation": {"every": args.every, "patience": 0},
+    }
+    for method in args.methods:
+        if method in VARIANTS[variant]:
+            # a method's own validation block (diffusion's) would override the common one
+            stage1[method] = {**VARIANTS[variant][method], "validation": {"every": args.every, "patience": 0}}
+    return {"stage1": stage1}
+
+
+def train(work: Path, variant: str, methods: list[str], args) -> None:
+    work.mkdir(parents=True, exist_ok=True)
+    (work / "curves.yaml").write_text(yaml.safe_dump(overrides(args, variant)))
+    configs = ["--configfile", *map(str, args.configfile), str(work / "curves.yaml")]
+    targets = [f"results/models/{m}" for m in methods]
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(work)]
+    proc = subprocess.run([*cmd, "--cores", str(args.cores), *configs, "--", *targets], capture_output=True, text=True)
+    if proc.returncode != 0:
+        sys.exit(f"{variant}: snakemake failed (log in {work}/.snakemake/log):\n{proc.stderr[-3000:]}")
+
+
+def curve(work: Path, method: str) -> tuple[pd.DataFrame, float]:
+    """A trained method's validation curve (iteration, val_psnr) and its CPU seconds per step."""
+    record = json.loads((work / "results" / "models" / method / "train.json").read_text())
+    frame = pd.DataFrame(record["validation"]["curve"])[["iteration", "val_psnr"]]
+    if frame["iteration"].iloc[0] != 0:
+        raise ValueError(f"{work}/results/models/{method}: no validation at step 0 (trained by older code?)")
+    bench = pd.read_csv(work / "benchmarks" / "train_translator" / f"{method}.tsv", sep="\t")
+    cpu = float(bench["user_s"].iloc[-1] + bench["sys_s"].iloc[-1])
+    return frame, cpu / max(int(record["stopped"]["step"]), 1)
+
+
+def summary(frame: pd.DataFrame, at: list[int]) -> dict:
+    """Gain over step 0 at each budget of ``at`` (last validation at or before it), best gain and step."""
+    start = float(frame["val_psnr"].iloc[0])
+    row = {}
+    for s in at:
+        seen = frame[frame["iteration"] <= s]
+        row[f"Δ@{s}"] = round(float(seen["val_psnr"].iloc[-1]) - start, 2) if s <= frame["iteration"].max() else None
+    best = frame.loc[frame["val_psnr"].idxmax()]
+    row |= {"start_psnr": round(start, 2), "best_Δ": round(float(best["val_psnr"]) - start, 2)}
+    return row | {"best_step": int(best["iteration"])}
+
+
+def figure(curves: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for (method, variant), frame in curves.items():
+        gain = frame["val_psnr"] - frame["val_psnr"].iloc[0]
+        ax.plot(
+            frame["iteration"].clip(lower=1),
+            gain,
+            ls="-" if variant == "paper" else "--",
+            label=f"{method} ({variant})",
+        )
+    ax.axhline(0.0, color="0.5", lw=0.8)
+    ax.set(xscale="log", xlabel="training step", ylabel="validation PSNR − step 0 (dB)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("workdir", type=Path)
+    parser.add_argument("--steps", type=int, default=10000)
+    parser.add_argument("--every", type=int, default=100)
+    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--configfile", nargs="*", type=Path, default=[])
+    parser.add_argument("--cores", type=int, default=2)
+    parser.add_argument("--at", nargs="+", type=int, default=[100, 300, 1000, 3000, 10000])
+    args = parser.parse_args()
+    rows, curves = [], {}
+    for variant in args.variants:
+        methods = [m for m in args.methods if m in VARIANTS[variant]]
+        if not methods:
+            continue
+        work = args.workdir / variant
+        train(work, variant, methods, args)
+        for method in methods:
+            frame, per_step = curve(work, method)
+            curves[(method, variant)] = frame
+            rows.append(
+                {"method": method, "variant": variant, **summary(frame, args.at), "cpu_s_per_step": round(per_step, 3)}
+            )
+    table = pd.DataFrame(rows)
+    print(table.to_string(index=False))
+    table.to_csv(args.workdir / "learning_curves.csv", index=False)
+    figure(curves, args.workdir / "learning_curves.png")
+    print(f"\nwritten: {args.workdir / 'learning_curves.csv'}, {args.workdir / 'learning_curves.png'}")
+
+
+if __name__ == "__main__":
+    main()
