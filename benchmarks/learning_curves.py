@@ -9,9 +9,11 @@ training scenes of the default config (plus any ``--configfile``) for ``--steps`
 constant learning rate (``decay_from: 1``: the curve of one long run reads as "what a budget of
 s steps reaches", without the final decay a run of that budget would add), validated every
 ``--every`` steps from step 0 (the untrained start: the prior for the residual networks) and
-never stopped early. Variants: ``paper`` (each method's own losses) and ``no-gan`` (the
-adversarial terms off where a method has the switch: Pix2Pix ``lambda_gan: 0``), each in
-``WORKDIR/{variant}``; a second call reuses what a first built (Snakemake reruns nothing).
+never stopped early. Variants, each in ``WORKDIR/{variant}``: ``paper`` (each method's own
+losses), ``no-gan`` (Pix2Pix without its adversarial term, ``lambda_gan: 0``), ``pixel``
+(Pix2PixHD with a pixel L1 beside its losses, ``lambda_L1: 100``) and ``mean4`` (the diffusion
+stand-in returning the mean of 4 samples, ``samples: 4``). A second call reuses what a first built
+(Snakemake reruns nothing).
 
 Prints per method and variant the validation PSNR gain over step 0 at each of ``--at`` (the
 last validation at or before it), the best gain and its step, and the training's CPU seconds per

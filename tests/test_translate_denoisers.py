@@ -231,6 +231,20 @@ def test_diffusion_odd_size_and_deterministic_sampling():
     assert not torch.equal(other.translate(x), out1)
 
 
+def test_diffusion_samples_average_their_own_draws(monkeypatch):
+    """samples: 2 returns the mean of two outputs, each sampled from its own x_T of the seeded
+    generator (the sampler replaced by one that returns x_T, the prior off: the output is x_T)."""
+    monkeypatch.setattr(D, "ddim_sample", lambda predict, x_T, *a, **k: x_T)
+    cfg = replace(TINY_D, samples=2, prior_sigma=0.0)
+    x = binary_batch(1, 16, 16)
+    out = D.Translator(cfg, CPU).forward_image(x)
+    gen = torch.Generator().manual_seed(cfg.sample_seed)
+    draws = [((torch.randn(x.shape, generator=gen) + 1) / 2).clamp(0, 1) for _ in range(2)]
+    torch.testing.assert_close(out, (draws[0] + draws[1]) / 2)
+    one = D.Translator(replace(cfg, samples=1), CPU).forward_image(x)
+    torch.testing.assert_close(one, draws[0])  # one sample: the output as before the option
+
+
 def test_diffusion_train_step_decreases_loss():
     torch.manual_seed(0)
     tr = D.Translator(replace(TINY_D, lr=5e-3), CPU)

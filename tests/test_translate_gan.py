@@ -93,6 +93,14 @@ def test_pix2pix_without_its_adversarial_term_is_an_l1_regressor():
     assert "D_real" not in losses and not any(k.startswith("D_") for k in losses)
 
 
+def test_pix2pixhd_pixel_term_is_lambda_times_l1_and_off_by_default():
+    binary, rgb = bits(2, 3, 16, 16), torch.rand(2, 3, 16, 16)
+    assert "G_L1" not in make("pix2pixhd", vgg_loss=False).train_step(binary, rgb)
+    losses = make("pix2pixhd", vgg_loss=False, lambda_L1=100.0).train_step(binary, rgb)
+    terms = sum(v for k, v in losses.items() if k.startswith("G_"))
+    assert losses["G_L1"] > 0 and losses["loss"] == pytest.approx(terms, rel=1e-5)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_learns_constant_colour(method):
     """Random bits -> one constant colour: a few dozen steps must cut the output's L1 error."""

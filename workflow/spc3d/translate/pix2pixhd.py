@@ -51,6 +51,7 @@ class Config:
     feat_match: bool = True  # discriminator feature-matching loss; paper True
     vgg_loss: bool = True  # VGG perceptual loss (needs vgg_weights; ~+0.3 s per CPU step at 64x64), as the paper
     lambda_feat: float = 10.0  # weight of feature matching and of the VGG loss; paper 10
+    lambda_L1: float = 0.0  # > 0: a pixel L1 term beside them (pix2pix's scale: 100), a deviation; paper 0
     pool_size: int = 0  # image history shown to D (0 = current batch only); paper 0
     lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
     beta1: float = 0.5  # Adam beta1; paper 0.5
@@ -80,6 +81,7 @@ PAPER: dict = {
     "feat_match": True,
     "vgg_loss": True,
     "lambda_feat": 10.0,
+    "lambda_L1": 0.0,
     "pool_size": 0,
     "lr": 2e-4,
     "beta1": 0.5,
@@ -205,7 +207,7 @@ class Translator(PairedGANBase):
         return {"loss": float(loss_g.detach()), **{k: float(v.detach()) for k, v in terms.items()}, **d_terms}
 
     def _generator_terms(self, y: Tensor, fake: Tensor, pred_fake: list, pred_real: list) -> dict[str, Tensor]:
-        """GAN, feature-matching and VGG terms of the generator objective; ``pred_fake`` / ``pred_real``:
+        """GAN, feature-matching, VGG (and pixel L1) terms of the generator objective; ``pred_fake`` / ``pred_real``:
         D's stage outputs on (x, fake) and (x, y), the latter only as constant targets."""
         terms = {"G_GAN": self.gan(pred_fake, True)}
         if self.cfg.feat_match:
@@ -215,6 +217,8 @@ class Translator(PairedGANBase):
             )
         if self.vgg is not None:
             terms["G_VGG"] = self.cfg.lambda_feat * self.vgg(fake, y)
+        if self.cfg.lambda_L1 > 0:
+            terms["G_L1"] = self.cfg.lambda_L1 * F.l1_loss(fake, y)
         return terms
 
     def _step_D(self, pred_fake: list, pred_real: list) -> dict[str, float]:
