@@ -66,3 +66,16 @@ def test_the_real_scene_preset_plans_one_fold_per_scene(tmp_path):
     folds = training_folds(config["scenes"]["train"], config["scenes"]["eval"], config["scenes"]["leave_one_out"])
     assert sorted(folds) == ["", *sorted(f"-without-{s}" for s in LLFF)]
     assert config["seeds"] * len(config["scenes"]["eval"]) >= 8  # runs per row: a verdict's minimum and then some
+
+
+def test_configured_llff_scenes_join_the_training_scenes_unless_evaluated_or_switched_off():
+    from spc3d.jobs import training_scene_names
+
+    config = {
+        "scenes": {"train": ["tabletop"], "eval": ["fern", "courtyard"]},
+        "llff_scenes": {"fern": "a", "trex": "b", "tabletop": "c"},
+    }
+    assert training_scene_names(config) == ["tabletop", "trex"]  # fern is evaluated; tabletop listed once
+    config["scenes"]["train_llff"] = False
+    assert training_scene_names(config) == ["tabletop"]
+    assert training_scene_names({"scenes": {"train": [], "eval": ["x"]}}) == []

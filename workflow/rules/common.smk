@@ -20,12 +20,13 @@ from spc3d.names import PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MOD
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
-from spc3d.jobs import benchmark_path, folder_files, llff_input_files, scene_fold, scene_specs, training_folds
+from spc3d.jobs import benchmark_path, folder_files, training_scene_names, llff_input_files, scene_fold, scene_specs, training_folds
 from spc3d.sweeps.plan import OVERLAY_PATTERN, PointSettings, photon_budget, sweep_scenes
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
 ENV = {"cpu": "../../envs/spc3d.yaml", "gpu": "../../envs/spc3d-gpu.yaml"}[config["conda_env"]]
 LPIPS_WEIGHTS = {net: f"results/cache/lpips/lpips_v0.1_{net}.npz" for net in ("alex", "vgg")}
+config["scenes"]["train"] = training_scene_names(config)  # + configured LLFF scenes (scenes.train_llff)
 SCENE_SPECS = scene_specs(config, sorted(LAYOUTS))
 TRAIN_SCENES = list(config["scenes"]["train"])
 EVAL_SCENES = list(config["scenes"]["eval"])

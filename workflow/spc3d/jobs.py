@@ -92,6 +92,17 @@ def translator_checkpoint(model_dir: str | os.PathLike) -> Path:
     return model_dir.parent.parent / "checkpoints" / model_dir.parent.name / model_dir.name / "checkpoint.pt"
 
 
+def training_scene_names(config: dict) -> list[str]:
+    """``scenes.train``, and with ``scenes.train_llff`` (the default) every ``llff_scenes`` entry not
+    in ``scenes.eval`` after it: configured real photographs are training content. An evaluation
+    scene never joins (with ``leave_one_out`` it trains the other folds only if listed)."""
+    scenes = config["scenes"]
+    train = list(scenes["train"])
+    if scenes.get("train_llff", True):
+        train += [n for n in config.get("llff_scenes", {}) if n not in train and n not in scenes["eval"]]
+    return train
+
+
 def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
     """Scene name -> spec for :func:`spc3d.inputs.build.prepare_scene`, checking every name in the config."""
     res, llff_scenes, captures = config["resolution"], config["llff_scenes"], config.get("captures", {})
