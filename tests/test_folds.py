@@ -79,3 +79,19 @@ def test_configured_llff_scenes_join_the_training_scenes_unless_evaluated_or_swi
     config["scenes"]["train_llff"] = False
     assert training_scene_names(config) == ["tabletop"]
     assert training_scene_names({"scenes": {"train": [], "eval": ["x"]}}) == []
+
+
+@pytest.mark.parametrize(
+    "llff, captures, match",
+    [
+        ({"courtyard": "x"}, {}, r"llff_scenes: 'courtyard' is also a built-in scene"),
+        ({}, {"tabletop": "x"}, r"captures: 'tabletop' is also a built-in scene"),
+        ({"lab": "x"}, {"lab": "y"}, r"captures: 'lab' is also in llff_scenes"),
+    ],
+)
+def test_a_scene_name_given_twice_is_refused_naming_both(llff, captures, match):
+    from spc3d.jobs import check_scene_names
+
+    with pytest.raises(ConfigError, match=match):
+        check_scene_names(["courtyard", "tabletop"], llff, captures)
+    check_scene_names(["courtyard"], {"fern": "x"}, {"lab": "y"})  # distinct names pass

@@ -103,9 +103,29 @@ def training_scene_names(config: dict) -> list[str]:
     return train
 
 
+def check_scene_names(builtin_layouts, llff_scenes: dict, captures: dict) -> None:
+    """One name, one scene: a name given twice across the built-in layouts, ``llff_scenes`` and
+    ``captures`` is refused, naming both (else one would silently replace the other)."""
+    sources = (
+        ("a built-in scene", set(builtin_layouts)),
+        ("in llff_scenes", set(llff_scenes)),
+        ("in captures", set(captures)),
+    )
+    for i, (first, a) in enumerate(sources):
+        for second, b in sources[i + 1 :]:
+            clash = sorted(a & b)
+            if clash:
+                key = second.removeprefix("in ")
+                raise ConfigError(
+                    f"{key}: {', '.join(map(repr, clash))} is also {first}; a scene name must be unique across "
+                    f"the built-in scenes, llff_scenes and captures (rename it, e.g. {clash[0]}_{key[:4]})"
+                )
+
+
 def scene_specs(config: dict, builtin_layouts: list[str], base_dir: str | Path = ".") -> dict[str, dict]:
     """Scene name -> spec for :func:`spc3d.inputs.build.prepare_scene`, checking every name in the config."""
     res, llff_scenes, captures = config["resolution"], config["llff_scenes"], config.get("captures", {})
+    check_scene_names(builtin_layouts, llff_scenes, captures)
     specs = {}
     for role in ("train", "eval"):
         for name in config["scenes"][role]:
