@@ -78,6 +78,21 @@ CASES = [
     Case("unknown-top-level-key", r"sedd: unknown key; did you mean 'seed'", {"sedd": 1}),
     Case("misspelled-nested-key", r"spc\.frame: unknown key; did you mean 'frames'", {"spc": {"frame": 4}}),
     Case("wrong-type", r"resolution\.width = 'big': expected integer", {"resolution": {"width": "big"}}),
+    Case(
+        "float-where-an-integer-belongs",
+        r"stage1\.train\.iterations = 64\.0: expected integer \(write 64\)",
+        {"stage1": {"train": {"iterations": 64.0}}},
+    ),
+    Case(
+        "number-yaml-reads-as-text",
+        r"spc\.q = '1\.0e-3': expected number \(YAML reads 1\.0e-3 as text: write 0\.001\)",
+        {"spc": {"q": "1.0e-3"}},
+    ),
+    Case(
+        "llff-scene-named-like-a-built-in-one",
+        r"llff_scenes: 'courtyard' is also a built-in scene; a scene name must be unique",
+        {"llff_scenes": {"courtyard": "workflow"}},
+    ),
     Case("out-of-range", r"spc\.q = 1\.5: must be <= 1", {"spc": {"q": 1.5}}),
     Case("not-an-option", r"spc\.mode = 'poisson': use one of \['bernoulli', 'paper'\]", {"spc": {"mode": "poisson"}}),
     Case("impossible-exposure", r"spc\.exposure_s = -0\.001: must be > 0", {"spc": {"exposure_s": -1e-3}}),

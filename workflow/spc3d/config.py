@@ -70,7 +70,7 @@ def check_config(config: dict, schema: dict) -> None:
     import jsonschema
 
     bad = non_finite(config)
-    validator = jsonschema.Draft202012Validator(schema)
+    validator = strict_validator(jsonschema)(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: (list(e.absolute_path), e.validator))
     # A non-finite value is named once, as such (-inf also fails a "minimum"; NaN passes every bound).
     named = {path for path, _ in bad}
@@ -84,6 +84,16 @@ def check_config(config: dict, schema: dict) -> None:
         raise ConfigError(
             "invalid config (keys and defaults: workflow/schemas/config.schema.yaml):\n  " + "\n  ".join(lines) + more
         )
+
+
+def strict_validator(jsonschema):
+    """Draft 2020-12 with "integer" meaning a Python int: JSON Schema counts 64.0 as an integer, but
+    a job given it fails later (``range(64.0)``) without naming the key."""
+    base = jsonschema.Draft202012Validator
+    checker = base.TYPE_CHECKER.redefine(
+        "integer", lambda _, value: isinstance(value, int) and not isinstance(value, bool)
+    )
+    return jsonschema.validators.extend(base, type_checker=checker)
 
 
 def model_block_errors(config: dict, schema: dict) -> list[str]:
@@ -129,7 +139,9 @@ def schema_message(error) -> str:
         return "; ".join(_unknown_key(key, name, allowed) for name in unknown)
     shown = _short(value)
     if kind == "type":
-        return f"{key} = {shown}: expected {' or '.join(want) if isinstance(want, list) else want}"
+        return (
+            f"{key} = {shown}: expected {' or '.join(want) if isinstance(want, list) else want}{type_hint(value, want)}"
+        )
     if kind == "enum":
         return f"{key} = {shown}: use one of {want}"
     bounds = {"minimum": ">=", "maximum": "<=", "exclusiveMinimum": ">", "exclusiveMaximum": "<"}
@@ -142,6 +154,22 @@ def schema_message(error) -> str:
     if kind == "uniqueItems":
         return f"{key} = {shown}: items must be unique"
     return f"{key} = {shown}: {error.message.splitlines()[0][:200]}"
+
+
+def type_hint(value, want) -> str:
+    """What to write instead, for the two type slips YAML invites: an integer key given a float
+    (``64.0``), and a number YAML 1.1 reads as text (``1.0e4``, ``1e-3``: no dot or no sign)."""
+    wants = want if isinstance(want, list) else [want]
+    if isinstance(value, float) and "integer" in wants and value.is_integer():
+        return f" (write {int(value)})"
+    if isinstance(value, str) and {"number", "integer"} & set(wants):
+        try:
+            number = float(value)
+        except ValueError:
+            return ""
+        right = int(number) if "number" not in wants and number.is_integer() else number
+        return f" (YAML reads {value} as text: write {right!r})"
+    return ""
 
 
 def _unknown_key(parent: str, name: str, allowed: list[str]) -> str:
