@@ -78,6 +78,12 @@ CASES = [
     Case("unknown-top-level-key", r"sedd: unknown key; did you mean 'seed'", {"sedd": 1}),
     Case("misspelled-nested-key", r"spc\.frame: unknown key; did you mean 'frames'", {"spc": {"frame": 4}}),
     Case("wrong-type", r"resolution\.width = 'big': expected integer", {"resolution": {"width": "big"}}),
+    Case("seed-above-2-to-the-32", r"seed = 4294967296: must be <= 4294967295", {"seed": 2**32}),
+    Case(
+        "last-repeat-seed-above-2-to-the-32",
+        r"the last run's seed 4294967296 is above 4294967295 .*lower seed to at most 4294967294",
+        {"seed": 2**32 - 1, "seeds": 2},
+    ),
     Case(
         "float-where-an-integer-belongs",
         r"stage1\.train\.iterations = 64\.0: expected integer \(write 64\)",

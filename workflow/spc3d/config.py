@@ -343,11 +343,21 @@ def check_grid_schedule(schedule) -> None:
         )
 
 
+SEED_MAX = 2**32 - 1  # the largest seed numpy's and torch's generators accept
+
+
 def check_consistency(config: dict, methods: list[str], combinations: list[str] = ()) -> None:
     """Values that are each valid but impossible together, and input paths that must exist."""
     from spc3d.names import combination_sources, split_source
 
     spc_frames, train = config["spc"]["frames"], config["scenes"]["train"]
+    last_seed = config["seed"] + config["seeds"] - 1
+    if last_seed > SEED_MAX:
+        raise ConfigError(
+            f"seed = {config['seed']}, seeds = {config['seeds']}: the last run's seed {last_seed} is above "
+            f"{SEED_MAX} (numpy and torch take seeds in [0, 2**32)); lower seed to at most "
+            f"{SEED_MAX - config['seeds'] + 1}"
+        )
     for key in ("stage1", "stage2"):
         if config[key]["frames"] > spc_frames:
             raise ConfigError(
