@@ -13,6 +13,8 @@ from spc3d.config import read_yaml
 # The repository's config.yaml is the default even with --directory elsewhere; --configfile overrides.
 # Read once first: a YAML syntax error then names its line (Snakemake's own message does not).
 read_yaml(f"{workflow.basedir}/config.yaml")
+for _path in workflow.overwrite_configfiles:  # --configfile: a key given twice is named with its line
+    read_yaml(_path)
 
 
 configfile: f"{workflow.basedir}/config.yaml"

@@ -392,6 +392,13 @@ def test_read_yaml_and_the_config_checker_cli(tmp_path):
     bad.write_text("spc:\n  frames: 4\n\tq: 0.5\n")
     with pytest.raises(ConfigError, match=r"bad\.yaml:3:1: not valid YAML"):
         read_yaml(bad)
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("spc:\n  q: 0.5\n  frames: 4\n  q: 0.4\n")
+    with pytest.raises(ConfigError, match=r"twice\.yaml:4:3: key 'q' given twice \(first at line 2\); keep one"):
+        read_yaml(twice)
+    proc = run_snakemake(tmp_path / "work", "-n", "--configfile", str(twice))  # a --configfile too, before any job
+    assert proc.returncode != 0 and "key 'q' given twice" in proc.stdout + proc.stderr
+    assert "Building DAG" not in proc.stdout + proc.stderr
     listed = tmp_path / "list.yaml"
     listed.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="must be a mapping"):

@@ -39,20 +39,39 @@ PATH_KEYS = (
 MAX_ERRORS = 5  # schema errors listed at once (the first ones are what a user fixes first)
 
 
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last one
+    silently: a setting typed twice would lose its first value without a word)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} given twice (first at line {seen[key] + 1})", key_node.start_mark
+                )
+            seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep)
+
+
 def read_yaml(path: str | os.PathLike) -> dict:
-    """The mapping in a YAML file; a syntax error names the file, line and column."""
+    """The mapping in a YAML file; a syntax error or a key given twice names the file, line and column."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml.load(path.read_text(encoding="utf-8"), Loader=UniqueKeyLoader)
     except FileNotFoundError:
         raise ConfigError(f"config file {path} does not exist") from None
     except yaml.YAMLError as e:
         mark, start = getattr(e, "problem_mark", None), getattr(e, "context_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         context = f"; {e.context} at line {start.line + 1}" if start and getattr(e, "context", None) else ""
+        problem = getattr(e, "problem", None) or str(e)
+        if "given twice" in problem:
+            raise ConfigError(f"{where}: {problem}; keep one of them") from None
         raise ConfigError(
-            f"{where}: not valid YAML ({getattr(e, 'problem', None) or e}{context}); check the "
-            f"indentation (spaces, not tabs) and the brackets there"
+            f"{where}: not valid YAML ({problem}{context}); check the indentation (spaces, not tabs) "
+            "and the brackets there"
         ) from None
     if data is None:
         return {}
