@@ -78,6 +78,27 @@ CASES = [
     Case("unknown-top-level-key", r"sedd: unknown key; did you mean 'seed'", {"sedd": 1}),
     Case("misspelled-nested-key", r"spc\.frame: unknown key; did you mean 'frames'", {"spc": {"frame": 4}}),
     Case("wrong-type", r"resolution\.width = 'big': expected integer", {"resolution": {"width": "big"}}),
+    # --- ranges and order, one rule for every numeric setting (spc3d.training.check_range) ---------
+    Case(
+        "negative-loss-weight", r"lambda_feat = -1\.0: must be >= 0", {"stage1": {"pix2pixhd": {"lambda_feat": -1.0}}}
+    ),
+    Case("negative-learning-rate", r"\.lr = -0\.001: must be > 0", {"stage1": {"pix2pixhd": {"lr": -0.001}}}),
+    Case("negative-prior-blur", r"prior_sigma = -1\.0: must be >= 0", {"stage1": {"restormer": {"prior_sigma": -1.0}}}),
+    Case(
+        "empty-densification-window",
+        r"densify_from = 30, densify_until = 20: densification would never run",
+        {"stage2": {"3dgs": {"densify_from": 30, "densify_until": 20}}},
+    ),
+    Case(
+        "gaussian-cap-below-the-initial-points",
+        r"max_gaussians = 100 is below init_points = 500",
+        {"stage2": {"3dgs": {"max_gaussians": 100}}},
+    ),
+    Case(
+        "grid-schedule-out-of-order",
+        r"res_schedule = \[\[0, 16\], \[30, 32\], \[20, 24\]\]: list the entries by increasing iteration",
+        {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [30, 32], [20, 24]]}}},
+    ),
     Case("seed-above-2-to-the-32", r"seed = 4294967296: must be <= 4294967295", {"seed": 2**32}),
     Case(
         "last-repeat-seed-above-2-to-the-32",

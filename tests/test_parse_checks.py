@@ -260,3 +260,41 @@ def test_yaml_syntax_error_in_a_configfile_is_named(tmp_path):
     assert re.search(rf'in "{re.escape(str(bad))}", line 3, column 1', verbose.stdout + verbose.stderr)
     cli = subprocess.run([sys.executable, "-m", "spc3d.config", str(bad)], capture_output=True, text=True)
     assert cli.returncode == 1 and f"{bad}:3:1: not valid YAML" in cli.stdout, cli.stdout + cli.stderr
+
+
+def test_every_default_and_published_setting_lies_in_its_range():
+    """The range rule (spc3d.training.check_range) holds for every registered model's defaults and
+    published sizes: it refuses only what no model means."""
+    import dataclasses
+
+    from spc3d import models
+    from spc3d.training import check_range
+    from spc3d.translate.train import TrainSettings
+
+    configs = [("train", TrainSettings())]
+    for name, spec in models.TRANSLATORS.items():
+        module = models.import_module(spec.module)
+        configs += [(name, module.Config()), (f"{name}-paper", module.Config(**module.PAPER))]
+    configs += [(name, models.load(spec.config)({})) for name, spec in models.RECONSTRUCTORS.items()]
+    for where, cfg in configs:
+        for f in dataclasses.fields(cfg):
+            check_range(where, f.name, getattr(cfg, f.name))
+
+
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("lr", 0.0, "must be > 0"),
+        ("lr_means_final", -1e-6, "must be > 0"),
+        ("beta1", 1.0, r"must be in \[0, 1\)"),
+        ("adam_betas", (0.9, 1.5), r"must be in \[0, 1\)"),
+        ("lambda_A", -0.5, "must be >= 0"),
+        ("channel_mults", (1, -2), "must be >= 0"),
+    ],
+)
+def test_the_range_rule_names_key_value_and_range(key, value, match):
+    from spc3d.training import check_range
+
+    with pytest.raises(ValueError, match=rf"stage1\.m\.{key} = .*{match}"):
+        check_range("stage1.m", key, value)
+    check_range("stage1.m", "name", "text")  # not a number: not its business

@@ -353,7 +353,14 @@ def check_grid_schedule(schedule) -> None:
     """stage2.nerf-grid.res_schedule must give the grid a resolution at the first training step
     (step 1): the grid takes the entry of the largest iteration <= the step
     (spc3d.reconstruct.nerf_grid.GridModel.res_for_step), and none is an error in the job."""
-    first = min(it for it, _ in schedule)
+    iterations = [it for it, _ in schedule]
+    if any(b <= a for a, b in zip(iterations, iterations[1:])):
+        shown = [list(entry) for entry in schedule]
+        raise ConfigError(
+            f"stage2.nerf-grid.res_schedule = {shown}: list the entries by increasing iteration "
+            f"(e.g. {sorted(shown)}); the grid takes the entry of the largest iteration <= the step"
+        )
+    first = min(iterations)
     if first > 1:
         shown = [list(entry) for entry in schedule]
         raise ConfigError(

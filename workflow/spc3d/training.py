@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import difflib
+import fnmatch
 import math
 import random
 import resource
@@ -79,6 +80,7 @@ def build_config(cls, settings: dict, where: str, base=None):
     values = {k: _tuples(v) for k, v in settings.items()}
     for key, value in values.items():
         _check_type(where, key, value, _default(fields[key]))
+        check_range(where, key, value)
     try:
         return dataclasses.replace(base, **values) if base is not None else cls(**values)
     except (TypeError, ValueError) as e:
@@ -106,6 +108,35 @@ def _check_type(where: str, key: str, value, default) -> None:
     want = kinds.get(type(default))
     if want and (not isinstance(value, want) or (isinstance(value, bool) and bool not in want)):
         raise ValueError(f"{where}.{key} = {value!r}: expected {type(default).__name__} (like the default {default!r})")
+
+
+# The ranges of every numeric model and training setting, by name: none is signed (counts, loss
+# weights, rates, thresholds, blur widths are all >= 0, and 0 means "off" wherever it is allowed);
+# learning rates and scales must be > 0; momenta and decays lie in [0, 1).
+POSITIVE = ("lr", "lr_*", "*_lr", "*_lr_*", "residual_scale", "xy_extent", "ffn_expansion_factor")
+UNIT_INTERVAL = ("beta1", "beta2", "ema_decay", "adam_betas")
+
+
+def check_range(where: str, key: str, value) -> None:
+    """``value`` (a number, or a tuple of them) within the range of setting ``key``: see
+    :data:`POSITIVE` and :data:`UNIT_INTERVAL`; every other number >= 0."""
+    if isinstance(value, tuple):
+        for item in value:
+            check_range(where, key, item)
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    if any(fnmatch.fnmatchcase(key, p) for p in POSITIVE):
+        if not value > 0:
+            raise ValueError(f"{where}.{key} = {value!r}: must be > 0 (a learning rate or scale)")
+    elif key in UNIT_INTERVAL:
+        if not 0 <= value < 1:
+            raise ValueError(f"{where}.{key} = {value!r}: must be in [0, 1) (a momentum or decay, e.g. 0.9)")
+    elif value < 0:
+        raise ValueError(
+            f"{where}.{key} = {value!r}: must be >= 0 (no setting is signed: counts, loss weights, "
+            "thresholds and widths; 0 turns a term off where it may be off)"
+        )
 
 
 def _tuples(v):

@@ -76,6 +76,16 @@ class GaussianConfig:
         )
         if not 0 <= self.sh_degree <= 3:
             raise ValueError(f"sh_degree = {self.sh_degree}: the rasterizer evaluates degrees 0..3")
+        if self.densify_until > 0 and self.densify_from >= self.densify_until:
+            raise ValueError(
+                f"densify_from = {self.densify_from}, densify_until = {self.densify_until}: densification would "
+                f"never run; set densify_until above densify_from (or densify_until: 0 for none)"
+            )
+        if self.max_gaussians < self.init_points:
+            raise ValueError(
+                f"max_gaussians = {self.max_gaussians} is below init_points = {self.init_points}: the cap would be "
+                f"broken from the first step; raise max_gaussians or lower init_points"
+            )
 
 
 class GaussianModel(nn.Module):
