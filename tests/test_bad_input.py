@@ -99,6 +99,11 @@ CASES = [
         r"res_schedule = \[\[0, 16\], \[30, 32\], \[20, 24\]\]: list the entries by increasing iteration",
         {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [30, 32], [20, 24]]}}},
     ),
+    Case(
+        "dark-counts-above-the-target-detection",
+        r"spc\.target_detection = 0\.5: dark counts alone fire 0\.6321 of the bits.*lower spc\.dark_count_rate",
+        {"spc": {"dark_count_rate": 1.0e4}},
+    ),
     Case("seed-above-2-to-the-32", r"seed = 4294967296: must be <= 4294967295", {"seed": 2**32}),
     Case(
         "last-repeat-seed-above-2-to-the-32",

@@ -298,3 +298,17 @@ def test_the_range_rule_names_key_value_and_range(key, value, match):
     with pytest.raises(ValueError, match=rf"stage1\.m\.{key} = .*{match}"):
         check_range("stage1.m", key, value)
     check_range("stage1.m", "name", "text")  # not a number: not its business
+
+
+def test_a_fixed_exposure_that_shows_no_image_is_warned_and_a_calibrated_one_is_not():
+    from spc3d.config import check_exposure
+
+    base = read_yaml(REPO / "config.yaml")
+    assert check_exposure(base) == []  # calibrated to 0.5: reachable, nothing to say
+    for flux, words in ((1e9, "every bit is 1"), (10.0, "show (almost) no image"), (3e4, None)):
+        cfg = {**base, "spc": {**base["spc"], "flux_scale": flux}}
+        warnings = check_exposure(cfg)
+        assert (words in warnings[0]) if words else warnings == [], (flux, warnings)
+    starved = {**base, "photon_level": {"detection": [0.005, 0.5]}}  # below the 1 % dark-count floor
+    with pytest.raises(ConfigError, match=r"photon_level\.detection = 0\.005: dark counts alone fire 0\.00995"):
+        check_exposure(starved)

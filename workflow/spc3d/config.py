@@ -19,6 +19,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import sys
 from pathlib import Path
 
 import yaml
@@ -281,6 +282,8 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
         raise ConfigError(str(e)) from None
     check_crops(config, trainings)
     check_consistency(config, methods, combinations)
+    for warning in check_exposure(config):  # possible, but its frames would carry no image
+        print(f"spc3d warning: {warning}", file=sys.stderr)
 
 
 def crop_key(config: dict, method: str) -> str:
@@ -370,6 +373,44 @@ def check_grid_schedule(schedule) -> None:
 
 
 SEED_MAX = 2**32 - 1  # the largest seed numpy's and torch's generators accept
+SATURATED = 0.99  # a fixed exposure firing at least this at 1 % grey (or at most 1 - it at white) shows nothing
+
+
+def check_exposure(config: dict) -> list[str]:
+    """The detection the spc block can reach, from the config alone: every calibration target
+    (``spc.target_detection``, ``photon_level.detection``) above the dark-count floor (else an
+    error); a fixed ``spc.flux_scale`` that fires (almost) every pixel or (almost) none is
+    returned as a warning: its frames would carry no image."""
+    from spc3d.physics.flux_scale import dark_floor, detection_span
+    from spc3d.physics.spc import SPCParams
+
+    spc = config["spc"]
+    params = SPCParams(**{k: spc[k] for k in ("mode", "q", "tau_d", "exposure_s", "dark_count_rate")})
+    floor = dark_floor(params)
+    targets = [("spc.target_detection", spc["target_detection"])] if spc.get("flux_scale") is None else []
+    targets += [("photon_level.detection", p) for p in config.get("photon_level", {}).get("detection", [])]
+    for key, target in targets:
+        if target <= floor:
+            raise ConfigError(
+                f"{key} = {target}: dark counts alone fire {floor:.4g} of the bits (1 - exp(-dark_count_rate * "
+                f"exposure_s) = 1 - exp(-{spc['dark_count_rate']:g} * {spc['exposure_s']:g})), so no exposure "
+                f"reaches it; lower spc.dark_count_rate or spc.exposure_s, or ask for more than {floor:.4g}"
+            )
+    if spc.get("flux_scale") is None:
+        return []
+    grey, white = detection_span(params, spc["flux_scale"])
+    if grey >= SATURATED:
+        return [
+            f"spc.flux_scale = {spc['flux_scale']:g}: a 1 % grey pixel already fires {grey:.3f} of its frames, "
+            f"so (almost) every bit is 1 and the frames show no image; lower it (or set null to calibrate)"
+        ]
+    if white - floor <= 1 - SATURATED:
+        return [
+            f"spc.flux_scale = {spc['flux_scale']:g}: a white pixel fires {white:.3g} of its frames against "
+            f"{floor:.3g} from dark counts alone, so the frames show (almost) no image; raise it (or set null "
+            "to calibrate)"
+        ]
+    return []
 
 
 def check_consistency(config: dict, methods: list[str], combinations: list[str] = ()) -> None:

@@ -61,6 +61,19 @@ def frame_probability(phi: np.ndarray, params: SPCParams) -> np.ndarray:
         return np.where(sd > 0, ndtr((mean - 0.5) / np.where(sd > 0, sd, 1.0)), 0.0)
 
 
+def dark_floor(params: SPCParams) -> float:
+    """P(bit = 1) with no light at all: what dark counts alone fire (the least any exposure gives)."""
+    return float(frame_probability(np.zeros(1), params)[0])
+
+
+def detection_span(params: SPCParams, flux_scale: float) -> tuple[float, float]:
+    """P(bit = 1) of a pixel at 1 % linear grey and at white (linear 1) for a fixed ``flux_scale``:
+    the span a scene's pixels can cover (a black pixel sits at :func:`dark_floor`)."""
+    with np.errstate(over="ignore"):
+        p = frame_probability(np.array([0.01, 1.0]) * flux_scale, params)
+    return float(p[0]), float(p[1])
+
+
 def _mean_detection(values: np.ndarray, weights: np.ndarray, s: float, params: SPCParams) -> float:
     with np.errstate(over="ignore"):  # huge trial scales: lam*T -> inf gives p = 1, as it should
         # np.sum, not a BLAS dot: OpenBLAS threads idle-spin under load (15 ms for 18k values)
