@@ -491,6 +491,58 @@ def test_capture_config_errors_are_named(sim, tmp_path):
         scene_specs(cfg, sorted(LAYOUTS), REPO)
 
 
+def _sensor_json(key, value):
+    def damage(cap):
+        rec = io.read_json(cap / "sensor.json")
+        io.write_json(cap / "sensor.json", {**rec, key: value(rec) if callable(value) else value})
+
+    return damage
+
+
+def _swap_size(cap):
+    rec = io.read_json(cap / "sensor.json")
+    io.write_json(cap / "sensor.json", {**rec, "width": rec["height"], "height": rec["width"]})
+
+
+def _extra_pose(cap):
+    pb = np.load(cap / "poses_bounds.npy")
+    np.save(cap / "poses_bounds.npy", np.concatenate([pb, pb[:1]]))
+
+
+def _bool_npy(cap):
+    _sensor_json("format", "npy")(cap)
+    for f in (cap / "frames").glob("*.npz"):
+        np.save(f.with_suffix(".npy"), np.zeros((K, H, W), bool))
+        f.unlink()
+
+
+DAMAGED_CAPTURES = {  # damage -> what the parse-time message must say
+    "fewer frames than sensor.json": (
+        _sensor_json("frames", K + 1),
+        rf"{K} frames; sensor.json says .*frames = {K + 1}",
+    ),
+    "width and height swapped": (_swap_size, r"width and height look swapped"),
+    "a reference view missing": (
+        lambda cap: (cap / "images" / "image001.png").unlink(),
+        r"no reference image .*image001",
+    ),
+    "more poses than views": (_extra_pose, rf"poses_bounds.npy: {VIEWS + 1} rows of poses for {VIEWS} views"),
+    "no files in the declared format": (_sensor_json("format", "npy.gz"), r"no views in format 'npy.gz'"),
+    "wrong dtype": (_bool_npy, r"holds a bool array .*expected uint8 \(K, H, ceil\(W/8\)\)"),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(DAMAGED_CAPTURES))
+def test_a_damaged_capture_folder_is_refused_at_parse_time_by_name(sim, tmp_path, damage):
+    """Checked from headers and listings when the workflow parses (scene_specs), before any job."""
+    cap = copy_capture(sim, tmp_path)
+    change, match = DAMAGED_CAPTURES[damage]
+    change(cap)
+    cfg = base_config() | {"captures": {"mycap": str(cap)}, "scenes": {"train": [], "eval": ["mycap"]}}
+    with pytest.raises(ConfigError, match=rf"captures\.mycap: .*{match}"):
+        scene_specs(cfg, sorted(LAYOUTS), REPO)
+
+
 # --------------------------------------------------------------------------------------------
 # intrinsics of a capture posed by COLMAP
 

@@ -184,6 +184,48 @@ def capture_views(folder: str | os.PathLike, fmt: str) -> list[str]:
     return sorted(views)
 
 
+def check_capture_folder(folder: str | os.PathLike, sensor: CaptureSensor) -> list[str]:
+    """A capture folder against its sensor.json, from headers and listings (no frame is read): every
+    view's cube of the sensor's size with at least ``frames`` frames, a reference image for every
+    view when ``images/`` exists, one ``poses_bounds.npy`` row per view. Returns the view names;
+    raises ValueError / FileNotFoundError naming the file, what it holds and what was expected."""
+    folder = Path(folder)
+    names = capture_views(folder, sensor.format)
+    packed = sensor.format in ("npy", "npy.gz")
+    want_w = -(-sensor.width // 8) if packed else sensor.width
+    for view in names:
+        path = photon_cubes.cube_path(folder / "frames", view, sensor.format)
+        k, h, w = photon_cubes.cube_header(path)
+        if (h, w) != (sensor.height, want_w):
+            swapped = (h, w) == (sensor.width, -(-sensor.height // 8) if packed else sensor.height)
+            unit = f" ({want_w} bytes of bit-packed rows for {sensor.width} pixels)" if packed else ""
+            raise ValueError(
+                f"{path}: frames of {h} rows x {w} {'bytes' if packed else 'columns'}; sensor.json says "
+                f"height {sensor.height}, width {sensor.width}{unit}"
+                + ("; width and height look swapped" if swapped else "")
+            )
+        if k < sensor.params.frames:
+            raise ValueError(
+                f"{path}: {k} frames; sensor.json says every view holds at least frames = {sensor.params.frames} "
+                "(lower frames there to what every view holds)"
+            )
+    images = folder / "images"
+    if images.is_dir():
+        have = {p.stem for p in images.iterdir() if not p.name.startswith(".")}
+        missing = [n for n in names if n not in have]
+        if missing:
+            raise FileNotFoundError(
+                f"{images}: no reference image for view(s) {missing[:5]}; every view of frames/ needs one "
+                "(or remove images/ to score without references)"
+            )
+    poses = folder / "poses_bounds.npy"
+    if poses.is_file():
+        rows = np.load(poses, mmap_mode="r", allow_pickle=False).shape[0]
+        if rows != len(names):
+            raise ValueError(f"{poses}: {rows} rows of poses for {len(names)} views in frames/; one row per view")
+    return names
+
+
 def read_capture(
     folder: str | os.PathLike, max_frames: int | None = None, overrides: dict | None = None
 ) -> tuple[list[str], list[np.ndarray], CaptureSensor]:

@@ -43,7 +43,14 @@ import numpy as np
 
 from spc3d import io, llff
 from spc3d.cameras import Cameras, split_views
-from spc3d.captures.folders import capture_hot_pixels, capture_views, read_capture, read_sensor, reference_images
+from spc3d.captures.folders import (
+    capture_hot_pixels,
+    capture_views,
+    check_capture_folder,
+    read_capture,
+    read_sensor,
+    reference_images,
+)
 from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from spc3d.physics import sensors, spc
 from spc3d.physics.hot_pixels import write_hot_pixel_map
@@ -256,8 +263,11 @@ def metered_exposure(flux: list[np.ndarray], params: spc.SPCParams) -> dict:
 def capture_sensor(folder: str | os.PathLike, overrides: dict | None = None) -> tuple[str, dict]:
     """(tag, spec) of a capture folder's sensor, read at parse time: the tag names its translators'
     folder (``rggb``, ``mono``, ``rgbwmean``, ``custom<hash>``: one training per sensor, whatever
-    the captures), the spec ``{"cfa": ..., "white": ...}`` rebuilds the pattern (sensors.cfa_pattern)."""
-    pattern = read_sensor(folder, overrides).cfa
+    the captures), the spec ``{"cfa": ..., "white": ...}`` rebuilds the pattern (sensors.cfa_pattern).
+    The folder is checked against sensor.json from headers and listings (:func:`check_capture_folder`)."""
+    sensor = read_sensor(folder, overrides)
+    check_capture_folder(folder, sensor)
+    pattern = sensor.cfa
     return sensor_tag(pattern), {"cfa": pattern.to_json(), "white": pattern.white}
 
 

@@ -324,6 +324,44 @@ def write_npz(path: str | os.PathLike, cube: np.ndarray) -> Path:
 
 
 # --------------------------------------------------------------------------------------------
+# headers
+
+
+def cube_header(path: str | os.PathLike) -> tuple[int, int, int]:
+    """(K, H, W-or-packed-bytes) of a photon cube from its header or listing, no frame read:
+    ``.npy`` / ``.npy.gz`` give (K, H, ceil(W/8)) of their packed rows (dtype checked), ``.npz``
+    its recorded shape, a PNG folder its file count and the first frame's size."""
+    path = Path(path)
+    fmt = cube_format(path)
+    if fmt == "png":
+        files = png_frames(path)
+        h, w, _ = io.image_shape(files[0])
+        return len(files), h, w
+    if fmt == "npz":
+        try:
+            with np.load(path) as z:
+                shape = tuple(int(v) for v in z["shape"])
+        except (OSError, KeyError, ValueError) as e:
+            raise ValueError(f"cannot read photon cube {path}: {e} (expected an .npz with 'packed' and 'shape')") from e
+        if len(shape) == 4 and shape[3] == 1:
+            shape = shape[:3]
+        if len(shape) != 3:
+            raise ValueError(f"{path}: frames of shape {shape}; a photon cube is (K, H, W), one raw value per pixel")
+        return shape
+    try:
+        if fmt == "npy.gz":
+            with gzip.open(path, "rb") as f:
+                shape, _, dtype = _npy_header(f)
+        else:
+            arr = np.load(path, mmap_mode="r", allow_pickle=False)
+            shape, dtype = arr.shape, arr.dtype
+    except (OSError, ValueError, EOFError, zlib.error) as e:
+        raise ValueError(f"cannot read photon cube {path}: {e} (truncated, or not a {fmt} file?)") from e
+    _check_packed(shape, dtype, path)
+    return tuple(int(v) for v in shape)
+
+
+# --------------------------------------------------------------------------------------------
 # entry points
 
 
