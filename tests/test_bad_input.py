@@ -265,6 +265,24 @@ CASES = [
         r"holds 9 images but .*poses_bounds\.npy has 10 poses; they must match",
         scene=_image(Path.unlink),
     ),
+    Case(
+        "hwf-height-and-width-swapped",
+        r"the poses' hwf says 48 high x 36 wide but the images are 48x36 \(WxH\): height and width look swapped",
+        scene=_poses(lambda pb: pb.__setitem__((slice(None), slice(4, 10, 5)), pb[:, [9, 4]])),
+    ),
+    Case(
+        "every-view-at-one-position",
+        r"all 10 cameras sit at one position .*no parallax",
+        scene=_poses(lambda pb: pb.__setitem__((slice(None), slice(3, 15, 5)), pb[0, 3:15:5])),
+    ),
+    Case(
+        "a-single-training-view",
+        r"2 view\(s\) leave 1 training view\(s\) .*needs at least 2",
+        scene=lambda f: (
+            np.save(f / "poses_bounds.npy", np.load(f / "poses_bounds.npy")[:2]),
+            [p.unlink() for p in sorted((f / "images").glob("*.png"))[2:]],
+        ),
+    ),
     Case("image-of-another-size", r"image002\.png is 30x20 pixels but image000\.png is 48x36", scene=_image(_resize)),
     Case("grayscale-image", r"image002\.png: 1 channel\(s\); the views of a scene must be RGB", scene=_image(_gray)),
     Case("corrupt-png", r"image002\.png", scene=_image(_truncate), stage="prepare_scene"),

@@ -312,3 +312,15 @@ def test_a_fixed_exposure_that_shows_no_image_is_warned_and_a_calibrated_one_is_
     starved = {**base, "photon_level": {"detection": [0.005, 0.5]}}  # below the 1 % dark-count floor
     with pytest.raises(ConfigError, match=r"photon_level\.detection = 0\.005: dark counts alone fire 0\.00995"):
         check_exposure(starved)
+
+
+def test_llff_images_narrower_than_the_working_width_are_named_as_upsampled(tmp_path, capsys):
+    from spc3d.jobs import real_scene_spec
+
+    write_builtin_scene("observatory", tmp_path / "mini", height=36, width=48, views=10, supersample=1)
+    real_scene_spec("mini", tmp_path / "mini", {"width": 48, "llff_factor": 1})
+    assert "upsampled" not in capsys.readouterr().err
+    real_scene_spec("mini", tmp_path / "mini", {"width": 64, "llff_factor": 1})
+    assert "resolution.width = 64 is wider than the images of llff_scenes.mini at llff_factor 1 (48 px)" in (
+        capsys.readouterr().err
+    )

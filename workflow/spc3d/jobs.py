@@ -11,9 +11,11 @@ import contextlib
 import logging
 import os
 import resource
+import sys
 import time
 from pathlib import Path
 
+from spc3d import io
 from spc3d.names import ConfigError
 
 
@@ -207,7 +209,15 @@ def real_scene_spec(name: str, path: Path, res: dict) -> dict:
         raise ConfigError(f"llff_scenes.{name}: {path} is not an LLFF folder nor a COLMAP-format one: {e}") from None
     if layout == "colmap":
         return {"kind": "colmap", "path": str(path), "factor": 1, "width": res["width"], "undistort": True}
-    llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")
+    files = llff_input_files(path, res["llff_factor"], f"llff_scenes.{name}")
+    image_width = io.image_shape(files[1])[1]
+    if res["width"] > image_width:  # possible (tiny test scenes), but no longer the photographs' detail
+        print(
+            f"spc3d warning: resolution.width = {res['width']} is wider than the images of llff_scenes.{name} at "
+            f"llff_factor {res['llff_factor']} ({image_width} px): they are upsampled; use a width <= "
+            f"{image_width} or a smaller resolution.llff_factor",
+            file=sys.stderr,
+        )
     return {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
 
 

@@ -100,8 +100,41 @@ def llff_contents(root: str | os.PathLike, factor: int) -> tuple[list[Path], np.
             f"{folder} holds {len(files)} images but {pb_path} has {len(poses_bounds)} poses; they must match"
         )
     check_image_headers(files)
+    check_views(poses_bounds, files, pb_path)
     read_intrinsics(root, poses_bounds)
     return files, poses_bounds
+
+
+MIN_TRAIN_VIEWS = 2  # a 3D fit needs parallax between at least two training views
+SAME_CENTRE = 1e-4  # camera centres closer than this fraction of the median near bound are one position
+
+
+def check_views(poses_bounds: np.ndarray, files: list[Path], path) -> None:
+    """What a scene's views must give a 3D fit: the ``hwf`` size of the poses in the images' aspect
+    (not swapped), at least :data:`MIN_TRAIN_VIEWS` training views beside the held-out ones (every
+    8th), and camera centres that are not all one point (no parallax, nothing to triangulate)."""
+    from spc3d.cameras import split_views
+
+    h, w, _ = io.image_shape(files[0])
+    ph, pw = float(poses_bounds[0, 4]), float(poses_bounds[0, 9])  # hwf: column 5 of the 3x5 pose
+    if abs(w / h - ph / pw) < 0.02 * (w / h) and abs(w / h - pw / ph) > 0.02 * (w / h):
+        raise ValueError(
+            f"{path}: the poses' hwf says {ph:g} high x {pw:g} wide but the images are {w}x{h} (WxH): height "
+            "and width look swapped in column 5 of the poses (h, w, f)"
+        )
+    train, _ = split_views(len(poses_bounds))
+    if len(train) < MIN_TRAIN_VIEWS:
+        raise ValueError(
+            f"{path}: {len(poses_bounds)} view(s) leave {len(train)} training view(s) beside the held-out "
+            f"ones (every 8th); a 3D fit needs at least {MIN_TRAIN_VIEWS}"
+        )
+    centres = poses_bounds[:, :15].reshape(-1, 3, 5)[:, :, 3]
+    spread, near = np.linalg.norm(centres - centres.mean(0), axis=1).max(), float(np.median(poses_bounds[:, 15]))
+    if spread <= SAME_CENTRE * near:
+        raise ValueError(
+            f"{path}: all {len(poses_bounds)} cameras sit at one position (centres within {spread:.3g} of their "
+            f"mean against a near bound of {near:.3g}): no parallax to reconstruct from"
+        )
 
 
 def read_intrinsics(root: str | os.PathLike, poses_bounds: np.ndarray) -> np.ndarray | None:
