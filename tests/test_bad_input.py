@@ -56,6 +56,12 @@ def _image(fn):
     return damage
 
 
+def _npz_as_npy(folder):
+    pb = np.load(folder / "poses_bounds.npy")
+    with open(folder / "poses_bounds.npy", "wb") as f:
+        np.savez(f, poses=pb)
+
+
 def _gray(path):
     io.write_image(path, io.read_rgb(path)[:, :, :1])
 
@@ -95,6 +101,11 @@ CASES = [
         {"stage2": {"3dgs": {"max_gaussians": 100}}},
     ),
     Case(
+        "schedule-entry-of-the-wrong-shape",
+        r"res_schedule\[1\] = \[\[0, 16\], \[20\]\]: expected \[int, int\], got 1 item\(s\)",
+        {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [20]]}}},
+    ),
+    Case(
         "grid-schedule-out-of-order",
         r"res_schedule = \[\[0, 16\], \[30, 32\], \[20, 24\]\]: list the entries by increasing iteration",
         {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [30, 32], [20, 24]]}}},
@@ -109,6 +120,11 @@ CASES = [
         "last-repeat-seed-above-2-to-the-32",
         r"the last run's seed 4294967296 is above 4294967295 .*lower seed to at most 4294967294",
         {"seed": 2**32 - 1, "seeds": 2},
+    ),
+    Case(
+        "capture-override-with-a-bad-key",
+        r"captures\.mycap\.qq: unknown key; did you mean 'q'\?",
+        {"captures": {"mycap": {"path": "WORK/cap", "qq": 0.5}}},
     ),
     Case(
         "float-where-an-integer-belongs",
@@ -264,6 +280,11 @@ CASES = [
         "pose-image-mismatch",
         r"holds 9 images but .*poses_bounds\.npy has 10 poses; they must match",
         scene=_image(Path.unlink),
+    ),
+    Case(
+        "npz-archive-named-npy",
+        r"poses_bounds\.npy is an \.npz archive \(members \['poses'\]\), not a \.npy array",
+        scene=_npz_as_npy,
     ),
     Case(
         "hwf-height-and-width-swapped",

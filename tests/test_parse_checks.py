@@ -324,3 +324,18 @@ def test_llff_images_narrower_than_the_working_width_are_named_as_upsampled(tmp_
     assert "resolution.width = 64 is wider than the images of llff_scenes.mini at llff_factor 1 (48 px)" in (
         capsys.readouterr().err
     )
+
+
+def test_tuple_settings_have_the_shape_their_annotation_says():
+    from spc3d.training import check_shape
+
+    pairs = tuple[tuple[int, int], ...]
+    check_shape("k", ((0, 16), (20, 24)), pairs)
+    check_shape("k", (1, 2, 2, 4), tuple[int, ...])
+    check_shape("k", 3, int)  # not a tuple setting: not its business
+    with pytest.raises(ValueError, match=r"k\[1\] = \[\[0, 16\], \[20\]\]: expected \[int, int\], got 1 item"):
+        check_shape("k", ((0, 16), (20,)), pairs, ((0, 16), (20,)))
+    with pytest.raises(ValueError, match=r"k = \[0.9\]: expected \[float, float\], got 1 item"):
+        check_shape("k", (0.9,), tuple[float, float], (0.9,))
+    with pytest.raises(ValueError, match=r"expected a list \(a list of \[int, int\]s\)"):
+        check_shape("k", 5, pairs, 5)

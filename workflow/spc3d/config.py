@@ -151,6 +151,10 @@ def _dotted(path) -> str:
 
 def schema_message(error) -> str:
     """One line for a jsonschema error: the key, the value, what would be right."""
+    if error.validator in ("oneOf", "anyOf") and error.context:
+        meant = _branch_meant(error)
+        if meant is not None:
+            return schema_message(meant)
     key = _dotted(error.absolute_path)
     kind, want, value = error.validator, error.validator_value, error.instance
     if kind == "additionalProperties" and isinstance(value, dict):
@@ -174,6 +178,18 @@ def schema_message(error) -> str:
     if kind == "uniqueItems":
         return f"{key} = {shown}: items must be unique"
     return f"{key} = {shown}: {error.message.splitlines()[0][:200]}"
+
+
+JSON_TYPES = {dict: "object", list: "array", str: "string", bool: "boolean"}
+
+
+def _branch_meant(error):
+    """Of a oneOf / anyOf failure, the first error inside the branch whose type is the value's (a
+    mapping meant the object branch: name its bad key, not "not valid under any of the schemas")."""
+    kind = next((t for py, t in JSON_TYPES.items() if isinstance(error.instance, py)), None)
+    branches = error.validator_value
+    inside = [e for e in error.context if branches[e.schema_path[0]].get("type") == kind]
+    return min(inside, key=lambda e: (-len(e.absolute_path), str(e.message))) if inside else None
 
 
 def type_hint(value, want) -> str:

@@ -179,6 +179,19 @@ def load_frames(path: str | os.PathLike) -> tuple[np.ndarray, tuple[int, ...]]:
         raise ValueError(f"cannot read binary frames {path}: {e} (expected an .npz with 'packed' and 'shape')") from e
 
 
+def load_npy(path: str | os.PathLike, mmap: bool = False) -> np.ndarray:
+    """A ``.npy`` array (no pickled objects; ``mmap``: memory-mapped, only what is indexed is read).
+    A file that is really an ``.npz`` archive is named as such instead of failing later on a
+    missing ``.shape``."""
+    data = np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
+    if not isinstance(data, np.ndarray):
+        members = list(getattr(data, "files", []))
+        if hasattr(data, "close"):
+            data.close()
+        raise ValueError(f"{path} is an .npz archive (members {members[:5]}), not a .npy array; save it with np.save")
+    return data
+
+
 def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:

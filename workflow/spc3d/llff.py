@@ -90,7 +90,7 @@ def llff_contents(root: str | os.PathLike, factor: int) -> tuple[list[Path], np.
     if not pb_path.is_file():
         raise FileNotFoundError(f"{pb_path} is missing (an LLFF folder needs poses_bounds.npy, N x 17)")
     try:
-        poses_bounds = np.load(pb_path, allow_pickle=False)
+        poses_bounds = io.load_npy(pb_path)
     except (OSError, ValueError) as e:
         raise ValueError(f"cannot read {pb_path}: {e} (expected a .npy array, N x 17)") from None
     check_poses_bounds(poses_bounds, pb_path)
@@ -144,7 +144,7 @@ def read_intrinsics(root: str | os.PathLike, poses_bounds: np.ndarray) -> np.nda
     if not path.is_file():
         return None
     try:
-        intr = np.load(path, allow_pickle=False)
+        intr = io.load_npy(path)
     except (OSError, ValueError) as e:
         raise ValueError(f"cannot read {path}: {e} (expected a .npy array, N x 4 fx, fy, cx, cy)") from None
     if intr.shape != (len(poses_bounds), 4) or not np.issubdtype(intr.dtype, np.number):
@@ -324,7 +324,7 @@ def read_scene(scene_dir: str | os.PathLike, with_depth: bool = False, with_imag
                 f"{scene_dir} has no reference views (a capture without images/): its rows get outputs and "
                 "no-reference statistics only; a source or metric that needs the ground truth cannot run on it"
             )
-        pb = np.load(scene_dir / "poses_bounds.npy", allow_pickle=False)
+        pb = io.load_npy(scene_dir / "poses_bounds.npy")
         data = SceneData(None, llff_cameras(scene_dir, pb, meta["height"], meta["width"]), list(meta["names"]))
     elif with_images:
         data = load_llff(scene_dir, factor=1)

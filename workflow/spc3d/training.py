@@ -32,6 +32,7 @@ import math
 import random
 import resource
 import time
+import typing
 
 import numpy as np
 import torch
@@ -78,8 +79,10 @@ def build_config(cls, settings: dict, where: str, base=None):
         hint = f"did you mean {close[0]!r}? " if close else ""
         raise ValueError(f"{where}: unknown setting(s) {unknown}; {hint}valid keys: {sorted(fields)}")
     values = {k: _tuples(v) for k, v in settings.items()}
+    hints = typing.get_type_hints(cls)
     for key, value in values.items():
         _check_type(where, key, value, _default(fields[key]))
+        check_shape(f"{where}.{key}", value, hints.get(key), value)
         check_range(where, key, value)
     try:
         return dataclasses.replace(base, **values) if base is not None else cls(**values)
@@ -108,6 +111,39 @@ def _check_type(where: str, key: str, value, default) -> None:
     want = kinds.get(type(default))
     if want and (not isinstance(value, want) or (isinstance(value, bool) and bool not in want)):
         raise ValueError(f"{where}.{key} = {value!r}: expected {type(default).__name__} (like the default {default!r})")
+
+
+def check_shape(where: str, value, hint, whole=None) -> None:
+    """A tuple setting has the shape its annotation says: ``tuple[int, int]`` two items,
+    ``tuple[int, ...]`` any number, nested as annotated (``tuple[tuple[int, int], ...]``: a list of
+    pairs). Only tuples are judged; other types are :func:`_check_type`'s."""
+    if typing.get_origin(hint) is not tuple:
+        return
+    if not isinstance(value, tuple):
+        raise ValueError(f"{where} = {_as_lists(whole)!r}: expected a list ({_shape_text(hint)})")
+    args = typing.get_args(hint)
+    if len(args) == 2 and args[1] is Ellipsis:
+        items = [args[0]] * len(value)
+    elif len(args) != len(value):
+        raise ValueError(f"{where} = {_as_lists(whole)!r}: expected {_shape_text(hint)}, got {len(value)} item(s)")
+    else:
+        items = list(args)
+    for i, (item, item_hint) in enumerate(zip(value, items)):
+        check_shape(f"{where}[{i}]", item, item_hint, whole)
+
+
+def _as_lists(v):
+    """A setting as the YAML list the user wrote (tuples shown as lists)."""
+    return [_as_lists(x) for x in v] if isinstance(v, tuple) else v
+
+
+def _shape_text(hint) -> str:
+    args = typing.get_args(hint)
+    if len(args) == 2 and args[1] is Ellipsis:
+        inner = _shape_text(args[0]) if typing.get_origin(args[0]) is tuple else getattr(args[0], "__name__", "item")
+        return f"a list of {inner}s" if not inner.startswith("a list") else f"a list of [{inner}]"
+    names = [_shape_text(a) if typing.get_origin(a) is tuple else getattr(a, "__name__", "item") for a in args]
+    return f"[{', '.join(names)}]"
 
 
 # The ranges of every numeric model and training setting, by name: none is signed (counts, loss

@@ -220,7 +220,7 @@ def check_capture_folder(folder: str | os.PathLike, sensor: CaptureSensor) -> li
             )
     poses = folder / "poses_bounds.npy"
     if poses.is_file():
-        rows = np.load(poses, mmap_mode="r", allow_pickle=False).shape[0]
+        rows = io.load_npy(poses, mmap=True).shape[0]
         if rows != len(names):
             raise ValueError(f"{poses}: {rows} rows of poses for {len(names)} views in frames/; one row per view")
     return names

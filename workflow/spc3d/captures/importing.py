@@ -116,7 +116,7 @@ def import_capture_scene(
 def given_cameras(folder: Path, views: int, height: int, width: int) -> Cameras:
     """The capture's own poses_bounds.npy (one row per view in name order), checked."""
     path = folder / "poses_bounds.npy"
-    pb = np.load(path, allow_pickle=False)
+    pb = io.load_npy(path)
     llff.check_poses_bounds(pb, path)
     if len(pb) != views:
         raise ValueError(f"{path} has {len(pb)} rows but {folder}/frames holds {views} views; one row per view")

@@ -161,7 +161,7 @@ def read_npy(
 
 def _read_npy_plain(path: Path, max_frames: int | None) -> np.ndarray:
     try:
-        arr = np.load(path, mmap_mode="r", allow_pickle=False)  # only the frames asked for are read
+        arr = io.load_npy(path, mmap=True)  # only the frames asked for are read
     except (OSError, ValueError, EOFError) as e:
         raise ValueError(f"cannot read photon cube {path}: {e} (truncated, or not a .npy file?)") from e
     if not isinstance(arr, np.ndarray):
@@ -353,7 +353,7 @@ def cube_header(path: str | os.PathLike) -> tuple[int, int, int]:
             with gzip.open(path, "rb") as f:
                 shape, _, dtype = _npy_header(f)
         else:
-            arr = np.load(path, mmap_mode="r", allow_pickle=False)
+            arr = io.load_npy(path, mmap=True)
             shape, dtype = arr.shape, arr.dtype
     except (OSError, ValueError, EOFError, zlib.error) as e:
         raise ValueError(f"cannot read photon cube {path}: {e} (truncated, or not a {fmt} file?)") from e

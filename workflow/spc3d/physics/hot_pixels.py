@@ -179,7 +179,7 @@ def read_hot_pixel_map(path: str | os.PathLike, shape: tuple[int, int] | None = 
     path = Path(path)
     if path.suffix.lower() == ".npy":
         try:
-            data = np.load(path, allow_pickle=False)
+            data = io.load_npy(path)
         except (OSError, ValueError) as e:
             raise ValueError(f"hot-pixel map {path}: {e} (expected an (H, W) bool .npy)") from e
     else:
