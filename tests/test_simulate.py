@@ -70,3 +70,31 @@ def test_psnr_identical_is_inf():
     img = np.full((4, 4, 3), 0.5)
     assert psnr(img, img) == float("inf")
     assert psnr(img, img + 0.1) == pytest.approx(20.0)
+
+
+def test_frames_without_an_image_are_warned_in_spc_json_and_named_in_the_tables(scene_dir, tmp_path):
+    """An overexposed (fixed flux far above the scene) and a starved scene say so in spc.json, and
+    the paper tables' captions name them; a calibrated scene says nothing."""
+    from spc3d.evaluation.tables import photon_note
+
+    params = spc.SPCParams(frames=2)
+    bright = simulate_scene(scene_dir, tmp_path / "bright", params, flux_scale=1e10, seed=0)
+    dark = simulate_scene(scene_dir, tmp_path / "dark", params, flux_scale=1.0, seed=0)
+    fine = simulate_scene(scene_dir, tmp_path / "fine", params, target_detection=0.5, seed=0)
+    assert bright["warnings"] == [
+        f"frames almost all 1 (mean detection {bright['mean_detection_rate']:.4f}): overexposed"
+    ]
+    assert dark["warnings"][0].startswith("frames almost all dark") and fine["warnings"] == []
+    assert io.read_json(tmp_path / "bright" / "spc.json")["warnings"] == bright["warnings"]
+    note = photon_note([tmp_path / "bright", tmp_path / "fine", tmp_path / "dark"])
+    assert "bright: frames almost all 1" in note and "dark: frames almost all dark" in note and "fine" not in note
+    assert photon_note([tmp_path / "fine"]) == ""
+
+
+def test_frame_warning_thresholds():
+    from spc3d.physics.record import frame_warnings
+
+    assert frame_warnings(0.5, 0.01) == []
+    assert "overexposed" in frame_warnings(0.995, 0.01)[0]
+    assert "underexposed" in frame_warnings(0.015, 0.01)[0] and frame_warnings(0.03, 0.01) == []
+    assert frame_warnings(0.5, 0.01, saturated_pixels=0.6) == ["60% of the pixels fired in every frame (saturated)"]

@@ -180,6 +180,11 @@ def get_stage2_init(wildcards):
     return None if overlay_of(wildcards) else config["stage2"]["init"]
 
 
+def get_eval_spc():
+    """Every evaluation scene's SPC folder, per repeat (the tables name the ones whose frames carry no image)."""
+    return expand("results/spc/{scene}{rep}", scene=EVAL_SCENES, rep=REPS)
+
+
 def get_eval_frames(wildcards):
     """A scene without reference views is scored on its held-out frames (spc3d.evaluation.heldout); others need none."""
     return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE and not overlay_of(wildcards) else []

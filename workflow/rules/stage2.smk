@@ -63,6 +63,7 @@ rule write_all_tables:
     input:
         metrics=get_eval_outputs(),
         stage1=get_stage1_outputs(),
+        spc=get_eval_spc(),  # their spc.json warnings (frames without an image) join the captions
     output:
         report(
             "results/tables/two_stage.html",
@@ -127,6 +128,7 @@ rule tables:
         smallest_effect=config["findings"]["smallest_effect_db"],
         metrics=get_eval_outputs(),
         stage1=get_stage1_outputs(),
+        spc=get_eval_spc(),
         folder="results/tables",
     log:
         "logs/tables/tables.log",

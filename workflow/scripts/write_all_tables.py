@@ -25,9 +25,11 @@ with logged(snakemake.log[0]):
             len(stage1),
             len(p.stage1),
         )
-        folder = p.folder
+        folder, spc_dirs = p.folder, [d for d in p.spc if Path(d).is_dir()]
     else:
         metrics, stage1 = list(snakemake.input.metrics), list(snakemake.input.stage1)
-        folder = Path(snakemake.output[0]).parent
-    write_all_tables(metrics, stage1, folder, p.nerf_variant, LABELS, smallest_effect=p.smallest_effect)
+        folder, spc_dirs = Path(snakemake.output[0]).parent, list(snakemake.input.spc)
+    write_all_tables(
+        metrics, stage1, folder, p.nerf_variant, LABELS, smallest_effect=p.smallest_effect, spc_dirs=spc_dirs
+    )
     stopping_table(metrics, Path(folder) / "stopping")

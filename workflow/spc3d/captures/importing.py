@@ -54,7 +54,7 @@ from spc3d.captures.folders import (
 from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from spc3d.physics import sensors, spc
 from spc3d.physics.hot_pixels import write_hot_pixel_map
-from spc3d.physics.record import HOT_FILE, exposure_record
+from spc3d.physics.record import HOT_FILE, exposure_record, frame_warnings
 
 log = logging.getLogger(__name__)
 
@@ -237,6 +237,10 @@ def import_capture_frames(
             },
             "wall_s": round(time.perf_counter() - t0, 3),
         }
+        floor = float(spc.detection_probability(np.zeros(1), params)[0])
+        record["warnings"] = frame_warnings(record["mean_detection_rate"], floor, record["mean_saturated_fraction"])
+        for warning in record["warnings"]:
+            log.warning("capture %s: %s", folder, warning)
         io.write_json(tmp / "spc.json", record)
     log.info("capture %s: %d views, K = %d, %d hot pixels", folder, len(views), k, int(hot.sum()))
     return record

@@ -347,6 +347,21 @@ def scoring_note(files: list[str | os.PathLike]) -> str:
     )
 
 
+def photon_note(spc_dirs: list[str | os.PathLike]) -> str:
+    """The caption's sentence naming the evaluation scenes whose frames carry (almost) no image
+    (``warnings`` of their spc.json, :func:`spc3d.physics.record.frame_warnings`): their photon-fed
+    rows measure the exposure, not the method. "" when there are none."""
+    said = []
+    for folder in spc_dirs:
+        path = Path(folder) / "spc.json"
+        warnings = io.read_json(path).get("warnings") if path.is_file() else None
+        if warnings:
+            said.append(f"{Path(folder).name}: {'; '.join(warnings)}")
+    if not said:
+        return ""
+    return f" Warning, frames without an image ({', '.join(said)}): the photon-fed rows there measure the exposure."
+
+
 def reconstructor_note(summary: pd.DataFrame, nerf_variant: str) -> str:
     """The caption's sentence on what bounds each model's rows: its oracle (ground-truth RGB) score,
     so a NeRF row far below 3DGS's ceiling is read as the NeRF's budget, not its source's."""
@@ -363,26 +378,33 @@ def reconstructor_note(summary: pd.DataFrame, nerf_variant: str) -> str:
 
 
 def paper_table(
-    metrics_files: list[str], stem: str, nerf_variant: str, spec: list, caption: str, unlisted: bool = False
+    metrics_files: list[str],
+    stem: str,
+    nerf_variant: str,
+    spec: list,
+    caption: str,
+    unlisted: bool = False,
+    note: str = "",
 ) -> pd.DataFrame:
-    """A paper-layout table of ``spec`` (+ the rows :func:`extra_rows` adds) from the metrics files."""
+    """A paper-layout table of ``spec`` (+ the rows :func:`extra_rows` adds) from the metrics files;
+    ``note`` ends its caption (:func:`photon_note`)."""
     summary = summarise(collect(metrics_files))
     df = table(summary, spec, nerf_variant, unlisted=unlisted)
-    note = reconstructor_note(summary, nerf_variant) + scoring_note(metrics_files)
+    note = reconstructor_note(summary, nerf_variant) + scoring_note(metrics_files) + note
     write_table(df, stem, caption, PROTOCOL + note)
     return df
 
 
-def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
+def single_stage_table(metrics_files: list[str], stem: str, nerf_variant: str, note: str = "") -> pd.DataFrame:
     """Paper Table 2 layout (+ the single-stage variants and this project's rows)."""
     caption = "Single-stage vs two-stage (paper Table 2 layout)"
-    return paper_table(metrics_files, stem, nerf_variant, SINGLE_STAGE, caption)
+    return paper_table(metrics_files, stem, nerf_variant, SINGLE_STAGE, caption, note=note)
 
 
-def two_stage_table(metrics_files: list[str], stem: str, nerf_variant: str) -> pd.DataFrame:
+def two_stage_table(metrics_files: list[str], stem: str, nerf_variant: str, note: str = "") -> pd.DataFrame:
     """Paper Table 1 layout (+ the untrained prior, published networks and this project's rows)."""
     caption = "Two-stage: stage-1 translator + stage-2 reconstructor (paper Table 1 layout)"
-    return paper_table(metrics_files, stem, nerf_variant, TWO_STAGE, caption, unlisted=True)
+    return paper_table(metrics_files, stem, nerf_variant, TWO_STAGE, caption, unlisted=True, note=note)
 
 
 def row_label(source: str, labels: dict[str, str]) -> str:
@@ -407,7 +429,7 @@ def stage1_role(source: str) -> str:
     return "oracle" if source == "gt" else "published" if parse_source(source).pub else "ours"
 
 
-def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> pd.DataFrame:
+def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str], note: str = "") -> pd.DataFrame:
     """Stage-1 image quality of the held-out views before 3D, one row per source (best first)."""
     rows, prior_rows, names = [], {}, {}
     records = [io.read_json(path) for path in stage1_files]
@@ -427,7 +449,7 @@ def stage1_table(stage1_files: list[str], stem: str, labels: dict[str, str]) -> 
     df = table(summary.rename(index=lambda c: f"{c}+image"), spec, "image")
     df["combination"] = [c.removesuffix("+image") for c in df["combination"]]
     caption = "Stage 1 alone: translated held-out views vs ground truth, before 3D"
-    write_table(df, stem, caption, PROTOCOL + scoring_note(stage1_files))
+    write_table(df, stem, caption, PROTOCOL + scoring_note(stage1_files) + note)
     return df
 
 
@@ -544,18 +566,20 @@ def write_all_tables(
     nerf_variant: str,
     labels: dict[str, str] = LABELS,
     smallest_effect: float | None = None,
+    spc_dirs: list[str] = (),
 ) -> None:
     """single_stage.*, two_stage.*, estimated_poses.*, stage1.*, no_reference.* and the findings
     (findings.md / .json / .html) in ``folder``; the findings decide against the smallest effect of
-    interest ``smallest_effect`` (dB PSNR; None: the findings' SMALLEST_EFFECT)."""
+    interest ``smallest_effect`` (dB PSNR; None: the findings' SMALLEST_EFFECT). ``spc_dirs``: the
+    evaluation scenes' SPC folders, whose frame warnings the captions name (:func:`photon_note`)."""
     from spc3d.evaluation.findings import SMALLEST_EFFECT, write_findings
 
-    folder = Path(folder)
-    single_stage_table(metrics_files, folder / "single_stage", nerf_variant)
-    two_stage_table(metrics_files, folder / "two_stage", nerf_variant)
+    folder, note = Path(folder), photon_note(spc_dirs)
+    single_stage_table(metrics_files, folder / "single_stage", nerf_variant, note)
+    two_stage_table(metrics_files, folder / "two_stage", nerf_variant, note)
     estimated_poses_table(metrics_files, folder / "estimated_poses", labels)
     if stage1_files:
-        stage1_table(stage1_files, folder / "stage1", labels)
+        stage1_table(stage1_files, folder / "stage1", labels, note)
     else:  # every evaluation scene is a capture without reference views: nothing to score before 3D
         write_text_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
     no_reference_table(metrics_files, folder / "no_reference")

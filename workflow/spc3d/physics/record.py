@@ -40,6 +40,27 @@ def params_from_record(record: dict) -> spc.SPCParams:
     return spc.SPCParams(**record["params"])
 
 
+SATURATED = 0.99  # a scene whose bits are this often 1 (or this much closer to the dark floor than to 1) shows nothing
+
+
+def frame_warnings(mean_detection: float, dark_floor: float, saturated_pixels: float | None = None) -> list[str]:
+    """spc.json's ``warnings``: frames that carry (almost) no image. ``mean_detection``: the mean
+    P(bit = 1) over the scene's frames; ``dark_floor``: what dark counts alone fire; ``saturated_pixels``:
+    the share of pixels that fired in every frame (captures). Rows of such a scene measure the
+    exposure, not the method: the tables name the scene (:func:`spc3d.evaluation.tables.photon_note`)."""
+    out = []
+    if mean_detection >= SATURATED:
+        out.append(f"frames almost all 1 (mean detection {mean_detection:.4f}): overexposed")
+    elif mean_detection - dark_floor <= 1 - SATURATED:
+        out.append(
+            f"frames almost all dark (mean detection {mean_detection:.4g} against {dark_floor:.4g} from dark "
+            "counts alone): underexposed"
+        )
+    if saturated_pixels is not None and saturated_pixels >= 0.5:
+        out.append(f"{saturated_pixels:.0%} of the pixels fired in every frame (saturated)")
+    return out
+
+
 EXPOSURE_KINDS = ("auto", "fixed", "metered")  # how the camera set the exposure it reports
 
 
