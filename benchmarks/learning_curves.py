@@ -15,8 +15,9 @@ losses), ``no-gan`` (Pix2Pix without its adversarial term, ``lambda_gan: 0``), `
 stand-in returning the mean of 4 samples, ``samples: 4``). A second call reuses what a first built
 (Snakemake reruns nothing).
 
-Prints per method and variant the validation PSNR gain over step 0 at each of ``--at`` (the
-last validation at or before it), the best gain and its step, and the training's CPU seconds per
+Prints per method and variant the validation PSNR gain over the physics prior's own validation
+PSNR at step 0 and at each of ``--at`` (the last validation at or before it), the best gain and its
+step, and the training's CPU seconds per
 step (user + sys of Snakemake's ``benchmarks/train_translator``, validation included), then writes
 ``WORKDIR/learning_curves.csv`` and a figure ``WORKDIR/learning_curves.png``. Choices made from it
 are made on the training scenes' held-out views only: no evaluation scene is trained or scored.
@@ -63,27 +64,30 @@ def train(work: Path, variant: str, methods: list[str], args) -> None:
         sys.exit(f"{variant}: snakemake failed (log in {work}/.snakemake/log):\n{proc.stderr[-3000:]}")
 
 
-def curve(work: Path, method: str) -> tuple[pd.DataFrame, float]:
-    """A trained method's validation curve (iteration, val_psnr) and its CPU seconds per step."""
+def curve(work: Path, method: str) -> tuple[pd.DataFrame, float, float]:
+    """A trained method's validation curve (iteration, val_psnr), its CPU seconds per step and its
+    physics prior's own validation PSNR (the translators' common baseline)."""
     record = json.loads((work / "results" / "models" / method / "train.json").read_text())
     frame = pd.DataFrame(record["validation"]["curve"])[["iteration", "val_psnr"]]
     if frame["iteration"].iloc[0] != 0:
         raise ValueError(f"{work}/results/models/{method}: no validation at step 0 (trained by older code?)")
     bench = pd.read_csv(work / "benchmarks" / "train_translator" / f"{method}.tsv", sep="\t")
     cpu = float(bench["user_s"].iloc[-1] + bench["sys_s"].iloc[-1])
-    return frame, cpu / max(int(record["stopped"]["step"]), 1)
+    prior = (record.get("prior") or {}).get("val_psnr", float("nan"))
+    return frame, cpu / max(int(record["stopped"]["step"]), 1), float(prior)
 
 
-def summary(frame: pd.DataFrame, at: list[int]) -> dict:
-    """Gain over step 0 at each budget of ``at`` (last validation at or before it), best gain and step."""
-    start = float(frame["val_psnr"].iloc[0])
-    row = {}
-    for s in at:
+def summary(frame: pd.DataFrame, at: list[int], prior: float) -> dict:
+    """Gain over the physics prior's validation PSNR at step 0 and at each budget of ``at`` (the last
+    validation at or before it); the best gain and its step. A residual network starts at the prior
+    (step 0 ~ 0 dB); the diffusion stand-in starts from one sample of an untrained network."""
+    row = {"prior_psnr": round(prior, 2)}
+    for s in [0, *at]:
         seen = frame[frame["iteration"] <= s]
-        row[f"Δ@{s}"] = round(float(seen["val_psnr"].iloc[-1]) - start, 2) if s <= frame["iteration"].max() else None
+        reached = s <= frame["iteration"].max()
+        row[f"Δ@{s}"] = round(float(seen["val_psnr"].iloc[-1]) - prior, 2) if reached else None
     best = frame.loc[frame["val_psnr"].idxmax()]
-    row |= {"start_psnr": round(start, 2), "best_Δ": round(float(best["val_psnr"]) - start, 2)}
-    return row | {"best_step": int(best["iteration"])}
+    return row | {"best_Δ": round(float(best["val_psnr"]) - prior, 2), "best_step": int(best["iteration"])}
 
 
 def figure(curves: dict, path: Path) -> None:
@@ -93,16 +97,11 @@ def figure(curves: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4))
-    for (method, variant), frame in curves.items():
-        gain = frame["val_psnr"] - frame["val_psnr"].iloc[0]
-        ax.plot(
-            frame["iteration"].clip(lower=1),
-            gain,
-            ls="-" if variant == "paper" else "--",
-            label=f"{method} ({variant})",
-        )
+    for (method, variant), gain in curves.items():  # iteration, val_psnr minus the prior's
+        style = "-" if variant == "paper" else "--"
+        ax.plot(gain["iteration"].clip(lower=1), gain["val_psnr"], ls=style, label=f"{method} ({variant})")
     ax.axhline(0.0, color="0.5", lw=0.8)
-    ax.set(xscale="log", xlabel="training step", ylabel="validation PSNR − step 0 (dB)")
+    ax.set(xscale="log", xlabel="training step (step 0 drawn at 1)", ylabel="validation PSNR − the prior's (dB)")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -119,6 +118,7 @@ def main() -> None:
     parser.add_argument("--configfile", nargs="*", type=Path, default=[])
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--at", nargs="+", type=int, default=[100, 300, 1000, 3000, 10000])
+    parser.add_argument("--report-only", action="store_true", help="summarise what WORKDIR holds; train nothing")
     args = parser.parse_args()
     rows, curves = [], {}
     for variant in args.variants:
@@ -126,13 +126,13 @@ def main() -> None:
         if not methods:
             continue
         work = args.workdir / variant
-        train(work, variant, methods, args)
+        if not args.report_only:
+            train(work, variant, methods, args)
         for method in methods:
-            frame, per_step = curve(work, method)
-            curves[(method, variant)] = frame
-            rows.append(
-                {"method": method, "variant": variant, **summary(frame, args.at), "cpu_s_per_step": round(per_step, 3)}
-            )
+            frame, per_step, prior = curve(work, method)
+            curves[(method, variant)] = frame.assign(val_psnr=frame["val_psnr"] - prior)
+            row = {"method": method, "variant": variant, **summary(frame, args.at, prior)}
+            rows.append(row | {"cpu_s_per_step": round(per_step, 3)})
     table = pd.DataFrame(rows)
     print(table.to_string(index=False))
     table.to_csv(args.workdir / "learning_curves.csv", index=False)
