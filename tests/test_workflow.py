@@ -107,7 +107,7 @@ def test_smoke_run_end_to_end(tmp_path, smoke_run):
     assert model["seed"] == 0 and model["iterations"] == 4 and model["parameters"]["G"] > 0
     assert model["data"]["mode"] == "fixed" and model["data"]["pairs"] == 4 and model["data"]["samples"] == 4 * 2
     assert model["validation"]["views"] == ["tabletop/image000", "tabletop/image008"]
-    assert [v["iteration"] for v in model["validation"]["curve"]] == [2, 4] and model["stopped"]["step"] == 4
+    assert [v["iteration"] for v in model["validation"]["curve"]] == [0, 2, 4] and model["stopped"]["step"] == 4
     assert (res / "models" / "restormer" / "curve.png").exists() and not (res / "models" / "cyclegan").exists()
     assert len(list((res / "translate" / "courtyard" / "diffusion" / "images").glob("*.png"))) == 9
     s1 = pd.read_csv(res / "tables" / "stage1.csv").set_index("combination")

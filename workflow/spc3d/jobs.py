@@ -279,10 +279,11 @@ def llff_input_files(path: str | Path, factor: int, where: str = "llff_scenes") 
     """The files a real LLFF scene is read from (poses_bounds.npy and every image of the folder at
     ``factor``), after checking the folder (:func:`spc3d.llff.llff_contents`): declared as rule
     inputs, so editing one image reruns that scene and what follows."""
-    from spc3d.llff import llff_contents
+    from spc3d.llff import check_views, llff_contents
 
     try:
-        images, _ = llff_contents(path, factor)
+        images, poses_bounds = llff_contents(path, factor)
+        check_views(poses_bounds, images, Path(path) / "poses_bounds.npy")
     except FileNotFoundError as e:
         raise ConfigError(f"{where}: {e} (resolution.llff_factor={factor})") from None
     except ValueError as e:

@@ -100,7 +100,6 @@ def llff_contents(root: str | os.PathLike, factor: int) -> tuple[list[Path], np.
             f"{folder} holds {len(files)} images but {pb_path} has {len(poses_bounds)} poses; they must match"
         )
     check_image_headers(files)
-    check_views(poses_bounds, files, pb_path)
     read_intrinsics(root, poses_bounds)
     return files, poses_bounds
 
@@ -110,9 +109,11 @@ SAME_CENTRE = 1e-4  # camera centres closer than this fraction of the median nea
 
 
 def check_views(poses_bounds: np.ndarray, files: list[Path], path) -> None:
-    """What a scene's views must give a 3D fit: the ``hwf`` size of the poses in the images' aspect
-    (not swapped), at least :data:`MIN_TRAIN_VIEWS` training views beside the held-out ones (every
-    8th), and camera centres that are not all one point (no parallax, nothing to triangulate)."""
+    """What a real scene's views must give a 3D fit, checked when the workflow parses a configured
+    LLFF folder (:func:`spc3d.jobs.llff_input_files`; a canonical folder of any views reads fine):
+    the ``hwf`` size of the poses in the images' aspect (not swapped), at least
+    :data:`MIN_TRAIN_VIEWS` training views beside the held-out ones (every 8th), and camera centres
+    that are not all one point (no parallax, nothing to triangulate)."""
     from spc3d.cameras import split_views
 
     h, w, _ = io.image_shape(files[0])
