@@ -74,7 +74,7 @@ def row(work: Path, mode: str, method: str) -> dict:
         "best_step": record["validation"]["best_step"],
         "val_last": round(curve[-1]["val_psnr"], 2),
         "distinct_samples": record["data"]["distinct_samples"],
-        "cpu_s": round(float(bench["cpu_time"].iloc[0]), 1),
+        "cpu_s": round(float(bench["user_s"].iloc[-1] + bench["sys_s"].iloc[-1]), 1),  # spc3d.jobs TSV columns
     }
 
 
