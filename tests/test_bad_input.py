@@ -85,11 +85,7 @@ CASES = [
     Case("misspelled-nested-key", r"spc\.frame: unknown key; did you mean 'frames'", {"spc": {"frame": 4}}),
     Case("wrong-type", r"resolution\.width = 'big': expected integer", {"resolution": {"width": "big"}}),
     # --- ranges and order, one rule for every numeric setting (spc3d.training.check_range) ---------
-    Case(
-        "negative-loss-weight", r"lambda_feat = -1\.0: must be >= 0", {"stage1": {"pix2pixhd": {"lambda_feat": -1.0}}}
-    ),
     Case("negative-learning-rate", r"\.lr = -0\.001: must be > 0", {"stage1": {"pix2pixhd": {"lr": -0.001}}}),
-    Case("negative-prior-blur", r"prior_sigma = -1\.0: must be >= 0", {"stage1": {"restormer": {"prior_sigma": -1.0}}}),
     Case(
         "empty-densification-window",
         r"densify_from = 30, densify_until = 20: densification would never run",
@@ -101,11 +97,6 @@ CASES = [
         {"stage2": {"3dgs": {"max_gaussians": 100}}},
     ),
     Case(
-        "schedule-entry-of-the-wrong-shape",
-        r"res_schedule\[1\] = \[\[0, 16\], \[20\]\]: expected \[int, int\], got 1 item\(s\)",
-        {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [20]]}}},
-    ),
-    Case(
         "grid-schedule-out-of-order",
         r"res_schedule = \[\[0, 16\], \[30, 32\], \[20, 24\]\]: list the entries by increasing iteration",
         {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [30, 32], [20, 24]]}}},
@@ -115,7 +106,6 @@ CASES = [
         r"spc\.target_detection = 0\.5: dark counts alone fire 0\.6321 of the bits.*lower spc\.dark_count_rate",
         {"spc": {"dark_count_rate": 1.0e4}},
     ),
-    Case("seed-above-2-to-the-32", r"seed = 4294967296: must be <= 4294967295", {"seed": 2**32}),
     Case(
         "last-repeat-seed-above-2-to-the-32",
         r"the last run's seed 4294967296 is above 4294967295 .*lower seed to at most 4294967294",
@@ -135,11 +125,6 @@ CASES = [
         "number-yaml-reads-as-text",
         r"spc\.q = '1\.0e-3': expected number \(YAML reads 1\.0e-3 as text: write 0\.001\)",
         {"spc": {"q": "1.0e-3"}},
-    ),
-    Case(
-        "llff-scene-named-like-a-built-in-one",
-        r"llff_scenes: 'courtyard' is also a built-in scene; a scene name must be unique",
-        {"llff_scenes": {"courtyard": "workflow"}},
     ),
     Case("out-of-range", r"spc\.q = 1\.5: must be <= 1", {"spc": {"q": 1.5}}),
     Case("not-an-option", r"spc\.mode = 'poisson': use one of \['bernoulli', 'paper'\]", {"spc": {"mode": "poisson"}}),

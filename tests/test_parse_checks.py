@@ -289,6 +289,7 @@ def test_every_default_and_published_setting_lies_in_its_range():
         ("beta1", 1.0, r"must be in \[0, 1\)"),
         ("adam_betas", (0.9, 1.5), r"must be in \[0, 1\)"),
         ("lambda_A", -0.5, "must be >= 0"),
+        ("prior_sigma", -1.0, "must be >= 0"),
         ("channel_mults", (1, -2), "must be >= 0"),
     ],
 )
@@ -339,3 +340,9 @@ def test_tuple_settings_have_the_shape_their_annotation_says():
         check_shape("k", (0.9,), tuple[float, float], (0.9,))
     with pytest.raises(ValueError, match=r"expected a list \(a list of \[int, int\]s\)"):
         check_shape("k", 5, pairs, 5)
+
+
+def test_a_seed_numpy_and_torch_cannot_take_is_refused_by_the_schema():
+    config = read_yaml(REPO / "config.yaml") | {"seed": 2**32}
+    with pytest.raises(ConfigError, match=r"seed = 4294967296: must be <= 4294967295"):
+        check_config(config, read_yaml(REPO / "workflow" / "schemas" / "config.schema.yaml"))
