@@ -40,6 +40,10 @@ PATH_KEYS = (
 MAX_ERRORS = 5  # schema errors listed at once (the first ones are what a user fixes first)
 
 
+class DuplicateKey(yaml.constructor.ConstructorError):
+    """A key given twice in one YAML mapping (:class:`UniqueKeyLoader`)."""
+
+
 class UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last one
     silently: a setting typed twice would lose its first value without a word)."""
@@ -49,7 +53,7 @@ class UniqueKeyLoader(yaml.SafeLoader):
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=True)
             if key in seen:
-                raise yaml.constructor.ConstructorError(
+                raise DuplicateKey(
                     None, None, f"key {key!r} given twice (first at line {seen[key] + 1})", key_node.start_mark
                 )
             seen[key] = key_node.start_mark.line
@@ -68,7 +72,7 @@ def read_yaml(path: str | os.PathLike) -> dict:
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         context = f"; {e.context} at line {start.line + 1}" if start and getattr(e, "context", None) else ""
         problem = getattr(e, "problem", None) or str(e)
-        if "given twice" in problem:
+        if isinstance(e, DuplicateKey):
             raise ConfigError(f"{where}: {problem}; keep one of them") from None
         raise ConfigError(
             f"{where}: not valid YAML ({problem}{context}); check the indentation (spaces, not tabs) "
@@ -389,7 +393,6 @@ def check_grid_schedule(schedule) -> None:
 
 
 SEED_MAX = 2**32 - 1  # the largest seed numpy's and torch's generators accept
-SATURATED = 0.99  # a fixed exposure firing at least this at 1 % grey (or at most 1 - it at white) shows nothing
 
 
 def check_exposure(config: dict) -> list[str]:
@@ -397,11 +400,13 @@ def check_exposure(config: dict) -> list[str]:
     (``spc.target_detection``, ``photon_level.detection``) above the dark-count floor (else an
     error); a fixed ``spc.flux_scale`` that fires (almost) every pixel or (almost) none is
     returned as a warning: its frames would carry no image."""
+    from spc3d.names import SPC_PHYSICS
     from spc3d.physics.flux_scale import dark_floor, detection_span
+    from spc3d.physics.record import SATURATED
     from spc3d.physics.spc import SPCParams
 
     spc = config["spc"]
-    params = SPCParams(**{k: spc[k] for k in ("mode", "q", "tau_d", "exposure_s", "dark_count_rate")})
+    params = SPCParams(**{k: spc[k] for k in SPC_PHYSICS})
     floor = dark_floor(params)
     targets = [("spc.target_detection", spc["target_detection"])] if spc.get("flux_scale") is None else []
     targets += [("photon_level.detection", p) for p in config.get("photon_level", {}).get("detection", [])]

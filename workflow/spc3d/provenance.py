@@ -28,10 +28,8 @@ def module_file(name: str) -> Path | None:
     if parts[0] != PACKAGE:
         return None
     base = ROOT.joinpath(*parts[1:])
-    for candidate in (base.with_suffix(".py"), base / "__init__.py"):
-        if parts[1:] and candidate.is_file() or not parts[1:] and candidate.name == "__init__.py":
-            return candidate
-    return None
+    candidates = ([base.with_suffix(".py")] if parts[1:] else []) + [base / "__init__.py"]
+    return next((c for c in candidates if c.is_file()), None)
 
 
 def entry_file(module: str) -> Path:

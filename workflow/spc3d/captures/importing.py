@@ -53,6 +53,7 @@ from spc3d.captures.folders import (
 )
 from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from spc3d.physics import sensors, spc
+from spc3d.physics.flux_scale import dark_floor
 from spc3d.physics.hot_pixels import write_hot_pixel_map
 from spc3d.physics.record import HOT_FILE, exposure_record, frame_warnings
 
@@ -237,8 +238,8 @@ def import_capture_frames(
             },
             "wall_s": round(time.perf_counter() - t0, 3),
         }
-        floor = float(spc.detection_probability(np.zeros(1), params)[0])
-        record["warnings"] = frame_warnings(record["mean_detection_rate"], floor, record["mean_saturated_fraction"])
+        saturated = record["mean_saturated_fraction"]
+        record["warnings"] = frame_warnings(record["mean_detection_rate"], dark_floor(params), saturated)
         for warning in record["warnings"]:
             log.warning("capture %s: %s", folder, warning)
         io.write_json(tmp / "spc.json", record)

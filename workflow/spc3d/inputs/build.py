@@ -56,7 +56,7 @@ from tqdm import tqdm
 from spc3d import io, llff
 from spc3d.cameras import split_views
 from spc3d.physics import spc
-from spc3d.physics.flux_scale import calibrate_flux_scale
+from spc3d.physics.flux_scale import calibrate_flux_scale, dark_floor
 from spc3d.physics.record import check_capture_factor, exposure_record, frame_warnings
 
 log = logging.getLogger(__name__)
@@ -300,8 +300,7 @@ def simulate_scene(
             **summarise(stats),
             "wall_s": round(time.perf_counter() - t0, 3),
         }
-        floor = float(spc.detection_probability(np.zeros(1), params)[0])
-        record["warnings"] = frame_warnings(record["mean_detection_rate"], floor)
+        record["warnings"] = frame_warnings(record["mean_detection_rate"], dark_floor(params))
         for warning in record["warnings"]:
             log.warning("%s: %s", name, warning)
         io.write_json(tmp / "spc.json", record)

@@ -94,7 +94,7 @@ def calibrate_flux_scale(
     """
     values, weights = _linear_histogram(srgb_images)
     target = _real("target_mean_detection", target_mean_detection, "must be a probability")
-    p_dark = float(frame_probability(np.zeros(1), params)[0])  # the floor: dark counts only
+    p_dark = dark_floor(params)
     black = float(weights[values == 0.0].sum())
     p_max = 1.0 - black * (1.0 - p_dark)  # black pixels stay at p_dark for every s
     if not (p_dark < target < p_max):
