@@ -104,12 +104,12 @@ def one_torch_thread():
     torch.set_num_threads(before)
 
 
-def run_snakemake(workdir, *args, timeout=600, path_prefix=None, env=None):
+def run_snakemake(workdir, *args, timeout=600, path_prefix=None, env=None, unset=()):
     """Run snakemake on the repository's Snakefile in ``workdir``; return the completed process.
     ``path_prefix``: a folder put first on PATH (e.g. a stand-in ``conda``); ``env``: variables
-    added to the environment (e.g. ``SPC3D_PLUGINS``)."""
+    added to the environment (e.g. ``SPC3D_PLUGINS``); ``unset``: variables removed from it."""
     cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir), *args]
-    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
+    env = {k: v for k, v in dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})).items() if k not in unset}
     if path_prefix:
         env["PATH"] = f"{path_prefix}{os.pathsep}{env.get('PATH', '')}"
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)

@@ -70,6 +70,15 @@ def test_a_translator_checkpoints_beside_its_models_folder():
 
 
 @pytest.mark.slow
+def test_the_default_cache_folder_is_made_when_the_workflow_is_read(tmp_path):
+    # Snakemake's --cache refuses a folder that does not exist (a fresh machine's ~/.cache/spc3d/outputs).
+    home = tmp_path / "home"
+    args = ["-n", "--cores", "1", "--configfile", str(SMOKE), "--cache", "--", "results/models/pix2pix"]
+    done = run_snakemake(tmp_path / "w", *args, env={"HOME": str(home)}, unset=("SNAKEMAKE_OUTPUT_CACHE",))
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (home / ".cache" / "spc3d" / "outputs").is_dir()
+
+
 def test_a_second_workflow_directory_trains_nothing_and_a_changed_setting_retrains(tmp_path, lpips_cache):
     store = tmp_path / "store"
     store.mkdir()
