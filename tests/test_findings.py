@@ -382,6 +382,23 @@ def test_equal_budgets_only_and_cross_budget_claims_labelled(tmp_path):
     _at_zero_margin(files, tmp_path / "zero")
 
 
+def test_joint_rows_get_their_claims_at_equal_and_across_budgets(tmp_path):
+    offsets = {"joint-restormer+3dgs": 2.0, "bernoulli+3dgs": 1.0, "restormer+3dgs": 0.5, "prior+3dgs": 0.4}
+    offsets |= {f"restormer+{NERF}": 1.9, "mle-k16+3dgs": 3.0}
+    files = _rows(tmp_path, offsets, {"mle-k16+3dgs": {"frames": 16}})
+    claims = _by_id(write_findings(files, tmp_path / "findings", NERF))
+    likelihood = claims["joint-likelihood:joint-restormer+3dgs"]
+    assert likelihood["verdict"] == "HOLDS" and likelihood["decisive"]["worse"] == "bernoulli+3dgs"
+    two_stage = claims["joint-two-stage:joint-restormer+3dgs"]  # +0.1 dB over restormer + NeRF: not by δ
+    assert {c["worse"] for c in two_stage["comparisons"]} == {"restormer+3dgs", "prior+3dgs", f"restormer+{NERF}"}
+    # equivalence to one of 3 rows needs Holm p <= 0.025 / 3: n >= 7 (1/128), not 6 (1/64)
+    assert two_stage["verdict"] == "INCONCLUSIVE" and two_stage["note"] == "a failure among 3 comparisons needs n ≥ 7"
+    reference = claims["joint-mle16:joint-restormer+3dgs"]
+    assert reference["cross_budget"] and reference["verdict"] == "DOES NOT HOLD"
+    assert "cross-budget: mle-k16: 16 frames at 1× vs 1 frame at 1×" in reference["claim"]
+    assert not any(k.startswith("joint-") and "nerf" in k for k in claims)  # no joint NeRF row ran
+
+
 def test_unequal_budget_pairs_are_set_aside_and_mixed_budgets_refused(tmp_path):
     offsets = {"bernoulli+3dgs": 1.0, "pix2pixhd+3dgs": 2.0}
     files = _rows(tmp_path, offsets, {"pix2pixhd+3dgs": {"frames": 16}})

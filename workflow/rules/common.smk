@@ -16,7 +16,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -63,7 +63,7 @@ POINTS = PointSettings(config, SWEEP_SPECS, SWEEP_SCENE, SWEEP_TRAIN, photon_bud
 wildcard_constraints:
     scene="|".join(ALL_SCENES + [s for s in SWEEP_SPECS if s not in ALL_SCENES]) or "(?!)",
     images="rgb|binary|average",
-    source="[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.names.SourceName
+    source="(joint-)?[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.names.SourceName
     poses="(@[a-z0-9]+(-k[0-9]+)?)?",  # "@mle-k16": poses COLMAP estimated from that source's images
     model="|".join(STAGE2_MODELS),
     method=f"({'|'.join(STAGE1_METHODS)})(-pub)?",  # "-pub": the published network (prior_sigma: 0)
@@ -141,7 +141,7 @@ def display_folder(wildcards):
     finer frame (S = 1), so its capture-frame rows read frame 0's display. A sweep point's: its K."""
     if overlay_of(wildcards):
         return f"results/{overlay_of(wildcards)}mle/{wildcards.scene}/k{get_source_frames(wildcards)}"
-    budget = display_budget(wildcards.source, config["stage2"]["frames"])
+    budget = display_budget(wildcards.source, config["stage2"]["frames"], config["stage1"]["frames"])
     if budget == "capture" and SCENE_SPECS[wildcards.scene]["kind"] == "capture":
         budget = "k1"
     return f"results/mle/{wildcards.scene}/{budget}{wildcards.rep}"
@@ -166,13 +166,18 @@ def get_reconstruct_inputs(wildcards):
         inputs["spc"] = f"{root}spc/{wildcards.scene}{wildcards.rep}"
     if name.method:
         inputs["translated"] = f"{root}translate/{wildcards.scene}/{name.method}{wildcards.rep}"
-    if name.base in ("mle", "bernoulli"):
+    if uses_display(wildcards.source):
         inputs["display"] = display_folder(wildcards)
     if MODELS[wildcards.model].accepts_points and get_stage2_init(wildcards) == "colmap":
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     if wildcards.poses:
         inputs["poses"] = f"results/poses/{wildcards.scene}/{wildcards.poses[1:]}{wildcards.rep}"
     return inputs
+
+
+def get_joint_settings(wildcards):
+    """stage2.joint (the prior term's schedule) for a joint row, None for every other row."""
+    return config["stage2"]["joint"] if parse_source(wildcards.source).joint else None
 
 
 def get_stage2_init(wildcards):

@@ -28,6 +28,7 @@ rule reconstruct:
         observe=config["stage2"]["observe_plateau"],
         checkpoint=get_checkpoint_path,
         policy=config["checkpoints"],
+        joint=get_joint_settings,
     log:
         "logs/reconstruct/{overlay}{scene}/{source}+{model}{poses}{rep}.log",
     threads: 1

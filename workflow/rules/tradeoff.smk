@@ -8,10 +8,11 @@ from snakemake.utils import Paramspace
 from spc3d.sweeps.knobs import parse_combinations, photon_table, read_table
 from spc3d.sweeps.plan import point_inputs, sweep_points
 
+SWEEP_SOURCES = PLAIN_SOURCES + STAGE1_METHODS + JOINT_SOURCES
 TRADEOFF_COMBOS = parse_combinations(config["tradeoff"]["combinations"], config["stage2"]["nerf_variant"],
-                                     PLAIN_SOURCES + STAGE1_METHODS, "tradeoff.combinations")
+                                     SWEEP_SOURCES, "tradeoff.combinations")
 PHOTON_COMBOS = parse_combinations(config["photon_level"]["combinations"], config["stage2"]["nerf_variant"],
-                                   PLAIN_SOURCES + STAGE1_METHODS, "photon_level.combinations")
+                                   SWEEP_SOURCES, "photon_level.combinations")
 TRADEOFF_SPACE = Paramspace(read_table(config["tradeoff"]["table"]))
 PHOTON_SPACE = Paramspace(photon_table(config["photon_level"]["detection"], config["photon_level"]["frames"],
                                        "photon_level.detection/frames"))

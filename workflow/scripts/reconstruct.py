@@ -27,5 +27,6 @@ with logged(snakemake.log[0]):
         checkpoint=p.checkpoint,
         policy=CheckpointPolicy(**p.policy),
         threads=snakemake.threads,
+        joint=p.joint,
     )
     reconstruct(job)

@@ -48,6 +48,10 @@ LABELS = {
     "gt": "ground truth",
     "bernoulli": "SPAD likelihood on binary",
 }
+# A source "joint-<method>": one 3D fit of the SPAD likelihood of the frames plus a prior term
+# pulling each render towards the stage-1 method's output (spc3d.reconstruct.objectives.JointObjective).
+JOINT = "joint-"
+JOINT_SOURCES = tuple(JOINT + m for m in STAGE1_METHODS)
 # The scores of every row: key -> (the tables' title, higher is better). spc3d.evaluation.evaluate
 # computes them (its SCORERS, one per key); the tables, findings and sweeps read these keys.
 METRICS = {
@@ -66,17 +70,19 @@ SUFFIXES = {
 
 @dataclass(frozen=True)
 class SourceName:
-    """A stage-2 source name taken apart: ``base[-k<K>][-x1][-pub][-mse]``.
+    """A stage-2 source name taken apart: ``[joint-]base[-k<K>][-x1][-pub][-mse]``.
 
     ``k``: its own frame budget (mle, bernoulli); ``x1``: a single-frame source (none, mle) at the
     working resolution instead of the capture-resolution frame; ``pub``: a translator's published
-    network; ``mse``: an image source fitted with MSE by 3DGS."""
+    network; ``mse``: an image source fitted with MSE by 3DGS; ``joint``: the SPAD likelihood of
+    the frames and the stage-1 method ``base`` as a prior, fitted together (:data:`JOINT`)."""
 
     base: str
     k: int | None = None
     x1: bool = False
     pub: bool = False
     mse: bool = False
+    joint: bool = False
 
     @property
     def method(self) -> str | None:
@@ -90,13 +96,15 @@ class SourceName:
         return str(dataclasses.replace(self, mse=False))
 
     def __str__(self) -> str:
-        return self.base + (f"-k{self.k}" if self.k else "") + "-x1" * self.x1 + "-pub" * self.pub + "-mse" * self.mse
+        head = JOINT * self.joint + self.base + (f"-k{self.k}" if self.k else "")
+        return head + "-x1" * self.x1 + "-pub" * self.pub + "-mse" * self.mse
 
 
 def parse_source(source: str) -> SourceName:
     """``SourceName`` of ``source`` (suffixes stripped from the end, in the order of :data:`SUFFIXES`);
     unknown parts stay in ``base``, which :func:`check_source` then rejects."""
-    rest, flags = source, {}
+    joint = source.startswith(JOINT) and len(source) > len(JOINT)
+    rest, flags = source[len(JOINT) :] if joint else source, {"joint": joint}
     for suffix in reversed(SUFFIXES):
         if rest.endswith(suffix) and len(rest) > len(suffix):
             rest, flags[suffix[1:]] = rest[: -len(suffix)], True
@@ -119,12 +127,16 @@ def source_label(source: str, labels: dict[str, str] = LABELS, frames: bool = Tr
     extras = [f"K = {name.k}" if name.k and frames else None] + [
         text.split(" (")[0] for suffix, text in SUFFIXES.items() if getattr(name, suffix[1:])
     ]
-    return labels.get(name.base, name.base) + "".join(f"; {e}" for e in extras if e)
+    label = labels.get(name.base, name.base) + "".join(f"; {e}" for e in extras if e)
+    return f"Joint: SPAD likelihood + {label} (prior term)" if name.joint else label
 
 
 def source_frames(source: str, stage1_frames: int, stage2_frames: int) -> int | None:
-    """Binary frames per view a source consumes (its photon budget K); None for the oracle ``gt``."""
+    """Binary frames per view a source consumes (its photon budget K); None for the oracle ``gt``.
+    A joint row reads the first frames of each view for both terms: the larger of the two budgets."""
     name = parse_source(source)
+    if name.joint:
+        return max(stage1_frames, stage2_frames)
     if name.base == "gt":
         return None
     if name.base == "none":
@@ -162,11 +174,12 @@ def source_images(source: str, stage2_frames: int) -> tuple[str, str]:
     return kind, sub
 
 
-def display_budget(source: str, stage2_frames: int) -> str:
-    """The metered display a physics source reads: ``k{K}`` (its first K frames) or ``capture``."""
+def display_budget(source: str, stage2_frames: int, stage1_frames: int = 1) -> str:
+    """The metered display a physics source reads: ``k{K}`` (its first K frames) or ``capture``
+    (a joint row: the display of the frames its likelihood fits, every frame it consumed)."""
     if reads_capture_frame(source, stage2_frames):
         return "capture"
-    return f"k{source_frames(source, 1, stage2_frames)}"
+    return f"k{source_frames(source, stage1_frames, stage2_frames)}"
 
 
 def parse_combination(combo: str) -> tuple[str, str, str | None]:
@@ -195,7 +208,7 @@ def check_pose_source(poses: str, combo: str, where: str) -> None:
 def check_source(source: str, combo: str, where: str) -> None:
     """A stage-2 source name: a known base with only the suffixes that apply to it."""
     name = parse_source(source)
-    known = f"use one of {list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)}"
+    known = f"use one of {list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)} (joint: '{JOINT}<method>')"
     problems = {
         f"unknown source {name.base!r}; {known}, with the suffixes {list(SUFFIXES)}": name.base
         not in PLAIN_SOURCES + STAGE1_METHODS,
@@ -207,6 +220,9 @@ def check_source(source: str, combo: str, where: str) -> None:
         and name.base not in TRAINED_METHODS,
         f"'-mse' ({SUFFIXES['-mse']}) applies to {list(CAPTURE_SOURCES)}": name.mse
         and name.base not in CAPTURE_SOURCES,
+        f"'{JOINT}' (the likelihood with a stage-1 prior) takes a stage-1 method {list(STAGE1_METHODS)}, "
+        "without -k<K>, -x1 or -mse": name.joint
+        and (name.base not in STAGE1_METHODS or name.k is not None or name.x1 or name.mse),
         f"write its suffixes in the order -k<K>, -x1, -pub, -mse ({str(name)!r})": str(name) != source,
     }
     for problem, bad in problems.items():
@@ -232,6 +248,12 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
     return list(dict.fromkeys(out))
 
 
+def uses_display(source: str) -> bool:
+    """Whether a source reads a metered display: the MLE images, or the gain of a likelihood."""
+    name = parse_source(source)
+    return name.base in BUDGET_SOURCES or name.joint
+
+
 def combination_sources(combinations: list[str]) -> set[str]:
     """Every image or frame source the combinations read: their sources and their pose sources."""
     return {s for c in combinations for s in parse_combination(c)[::2] if s}
@@ -244,11 +266,11 @@ def stage1_sources(combinations: list[str]) -> list[str]:
     return [m for base in STAGE1_METHODS for m in (base, f"{base}-pub") if m in used]
 
 
-def display_budgets(combinations: list[str], stage2_frames: int) -> list[str]:
+def display_budgets(combinations: list[str], stage2_frames: int, stage1_frames: int = 1) -> list[str]:
     """The metered displays (``k{K}`` or ``capture``, :func:`display_budget`) the combinations need:
-    mle / bernoulli rows, and MLE images that pose a row."""
-    used = combination_sources(combinations)
-    budgets = {display_budget(s, stage2_frames) for s in used if parse_source(s).base in BUDGET_SOURCES}
+    mle / bernoulli / joint rows, and MLE images that pose a row."""
+    used = [s for s in combination_sources(combinations) if uses_display(s)]
+    budgets = {display_budget(s, stage2_frames, stage1_frames) for s in used}
     return sorted(budgets, key=lambda b: (b == "capture", int(b[1:]) if b != "capture" else 0))
 
 

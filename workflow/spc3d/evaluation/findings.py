@@ -427,6 +427,31 @@ def claims(rows: dict[str, Row], nerf: str) -> list[Claim]:
         Claim("spad-mle", "ours",
               f"The SPAD likelihood beats the MLE image at equal budget (vs {vs_mle})",
               tuple(("bernoulli+3dgs", r) for r in mle)),
+        *(claim for row in joint_rows(rows) for claim in joint_claims(rows, row, strongest)),
+    ]  # fmt: skip
+
+
+def joint_rows(rows) -> list[str]:
+    """The joint rows that ran (``joint-<method>+model``), in name order."""
+    return sorted(r for r in rows if r.startswith("joint-") and "@" not in r)
+
+
+def joint_claims(rows, joint: str, two_stage: list[str]) -> list[Claim]:
+    """A joint row beats its model's likelihood row and every two-stage row at equal budget; and,
+    across budgets, the 16-frame MLE row of its model."""
+    model = joint.partition("+")[2]
+    reference = f"mle-k16+{model}"
+    return [
+        Claim(f"joint-likelihood:{joint}", "ours",
+              f"The joint fit {joint} beats the SPAD likelihood alone (bernoulli+{model}) at equal budget",
+              ((joint, f"bernoulli+{model}"),)),
+        Claim(f"joint-two-stage:{joint}", "ours",
+              f"The joint fit {joint} beats every two-stage row at equal budget "
+              "(the residual networks and their untrained prior)",
+              tuple((joint, r) for r in two_stage)),
+        Claim(f"joint-mle16:{joint}", "ours",
+              f"The joint fit {joint} beats the 16-frame MLE image + {model} ({consumed(rows, joint, reference)})",
+              ((joint, reference),), cross_budget=True),
     ]  # fmt: skip
 
 

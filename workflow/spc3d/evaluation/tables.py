@@ -180,7 +180,8 @@ def _one(values: pd.Series, what: str):
 
 def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str, unlisted: bool = False) -> list:
     """Spec rows for combinations that ran but are not in ``spec``: physics rows of other forms and
-    frame budgets, and the published networks ("-pub") of the spec's translator rows (their own block);
+    frame budgets, the joint rows (likelihood + stage-1 prior, both tables), and the published
+    networks ("-pub") of the spec's translator rows (their own block);
     ``unlisted``: also every other translator and oracle row (models the paper has not, plugins')."""
     listed = {f"{src}+{nerf_variant if fam == 'nerf' else fam}" for _, src, fam, *_ in spec}
     rows = []
@@ -194,7 +195,7 @@ def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str, unlisted: b
         source, _, model = combo.partition("+")
         name = parse_source(source)
         other = unlisted and (name.base == "gt" or name.method is not None)
-        if combo not in listed and "@" not in combo and (name.base in PHYSICS or other):
+        if combo not in listed and "@" not in combo and (name.base in PHYSICS or name.joint or other):
             label = f"{source_label(source)} + {model.upper() if model == '3dgs' else model}"
             role = "oracle" if name.base == "gt" else "published" if name.pub else "ours"
             rows.append((label if role != "oracle" else f"Oracle: {label}", source, model, None, role))

@@ -8,14 +8,15 @@ Each entry maps ``(views, objective, settings, seed, points=None)`` to ``(traine
 (``points``: optional (xyz (M, 3), rgb (M, 3)) sparse points to start from; 3DGS uses them); a trainer
 has ``step / render / capacity / state / load`` and is driven by :func:`spc3d.training.run`.
 ``objective`` None means the model's own RGB loss (3DGS: 0.8 L1 + 0.2 D-SSIM; NeRF: MSE); a
-:class:`objectives.BernoulliObjective` fits binary frames through the SPAD likelihood instead.
+:class:`objectives.BernoulliObjective` fits binary frames through the SPAD likelihood instead, a
+:class:`objectives.JointObjective` the likelihood plus the model's own loss towards stage-1 images.
 ``CONFIGS`` builds each model's settings dataclass alone (the workflow checks them at parse time).
 """
 
 from __future__ import annotations
 
 from spc3d import models
-from spc3d.reconstruct.objectives import RGBObjective
+from spc3d.reconstruct.objectives import JointObjective, RGBObjective
 from spc3d.training import build_config
 
 
@@ -38,12 +39,29 @@ def config_nerf_grid(settings: dict):
     return build_config(GridConfig, settings, "stage2.nerf-grid")
 
 
+def config_joint(settings: dict):
+    """stage2.joint: the joint rows' prior weight schedule and penalty (:class:`objectives.JointConfig`)."""
+    from spc3d.reconstruct.objectives import JointConfig
+
+    return build_config(JointConfig, settings, "stage2.joint")
+
+
+def own_objective(objective, own: RGBObjective):
+    """The objective a model fits: its own RGB loss ``own`` when none is given; a joint objective
+    without an image loss gets ``own`` as its prior term."""
+    if objective is None:
+        return own
+    if isinstance(objective, JointObjective) and objective.image is None:
+        objective.image = own
+    return objective
+
+
 def make_3dgs(views, objective, settings: dict, seed: int, points=None):
     from spc3d.reconstruct.splatting import SplatTrainer
 
     cfg = config_3dgs(settings)
     xyz, rgb = points if points is not None else (None, None)
-    trainer = SplatTrainer(views, objective or RGBObjective("l1", cfg.ssim_weight), cfg, seed, xyz, rgb)
+    trainer = SplatTrainer(views, own_objective(objective, RGBObjective("l1", cfg.ssim_weight)), cfg, seed, xyz, rgb)
     return trainer, cfg.iterations, cfg
 
 
@@ -51,14 +69,14 @@ def make_nerf(views, objective, settings: dict, seed: int, points=None):  # poin
     from spc3d.reconstruct.nerf_trainer import RayTrainer
 
     cfg = config_nerf(settings)
-    return RayTrainer(views, objective or RGBObjective("mse"), "nerf", cfg, seed), cfg.n_iters, cfg
+    return RayTrainer(views, own_objective(objective, RGBObjective("mse")), "nerf", cfg, seed), cfg.n_iters, cfg
 
 
 def make_nerf_grid(views, objective, settings: dict, seed: int, points=None):  # points: unused
     from spc3d.reconstruct.nerf_trainer import RayTrainer
 
     cfg = config_nerf_grid(settings)
-    return RayTrainer(views, objective or RGBObjective("mse"), "nerf-grid", cfg, seed), cfg.n_iters, cfg
+    return RayTrainer(views, own_objective(objective, RGBObjective("mse")), "nerf-grid", cfg, seed), cfg.n_iters, cfg
 
 
 # name -> factory and name -> settings dataclass builder, from the specs of spc3d.models (a spec

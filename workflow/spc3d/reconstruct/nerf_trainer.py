@@ -22,6 +22,7 @@ from torch import Tensor
 from spc3d.cameras import Cameras, transform_cameras
 from spc3d.evaluation.metrics import psnr
 from spc3d.reconstruct import nerf, nerf_grid
+from spc3d.reconstruct.objectives import Scheduled
 from spc3d.reconstruct.rays import camera_rays, ndc_rays, recenter, view_dirs
 from spc3d.reconstruct.views import Views, hold_out
 from spc3d.reconstruct.volume import render_chunked
@@ -74,6 +75,8 @@ class RayTrainer:
         if self.kind == "nerf-grid":
             self._grid_schedule(it)
         set_lr(self.opt, self.lib.lr_at(it, self.cfg))
+        if isinstance(self.objective, Scheduled):
+            self.objective.at(it / self.cfg.n_iters)
         sel = torch.as_tensor(self.rng.integers(self.targets.shape[0], size=self.cfg.batch_rays), device=self.device)
         out = self.model(self.rays[0][sel], self.rays[1][sel], train=True, viewdirs=self.rays[2][sel])
         target = self.targets[sel]

@@ -11,11 +11,21 @@ frames only the fraction f = S/K of ones matters: NLL = −[f·log p + (1 − f)
 log(1 − p) = −λT exactly and log p = log(−expm1(−λT)) (stable for tiny λT; λT is clamped at
 1e-12 from below because log p → −∞ as λT → 0, and the gradient with it). The rendered linear
 intensity is shown as sRGB for evaluation.
+
+``JointObjective`` — the paper's future work, one fit for both stages: the SPAD likelihood of the
+bits plus ``w(t)`` times a prior term that pulls the render (shown as sRGB) towards a stage-1
+method's output for that view, with the two-stage row's own image loss (3DGS: 0.8 L1 + 0.2 D-SSIM,
+L1 being the robust part; NeRF: MSE, or L1 with ``penalty: l1``). ``w`` decays linearly from
+``weight`` to ``weight_final`` over the first ``decay_until`` of the run: the translation sets shape
+and colour early, the photons decide detail late. Its target is the likelihood's target with the
+stage-1 image appended as the last three channels. With ``w = 0`` it is the likelihood row's
+objective, with ``likelihood: false`` the two-stage row's (on the sRGB of the render).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import torch
 from torch import Tensor
@@ -75,6 +85,78 @@ class BernoulliObjective:
         small, large = x.clamp(max=LN2), x.clamp(min=LN2)
         log_p = torch.where(x < LN2, torch.log(-torch.expm1(-small)), torch.log1p(-torch.exp(-large)))
         return -(target * log_p - (1.0 - target) * x).mean()
+
+    def to_srgb(self, pred: Tensor) -> Tensor:
+        return linear_to_srgb(pred)
+
+
+@runtime_checkable
+class Scheduled(Protocol):
+    """An objective that changes over the run: a trainer calls ``at(step / iterations)`` before each step."""
+
+    def at(self, t: float) -> None: ...
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """The prior term's weight schedule (over the fraction t of the run done) and penalty."""
+
+    # A constant 0.1, chosen on the training scenes (benchmarks/joint_weight.py, docs/stage2.md#joint-rows):
+    # +0.93 dB over the likelihood alone there; 0.3 +0.81, 1 -0.60; every decaying schedule tried was worse.
+    weight: float = 0.1  # w at t = 0
+    weight_final: float = 0.1  # w from t = decay_until on
+    decay_until: float = 0.5  # fraction of the run over which w falls linearly (0: weight_final throughout)
+    likelihood: bool = True  # false: the prior term alone (= the two-stage row, for checks)
+    penalty: str = "own"  # "own": the model's two-stage image loss; "l1": L1 on sRGB (robust, for NeRF's MSE)
+
+    def __post_init__(self):
+        if self.penalty not in PENALTIES:
+            raise ValueError(f"stage2.joint.penalty = {self.penalty!r}: use one of {list(PENALTIES)}")
+        if not 0.0 <= self.decay_until <= 1.0:
+            raise ValueError(f"stage2.joint.decay_until = {self.decay_until}: a fraction of the run, in [0, 1]")
+        for key in ("weight", "weight_final"):
+            if not getattr(self, key) >= 0.0:
+                raise ValueError(f"stage2.joint.{key} = {getattr(self, key)}: the prior term's weight must be >= 0")
+
+    def weight_at(self, t: float) -> float:
+        """w at the fraction ``t`` of the run."""
+        if self.decay_until <= 0.0 or t >= self.decay_until:
+            return self.weight_final
+        return self.weight_final + (self.weight - self.weight_final) * (1.0 - max(t, 0.0) / self.decay_until)
+
+
+PENALTIES = ("own", "l1")
+
+
+@dataclass
+class JointObjective:
+    """SPAD likelihood + w(t) x image loss towards a stage-1 output; target (..., C + 3): the
+    likelihood's C channels, then the stage-1 image (sRGB). ``image``: the two-stage loss (None
+    until the model sets its own, :func:`spc3d.reconstruct.own_objective`). A trainer calls
+    :meth:`at` with its progress before each step (the schedule)."""
+
+    likelihood: object  # BernoulliObjective or a capture's MosaicBernoulliObjective
+    cfg: JointConfig = JointConfig()
+    image: RGBObjective | None = None
+    weight: float = field(init=False)
+    name: str = "joint"
+    stops_on_plateau = False  # the likelihood's floor is photon noise (see BernoulliObjective)
+
+    def __post_init__(self):
+        self.weight = self.cfg.weight_at(0.0)
+        if self.cfg.penalty == "l1":
+            self.image = RGBObjective("l1")
+
+    def at(self, t: float) -> None:
+        """Set the prior term's weight for the fraction ``t`` of the run done."""
+        self.weight = self.cfg.weight_at(t)
+
+    def loss(self, pred: Tensor, target: Tensor) -> Tensor:
+        split = target.shape[-1] - 3
+        prior = self.image.loss(linear_to_srgb(pred), target[..., split:])
+        if not self.cfg.likelihood:
+            return prior
+        return self.likelihood.loss(pred, target[..., :split]) + self.weight * prior
 
     def to_srgb(self, pred: Tensor) -> Tensor:
         return linear_to_srgb(pred)

@@ -8,6 +8,8 @@
     mle[-kK]     the MLE flux of K frames per view at the metered display gain (physics baseline);
                  at K = 1 of the capture-resolution frame, ``mle-x1`` of frame 0
     bernoulli[-kK]  K binary frames per view themselves, fitted through the SPAD likelihood
+    joint-<method>  the frames through the SPAD likelihood and a stage-1 method's output as a prior
+                 term, in one fit (:class:`spc3d.reconstruct.objectives.JointObjective`)
     <method>     a stage-1 method's output folder (``<method>-pub``: its published network; ``prior``:
                  the physics prior alone), images named like the scene's views
 
@@ -38,7 +40,8 @@ from spc3d.inputs.exposure import read_gain
 from spc3d.names import SOURCE_IMAGES, parse_source, reads_capture_frame, source_images
 from spc3d.physics import spc
 from spc3d.physics.record import read_spc_record
-from spc3d.reconstruct.objectives import BernoulliObjective, RGBObjective
+from spc3d.reconstruct import config_joint
+from spc3d.reconstruct.objectives import BernoulliObjective, JointObjective, RGBObjective
 from spc3d.reconstruct.views import Views
 
 FRAME_SOURCES = ("bernoulli",)
@@ -61,34 +64,50 @@ def load_source(
     image_dir: str | os.PathLike | None = None,
     frames: int = 1,
     display_dir: str | os.PathLike | None = None,
+    joint: dict | None = None,
 ) -> Source:
     """Training views of ``scene_dir`` from source ``name``.
 
     ``image_dir`` overrides where an image source is read (stage-1 outputs); ``frames`` is the
     number of binary frames per view the bernoulli source uses (1 = the paper's setting);
     ``display_dir``: the metered MLE folder of that budget (``results/mle/{scene}/k{K}``), whose
-    images the mle source trains on and whose gain the bernoulli source's likelihood uses.
+    images the mle source trains on and whose gain the bernoulli source's likelihood uses;
+    ``joint``: stage2.joint's settings (the prior term's schedule of a joint source).
     """
-    base = parse_source(name).base
+    parsed = parse_source(name)
+    base = parsed.base
     scene = llff.read_scene(scene_dir, with_images=base == "gt")
     train, _ = split_views(len(scene.names))
     names = [scene.names[i] for i in train]
     cams = scene.cameras.subset(train)
-    if base in FRAME_SOURCES:
-        if display_dir is None:
-            raise ValueError(
-                f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames}): "
-                f"its gain turns rendered intensity into flux without the ground truth"
-            )
-        targets = bit_fractions(Path(spc_dir), names, frames)
-        objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir, likelihood=True))
-        targets, objective = sensor_targets(Path(spc_dir), targets, objective)
+    if parsed.joint:
+        targets, likelihood = frame_targets(name, spc_dir, names, frames, display_dir)
+        if image_dir is None:
+            raise ValueError(f"source {name!r} needs the folder of {parsed.method!r}'s images (its prior term)")
+        images = np.stack([_read_view(Path(image_dir), n, cams) for n in names])
+        targets = np.concatenate([targets.reshape(*images.shape[:3], -1), images], axis=-1)
+        objective = JointObjective(likelihood, config_joint(joint or {}))
+    elif base in FRAME_SOURCES:
+        targets, objective = frame_targets(name, spc_dir, names, frames, display_dir)
     else:
         folder = Path(image_dir) if image_dir else _image_folder(name, Path(scene_dir), spc_dir, display_dir, frames)
         targets = np.stack([_read_view(folder, n, cams) for n in names])
         objective = RGBObjective("mse") if parse_source(name).mse else None
     views = Views(torch.as_tensor(targets, dtype=torch.float32), cams, names)
     return Source(views, objective, name, capture_factor(name, spc_dir, frames))
+
+
+def frame_targets(name: str, spc_dir, names: list[str], frames: int, display_dir):
+    """(targets, SPAD likelihood) of the views ``names``: the fraction of ones over their first
+    ``frames`` frames, at the gain of the metered display (a capture's mosaic: :func:`sensor_targets`)."""
+    if display_dir is None:
+        raise ValueError(
+            f"source {name!r} needs the metered display folder (results/mle/{{scene}}/k{frames}): "
+            f"its gain turns rendered intensity into flux without the ground truth"
+        )
+    targets = bit_fractions(Path(spc_dir), names, frames)
+    objective = bernoulli_objective(Path(spc_dir), read_gain(display_dir, likelihood=True))
+    return sensor_targets(Path(spc_dir), targets, objective)
 
 
 def capture_factor(name: str, spc_dir, frames: int) -> int:

@@ -27,6 +27,7 @@ from spc3d.evaluation.metrics import psnr
 from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.densify import DensityControl
 from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
+from spc3d.reconstruct.objectives import Scheduled
 from spc3d.reconstruct.pose_refine import PoseCorrections, RowAdam, heldout_cameras
 from spc3d.reconstruct.splat.project import CameraError
 from spc3d.reconstruct.views import Views, hold_out
@@ -103,6 +104,8 @@ class SplatTrainer:
         for group in self.opt.param_groups:
             if group["name"] == "means":
                 group["lr"] = means_lr(it, self.cfg, self.extent)
+        if isinstance(self.objective, Scheduled):
+            self.objective.at(it / self.cfg.iterations)
         i = int(self.rng.integers(len(self.views.cameras)))
         refine = self.poses is not None and it >= self.cfg.pose_from
         out = self._render(self.views.cameras, i, self.poses.motion(i) if refine else None)

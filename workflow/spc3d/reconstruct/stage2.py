@@ -35,6 +35,7 @@ from spc3d.checkpoints import Checkpoint, CheckpointPolicy, digest_path, fingerp
 from spc3d.poses.colmap import sparse_points
 from spc3d.poses.estimate import NoPoses, poses_summary
 from spc3d.reconstruct import RECONSTRUCTORS
+from spc3d.reconstruct.objectives import JointObjective
 from spc3d.reconstruct.sources import load_source, with_estimated_poses
 from spc3d.training import Plateau, peak_rss_mb, run, seed_everything
 
@@ -74,7 +75,7 @@ class ReconstructJob:
     was done. ``observe_plateau``: train past the plateau stop to the budget, rendering the held-out
     views at the stop too (``renders_at_stop/``: the trade table's paired measurement).
     ``checkpoint``: outside ``out_dir`` (Snakemake's clean-up of a failed job keeps it);
-    ``policy``: when it is written.
+    ``policy``: when it is written. ``joint``: stage2.joint, the prior term's schedule of a joint source.
     """
 
     scene_dir: str | os.PathLike
@@ -94,12 +95,13 @@ class ReconstructJob:
     checkpoint: str | os.PathLike | None = None
     policy: CheckpointPolicy = CheckpointPolicy()
     threads: int | None = None
+    joint: dict | None = None
 
     def inputs(self) -> dict:
         """What the job fitted, as given (input folders, settings, K, init), for the record: another
         fit of the same row (a new seed, observe mode) is ``ReconstructJob(**inputs, out_dir=...)``."""
         kept = ("scene_dir", "source", "model", "settings", "frames", "spc_dir", "image_dir", "display_dir")
-        kept += ("points_dir", "poses_dir", "init_setting")
+        kept += ("points_dir", "poses_dir", "init_setting", "joint")
         values = {k: getattr(self, k) for k in kept}
         return {k: str(v) if isinstance(v, os.PathLike) else v for k, v in values.items()}
 
@@ -119,7 +121,9 @@ def reconstruct(job: ReconstructJob) -> dict:
     if job.threads:
         torch.set_num_threads(job.threads)
     seed_everything(job.seed)
-    src = load_source(job.source, job.scene_dir, job.spc_dir, job.image_dir, job.frames or 1, job.display_dir)
+    src = load_source(
+        job.source, job.scene_dir, job.spc_dir, job.image_dir, job.frames or 1, job.display_dir, job.joint
+    )
     frames, poses = job.frames, "ground truth (the scene's cameras)"
     if job.poses_dir is not None:
         poses = poses_summary(job.poses_dir)
@@ -152,6 +156,8 @@ def reconstruct(job: ReconstructJob) -> dict:
         "init": {"setting": job.init_setting or ("colmap" if job.points_dir else "random"), "used": init},
         "display": display_record(job.display_dir),
     }
+    if isinstance(src.objective, JointObjective):  # the prior term's schedule and penalty
+        meta["joint"] = dataclasses.asdict(src.objective.cfg)
     record = train(trainer, iterations, job, meta)
     at_stop = None
     if job.observe_plateau and isinstance(trainer, StopsOnPlateau):

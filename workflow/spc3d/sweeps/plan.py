@@ -23,7 +23,7 @@ import re
 
 import pandas as pd
 
-from spc3d.names import BUDGET_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, spc_settings
+from spc3d.names import BUDGET_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, parse_source, source_frames, spc_settings, uses_display
 from spc3d.sweeps.knobs import KNOBS, check_setting, distinct_rows, split_combination, used_knobs
 
 SWEEPS = ("tradeoff", "photon_level")
@@ -86,7 +86,9 @@ class PointSettings:
         if source in ("gt", "none"):
             return None if source == "gt" else 1
         knobs, config = self.setting(value), self.config
-        return knobs.get("K", config["stage2"]["frames"] if source in BUDGET_SOURCES else config["stage1"]["frames"])
+        if "K" in knobs:
+            return knobs["K"]
+        return source_frames(source, config["stage1"]["frames"], config["stage2"]["frames"])
 
     def augment_count(self, scene: str) -> int:
         from spc3d.inputs.augment import split_count
@@ -154,12 +156,13 @@ def point_jobs(combo: str, value: str, scene: str, train: list[str], frames: int
     jobs = [("prepare_scene", {"scene": s}) for s in scenes]
     if source != "gt":
         jobs += [("simulate_scene", {"scene": s}) for s in scenes]
-    if source in BUDGET_SOURCES:
+    if uses_display(source):
         display = {"scene": scene, "budget": f"k{frames}"}  # the metered MLE of the point's K
         jobs += [("calibrate_display", display), ("write_display", display)]
     if stage1:
         jobs += [("augment_scene", {"scene": s}) for s in train]
-        jobs += [("train_translator", {"method": source}), ("translate_scene", {"scene": scene, "method": source})]
+        method = parse_source(source).method  # a joint row's prior term: that method's translation
+        jobs += [("train_translator", {"method": method}), ("translate_scene", {"scene": scene, "method": method})]
     if source_scored(source):
         jobs.append(("score_images", {"scene": scene, "source": source}))
     row = {"scene": scene, "source": source, "model": model}
@@ -197,7 +200,7 @@ def sweep_points(
                     "metrics": f"{root}eval/{scene}/{combo}/metrics.json",
                     "stage1": f"{root}stage1/{scene}/{source}.json" if source_scored(source) else None,
                     "recon": f"{root}recon/{scene}/{combo}",
-                    "model": f"{root}models/{source}" if source not in PLAIN_SOURCES else None,
+                    "model": f"{root}models/{parse_source(source).method}" if source not in PLAIN_SOURCES else None,
                     "spc": f"{root}spc/{scene}" if source != "gt" else None,
                     **planned_jobs(combo, value, scene, points.train, points.frames(value, source)),
                 }

@@ -1,0 +1,137 @@
+"""Choosing the joint rows' prior weight on the training scenes: held-out PSNR against the schedule.
+
+    python benchmarks/joint_weight.py --results RUN/results [--scenes tabletop orchard gallery]
+                                      [--model 3dgs] [--seeds 0] [--out joint.json]
+
+A joint row fits the SPAD likelihood of frame 0 plus ``w(t)`` times the model's two-stage image loss
+towards a stage-1 output (spc3d.reconstruct.objectives.JointObjective). Here the stage-1 output is
+the run's untrained ``prior`` model (the translators' start) applied to each training scene's
+frames by the workflow's own translate_scene, and the likelihood's gain is the run's metered
+display (results/calibration/display-k1.json), both written once under ``--cache``. The prior has
+no network: a translator's output on its own training scenes would be in-sample (``--method``
+allows one, marked so). Each schedule is fitted once per (scene, seed) at config.yaml's budget,
+single-threaded, and scored on the held-out views against the ground truth (training scenes only;
+the evaluation scenes are refused). Two schedules are the rows the joint one lies between:
+
+    likelihood   w = 0: the bernoulli row (its objective exactly)
+    prior only   the likelihood off: the prior + model two-stage row's objective, on the render's sRGB
+
+``--results``: a finished default run's results folder (its training scenes, their SPC frames, the
+trained ``prior`` model and the display calibration). Prints one row per schedule: PSNR per scene, mean, and mean
+paired difference against the likelihood row and against the prior-only row, with CPU seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+from nerf_grid_quality import REPO, held_out, warm_up_kernels
+from plateau_rule import settings_of
+
+from spc3d import llff
+from spc3d.inputs.exposure import write_display
+from spc3d.reconstruct import RECONSTRUCTORS
+from spc3d.reconstruct.sources import Source, load_source
+from spc3d.translate.apply import translate_scene
+
+# name -> stage2.joint settings; "likelihood" and "prior only" bracket the joint schedules.
+SCHEDULES = {
+    "likelihood": {"weight": 0.0, "weight_final": 0.0},
+    "prior only": {"likelihood": False},
+    "w 0.1": {"weight": 0.1, "weight_final": 0.1},
+    "w 0.3": {"weight": 0.3, "weight_final": 0.3},
+    "w 1": {"weight": 1.0, "weight_final": 1.0},
+    "w 1 -> 0.1 by 0.5": {"weight": 1.0, "weight_final": 0.1, "decay_until": 0.5},
+    "w 3 -> 0.3 by 0.5": {"weight": 3.0, "weight_final": 0.3, "decay_until": 0.5},
+    "w 1 -> 0 by 0.8": {"weight": 1.0, "weight_final": 0.0, "decay_until": 0.8},
+}
+
+
+def joint_source(results: Path, scene: str, method: str, schedule: dict, cache: Path) -> Source:
+    """The ``joint-<method>`` source of a training scene: frame 0, the run's display gain, and
+    ``method``'s translation of its views (written once under ``cache``)."""
+    spc_dir, folder = results / "spc" / scene, cache / f"{results.resolve().parent.name}-{scene}"
+    display, images = folder / "display-k1", folder / method
+    if not display.is_dir():
+        write_display(spc_dir, results / "calibration" / "display-k1.json", 1, display)
+    if not images.is_dir():
+        translate_scene(results / "models" / method, spc_dir, results / "scenes" / scene, images, frames=1)
+    joint = f"joint-{method}"
+    return load_source(joint, results / "scenes" / scene, spc_dir, images / "images", 1, display, schedule)
+
+
+def fit(model: str, scene_dir: Path, src: Source, seed: int) -> dict:
+    """One joint fit at config.yaml's budget: held-out PSNR and CPU seconds."""
+    trainer, iterations, _ = RECONSTRUCTORS[model](src.views, src.objective, settings_of(model), seed)
+    t0 = time.process_time()
+    for it in range(1, iterations + 1):
+        trainer.step(it)
+    cpu_s = time.process_time() - t0
+    return {"psnr": held_out(trainer, llff.read_scene(scene_dir))[0], "cpu_s": cpu_s, "iterations": iterations}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--results", type=Path, required=True, help="a finished default run's results/")
+    ap.add_argument("--scenes", nargs="+", default=None, help="training scenes (default: config.yaml's scenes.train)")
+    ap.add_argument("--model", default="3dgs", choices=sorted(RECONSTRUCTORS))
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
+    ap.add_argument("--schedules", nargs="+", default=list(SCHEDULES), help=f"from {list(SCHEDULES)}")
+    ap.add_argument("--method", default="prior", help="the stage-1 model of the run (not prior: in-sample)")
+    ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_joint")
+    ap.add_argument("--out", type=Path, help="also write every fit (JSON)")
+    args = ap.parse_args()
+    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
+    scenes = args.scenes or cfg["scenes"]["train"]
+    refused = sorted(set(scenes) & set(cfg["scenes"]["eval"]))
+    if refused:
+        raise SystemExit(f"--scenes {refused}: evaluation scenes; the schedule is chosen on training scenes only")
+    unknown = [s for s in args.schedules if s not in SCHEDULES]
+    if unknown:
+        raise SystemExit(f"--schedules {unknown}: choose from {list(SCHEDULES)}")
+    torch.set_num_threads(1)
+    warm_up_kernels(args.model)
+    runs = []
+    if args.method != "prior":
+        print(f"--method {args.method}: its output on the scenes it was trained on is in-sample")
+    for scene in scenes:
+        for seed in args.seeds:
+            for name in args.schedules:
+                src = joint_source(args.results, scene, args.method, SCHEDULES[name], args.cache)
+                run = fit(args.model, args.results / "scenes" / scene, src, seed)
+                runs.append(run | {"scene": scene, "seed": seed, "schedule": name, "method": args.method})
+                print(f"{scene} seed {seed} {name}: {run['psnr']:.2f} dB, {run['cpu_s']:.0f} CPU s", flush=True)
+    if args.out:
+        args.out.write_text(json.dumps(runs, indent=1))
+    print(table(runs, args.model))
+
+
+def table(runs: list[dict], model: str) -> str:
+    """One row per schedule: PSNR per (scene, seed), mean, paired Δ vs the two bracketing rows."""
+    units = sorted({(r["scene"], r["seed"]) for r in runs})
+    by = {(r["schedule"], r["scene"], r["seed"]): r for r in runs}
+    names = list(dict.fromkeys(r["schedule"] for r in runs))
+    head = " ".join(f"{s}/{k:<6}" for s, k in units)
+    what = f"joint-{runs[0]['method']}+{model}: held-out PSNR (dB) on the training scenes"
+    lines = [f"{what}, n = {len(units)} (scene, seed) units, descriptive"]
+    lines.append(f"{'schedule':20s} {head}   mean  Δ likelihood  Δ prior only  CPU s")
+    for name in names:
+        psnr = np.array([by[(name, *u)]["psnr"] if (name, *u) in by else np.nan for u in units])
+        cells = " ".join(f"{v:>{len(s) + 7}.2f}" for v, (s, _) in zip(psnr, units))
+        deltas = []
+        for ref in ("likelihood", "prior only"):
+            other = np.array([by[(ref, *u)]["psnr"] if (ref, *u) in by else np.nan for u in units])
+            deltas.append(np.nanmean(psnr - other) if np.isfinite(other).any() else np.nan)
+        cpu = np.mean([by[(name, *u)]["cpu_s"] for u in units if (name, *u) in by])
+        lines.append(f"{name:20s} {cells} {np.nanmean(psnr):6.2f}  {deltas[0]:+11.2f}  {deltas[1]:+12.2f}  {cpu:5.0f}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
