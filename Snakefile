@@ -23,9 +23,9 @@ configfile: f"{workflow.basedir}/config.yaml"
 # `snakemake --cores 2 --cache`: trained translators are stored in and reused from this folder by
 # every workflow directory (the rules marked `cache: True`; docs/stage1.md#trained-once-reused).
 # Snakemake refuses a cache folder that does not exist: the default one is made here.
-if "SNAKEMAKE_OUTPUT_CACHE" not in os.environ:
-    os.environ["SNAKEMAKE_OUTPUT_CACHE"] = str(Path.home() / ".cache" / "spc3d" / "outputs")
-    Path(os.environ["SNAKEMAKE_OUTPUT_CACHE"]).mkdir(parents=True, exist_ok=True)
+DEFAULT_CACHE = Path.home() / ".cache" / "spc3d" / "outputs"
+if os.environ.setdefault("SNAKEMAKE_OUTPUT_CACHE", str(DEFAULT_CACHE)) == str(DEFAULT_CACHE):
+    DEFAULT_CACHE.mkdir(parents=True, exist_ok=True)
 
 
 # `snakemake --report results/report.html`: one self-contained page (captions in workflow/report/).

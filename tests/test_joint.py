@@ -133,7 +133,9 @@ def test_joint_source_stacks_the_frames_and_the_stage1_image(scene):
     assert np.allclose(src.views.targets[0, ..., 3:].numpy(), first)
     assert src.objective.cfg.weight == 0.5 and src.objective.likelihood.flux_scale > 0
     with pytest.raises(ValueError, match="needs the folder of 'prior'"):
-        load_source("joint-prior", scene / "scenes" / "gallery", scene / "spc" / "gallery", display_dir=scene / "mle" / "k1")
+        load_source(
+            "joint-prior", scene / "scenes" / "gallery", scene / "spc" / "gallery", display_dir=scene / "mle" / "k1"
+        )
 
 
 @pytest.mark.parametrize(

@@ -23,7 +23,15 @@ import re
 
 import pandas as pd
 
-from spc3d.names import BUDGET_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, parse_source, source_frames, spc_settings, uses_display
+from spc3d.names import (
+    BUDGET_SOURCES,
+    PLAIN_SOURCES,
+    SOURCE_IMAGES,
+    parse_source,
+    source_frames,
+    spc_settings,
+    uses_display,
+)
 from spc3d.sweeps.knobs import KNOBS, check_setting, distinct_rows, split_combination, used_knobs
 
 SWEEPS = ("tradeoff", "photon_level")
