@@ -60,7 +60,7 @@ def test_dry_run_lists_the_dag(tmp_path):
     }
     assert counts["prepare_scene"] == 4 and counts["simulate_scene"] == 4 and counts["augment_scene"] == 3
     assert counts["colmap_poses"] == 12 and counts["write_summary"] == 1
-    assert counts["reconstruct"] == 27 and counts["evaluate"] == 27 and counts["write_all_tables"] == 1
+    assert counts["reconstruct"] == 29 and counts["evaluate"] == 29 and counts["write_all_tables"] == 1
     assert counts["estimate_poses"] == 1  # three rows posed by COLMAP on the 16-frame MLE images
     # five translators, the untrained prior and the classical denoiser; scored before 3D with none, none-x1,
     # mle, mle-x1, mle-k16
@@ -167,12 +167,12 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
 
 @pytest.mark.parametrize(
     "preset,reconstructs,translators",
-    [("smoke", 10, 4), ("llff-cpu", 27, 7), ("paper", 81, 21), ("findings", 234, 36), ("findings-llff", 160, 56)],
+    [("smoke", 11, 4), ("llff-cpu", 29, 7), ("paper", 87, 21), ("findings", 288, 36), ("findings-llff", 200, 56)],
 )
 def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
-    """Every preset passes the schema and plans its DAG (the paper preset: 27 combinations x 3 seeds,
-    each seed with its own translators: a repeat redraws everything random; the findings preset: 26
-    combinations x 3 evaluation scenes x 3 seeds, 12 translators per seed; the real-scene preset: 20
+    """Every preset passes the schema and plans its DAG (the paper preset: 29 combinations x 3 seeds,
+    each seed with its own translators: a repeat redraws everything random; the findings preset: 32
+    combinations x 3 evaluation scenes x 3 seeds, 12 translators per seed; the real-scene preset: 25
     combinations x 4 scenes x 2 seeds, 7 stage-1 methods per fold and seed)."""
     path = REPO / "workflow" / "presets" / f"{preset}.yaml"
     if "../shared/data/llff" in path.read_text() and not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
