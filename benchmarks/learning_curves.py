@@ -11,7 +11,8 @@ s steps reaches", without the final decay a run of that budget would add), valid
 ``--every`` steps from step 0 (the untrained start: the prior for the residual networks) and
 never stopped early. Variants, each in ``WORKDIR/{variant}``: ``paper`` (each method's own
 losses), ``no-gan`` (Pix2Pix without its adversarial term, ``lambda_gan: 0``), ``pixel``
-(Pix2PixHD with a pixel L1 beside its losses, ``lambda_L1: 100``) and ``mean4`` (the diffusion
+(Pix2PixHD with a pixel L1 beside its losses, ``lambda_L1: 100``; CycleGAN on aligned pairs with
+``lambda_pixel: 10``, its cycle terms' weight) and ``mean4`` (the diffusion
 stand-in returning the mean of 4 samples, ``samples: 4``). A second call reuses what a first built
 (Snakemake reruns nothing).
 
@@ -37,7 +38,12 @@ import yaml
 REPO = Path(__file__).resolve().parents[1]
 METHODS = ["pix2pixhd", "pix2pix", "cyclegan", "restormer", "diffusion"]
 # variant -> per-method overrides; a method missing from a variant's dict is not run in it
-VARIANTS = {"paper": {m: {} for m in METHODS}, "no-gan": {"pix2pix": {"lambda_gan": 0.0}}}
+VARIANTS = {
+    "paper": {m: {} for m in METHODS},
+    "no-gan": {"pix2pix": {"lambda_gan": 0.0}},
+    "pixel": {"pix2pixhd": {"lambda_L1": 100.0}, "cyclegan": {"lambda_pixel": 10.0}},
+    "mean4": {"diffusion": {"samples": 4}},
+}
 
 
 def overrides(args, variant: str) -> dict:

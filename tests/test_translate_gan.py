@@ -101,6 +101,21 @@ def test_pix2pixhd_pixel_term_is_lambda_times_l1_and_off_by_default():
     assert losses["G_L1"] > 0 and losses["loss"] == pytest.approx(terms, rel=1e-5)
 
 
+def test_cyclegan_pixel_term_pairs_the_batches_and_is_off_by_default():
+    """lambda_pixel 0: unpaired, no pixel term (the published CycleGAN); > 0: the sampler is asked
+    for aligned pairs and G's objective gains lambda_pixel * |G(a) - b|_1 beside its own terms."""
+    binary, rgb = bits(2, 3, 16, 16), torch.rand(2, 3, 16, 16)
+    plain = make("cyclegan")
+    assert not plain.paired and "G_pixel" not in plain.train_step(binary, rgb)
+    model = make("cyclegan", lambda_pixel=10.0)
+    with torch.no_grad():
+        expected = 10.0 * torch.nn.functional.l1_loss(model.g(binary * 2 - 1), rgb * 2 - 1)
+    losses = model.train_step(binary, rgb)
+    terms = sum(v for k, v in losses.items() if not k.startswith("D_") and k != "loss")
+    assert model.paired and losses["G_pixel"] == pytest.approx(float(expected), rel=1e-5)
+    assert losses["loss"] == pytest.approx(terms, rel=1e-5)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_learns_constant_colour(method):
     """Random bits -> one constant colour: a few dozen steps must cut the output's L1 error."""

@@ -10,6 +10,10 @@ time) and ``F``: B -> A, and two PatchGANs, ``D_B`` judging sRGB images and ``D_
     D_A:   0.5 * (LSGAN(D_A(a), real) + LSGAN(D_A(pool_A(F(b))), fake)), D_B likewise
 
 One Adam optimiser steps both generators, one both discriminators (as the reference).
+
+``lambda_pixel > 0`` (a deviation, off by default) trains on aligned pairs and adds
+``lambda_pixel * |G(a) - b|_1``: the paired pixel term the published CycleGAN cannot have, so that
+its learning curve can be told apart from the lack of a target (docs/stage1.md).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ class Config:
     lambda_A: float = 10.0  # weight of the A -> B -> A cycle loss; paper 10
     lambda_B: float = 10.0  # weight of the B -> A -> B cycle loss; paper 10
     lambda_identity: float = 0.5  # identity loss, relative to lambda_A / lambda_B; paper 0.5
+    lambda_pixel: float = 0.0  # > 0: paired batches and a pixel L1 term |G(a) - b|, a deviation; paper 0
     pool_size: int = 50  # generated-image history per discriminator (0 = off); paper 50
     lr: float = 2e-4  # Adam learning rate of G and D (decayed by the training loop); paper 2e-4
     beta1: float = 0.5  # Adam beta1; paper 0.5
@@ -64,6 +69,7 @@ PAPER: dict = {
     "lambda_A": 10.0,
     "lambda_B": 10.0,
     "lambda_identity": 0.5,
+    "lambda_pixel": 0.0,
     "pool_size": 50,
     "lr": 2e-4,
     "beta1": 0.5,
@@ -82,13 +88,15 @@ def _discriminator(cfg: Config) -> NLayerDiscriminator:
 
 
 class Translator(TranslatorBase):
-    """CycleGAN as a stage-1 model; ``train_step`` takes unpaired binary / sRGB batches."""
+    """CycleGAN as a stage-1 model; ``train_step`` takes unpaired binary / sRGB batches (aligned
+    pairs when ``lambda_pixel > 0``: then ``paired`` is True for this instance)."""
 
     paired = False
 
     def __init__(self, cfg: Config, device: torch.device, vgg_weights: dict | None = None):
         del vgg_weights  # CycleGAN has no perceptual loss
         self.cfg = cfg
+        self.paired = cfg.lambda_pixel > 0  # the sampler then draws the same pixels of both images
         self.device = torch.device(device)
         self.multiple = 2**cfg.n_downsampling
         self.G, self.F = _generator(cfg).to(self.device), _generator(cfg).to(self.device)
@@ -116,7 +124,8 @@ class Translator(TranslatorBase):
 
     def train_step(self, binary: Tensor, rgb: Tensor) -> dict[str, float]:
         """One generator step then one discriminator step; ``binary`` and ``rgb``: (B, 3, h, w) in
-        [0, 1], unrelated batches, h, w multiples of ``multiple``. ``loss`` is the G objective."""
+        [0, 1], unrelated batches (aligned with ``lambda_pixel``), h, w multiples of ``multiple``.
+        ``loss`` is the G objective."""
         self.train(True)
         check_multiple(binary, self.multiple, "cyclegan")
         check_multiple(rgb, self.multiple, "cyclegan")
@@ -164,6 +173,8 @@ class Translator(TranslatorBase):
             idt_a = self.F(a) if idt_a is None else idt_a
             terms["idt_G"] = cfg.lambda_identity * cfg.lambda_B * F.l1_loss(idt_b, b)
             terms["idt_F"] = cfg.lambda_identity * cfg.lambda_A * F.l1_loss(idt_a, a)
+        if cfg.lambda_pixel > 0:  # a and b are aligned pairs here (self.paired)
+            terms["G_pixel"] = cfg.lambda_pixel * F.l1_loss(fake_b, b)
         set_requires_grad([self.D_A, self.D_B], True)
         return terms
 
