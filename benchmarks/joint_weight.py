@@ -47,6 +47,8 @@ SCHEDULES = {
     "w 0.1": {"weight": 0.1, "weight_final": 0.1},
     "w 0.3": {"weight": 0.3, "weight_final": 0.3},
     "w 1": {"weight": 1.0, "weight_final": 1.0},
+    "w 3": {"weight": 3.0, "weight_final": 3.0},
+    "w 10": {"weight": 10.0, "weight_final": 10.0},
     "w 1 -> 0.1 by 0.5": {"weight": 1.0, "weight_final": 0.1, "decay_until": 0.5},
     "w 3 -> 0.3 by 0.5": {"weight": 3.0, "weight_final": 0.3, "decay_until": 0.5},
     "w 1 -> 0 by 0.8": {"weight": 1.0, "weight_final": 0.0, "decay_until": 0.8},

@@ -6,8 +6,16 @@ import torch
 
 from spc3d import io
 from spc3d.colour import linear_to_srgb
-from spc3d.names import ConfigError, check_source, display_budget, parse_source, source_frames, source_label
-from spc3d.reconstruct import config_joint, own_objective
+from spc3d.names import (
+    ConfigError,
+    check_source,
+    display_budget,
+    joint_settings,
+    parse_source,
+    source_frames,
+    source_label,
+)
+from spc3d.reconstruct import check_joint, config_joint, own_objective
 from spc3d.reconstruct.objectives import BernoulliObjective, JointConfig, JointObjective, RGBObjective
 from spc3d.reconstruct.sources import load_source
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
@@ -44,6 +52,17 @@ def test_schedule_falls_linearly_then_holds():
 def test_bad_settings_are_named(settings, message):
     with pytest.raises(ValueError, match=message):
         config_joint(settings)
+
+
+def test_a_models_entry_overrides_the_common_settings_for_that_model_only():
+    joint = {"weight": 0.1, "weight_final": 0.1, "models": {"nerf-grid": {"weight": 3.0, "weight_final": 3.0}}}
+    assert joint_settings(joint, "nerf-grid") == {"weight": 3.0, "weight_final": 3.0}
+    assert joint_settings(joint, "3dgs") == {"weight": 0.1, "weight_final": 0.1}
+    check_joint(joint)
+    with pytest.raises(ValueError, match=r"stage2.joint.models: unknown model\(s\) \['grid'\]"):
+        check_joint({"models": {"grid": {"weight": 1.0}}})
+    with pytest.raises(ValueError, match=r"stage2.joint.weight = -1.0"):
+        check_joint({"models": {"3dgs": {"weight": -1.0}}})
 
 
 def test_weight_zero_is_the_likelihood_row():

@@ -16,7 +16,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -176,8 +176,8 @@ def get_reconstruct_inputs(wildcards):
 
 
 def get_joint_settings(wildcards):
-    """stage2.joint (the prior term's schedule) for a joint row, None for every other row."""
-    return config["stage2"]["joint"] if parse_source(wildcards.source).joint else None
+    """stage2.joint for this row's model (the prior term's schedule), None for every other row."""
+    return joint_settings(config["stage2"]["joint"], wildcards.model) if parse_source(wildcards.source).joint else None
 
 
 def get_stage2_init(wildcards):

@@ -272,7 +272,7 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     other, so that a wrong key or value is reported at parse time."""
     from spc3d.inputs.augment import AugmentSettings
     from spc3d.names import parse_source, translator_settings, translator_validation
-    from spc3d.reconstruct import CONFIGS, config_joint
+    from spc3d.reconstruct import CONFIGS, check_joint
     from spc3d.training import build_config
     from spc3d.translate.model_io import check_pretrained, model_config
     from spc3d.translate.train import data_mode, train_settings
@@ -298,7 +298,7 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
             built = CONFIGS[model](dict(config["stage2"][model]))
             if model == "nerf-grid":
                 check_grid_schedule(built.res_schedule)
-        config_joint(dict(config["stage2"].get("joint") or {}))
+        check_joint(dict(config["stage2"].get("joint") or {}))
     except (TypeError, ValueError, FileNotFoundError) as e:
         raise ConfigError(str(e)) from None
     check_crops(config, trainings)

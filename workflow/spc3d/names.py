@@ -248,6 +248,13 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
     return list(dict.fromkeys(out))
 
 
+def joint_settings(joint: dict, model: str | None) -> dict:
+    """The settings of ``model``'s joint rows: stage2.joint, with its ``models: {model: {...}}`` entry
+    laid over it (each 3D model's prior term is its own image loss, so each has its own weight)."""
+    common = {k: v for k, v in joint.items() if k != "models"}
+    return {**common, **((joint.get("models") or {}).get(model) or {})}
+
+
 def uses_display(source: str) -> bool:
     """Whether a source reads a metered display: the MLE images, or the gain of a likelihood."""
     name = parse_source(source)

@@ -46,6 +46,17 @@ def config_joint(settings: dict):
     return build_config(JointConfig, settings, "stage2.joint")
 
 
+def check_joint(joint: dict) -> None:
+    """stage2.joint and each of its per-model entries, as :func:`config_joint` builds them."""
+    from spc3d.names import joint_settings
+
+    unknown = sorted(set(joint.get("models") or {}) - set(CONFIGS))
+    if unknown:
+        raise ValueError(f"stage2.joint.models: unknown model(s) {unknown}; use one of {sorted(CONFIGS)}")
+    for model in [None, *(joint.get("models") or {})]:
+        config_joint(joint_settings(joint, model))
+
+
 def own_objective(objective, own: RGBObjective):
     """The objective a model fits: its own RGB loss ``own`` when none is given; a joint objective
     without an image loss gets ``own`` as its prior term."""
