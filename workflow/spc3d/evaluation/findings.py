@@ -78,7 +78,7 @@ from pathlib import Path
 import numpy as np
 
 from spc3d import io
-from spc3d.names import STAGE1_METHODS, as_read, parse_source
+from spc3d.names import STAGE1_METHODS, as_read, parse_combination, parse_source
 
 METRIC = "psnr"
 ALPHA = 0.05  # 1 - the intervals' level; the two-sided level of sign_flip_p
@@ -432,8 +432,13 @@ def claims(rows: dict[str, Row], nerf: str) -> list[Claim]:
 
 
 def joint_rows(rows) -> list[str]:
-    """The joint rows that ran (``joint-<method>+model``), in name order."""
-    return sorted(r for r in rows if parse_source(r.partition("+")[0]).joint and "@" not in r)
+    """The joint rows that ran on the scene's cameras (``joint-<method>+model``), in name order."""
+
+    def on_scene_poses_joint(row: str) -> bool:
+        source, _, poses = parse_combination(row)
+        return parse_source(source).joint and poses is None
+
+    return sorted(filter(on_scene_poses_joint, rows))
 
 
 def joint_claims(rows, joint: str, two_stage: list[str]) -> list[Claim]:

@@ -50,10 +50,11 @@ def check_joint(joint: dict) -> None:
     """stage2.joint and each of its per-model entries, as :func:`config_joint` builds them."""
     from spc3d.names import joint_settings
 
-    unknown = sorted(set(joint.get("models") or {}) - set(CONFIGS))
+    models = joint.get("models") or {}
+    unknown = sorted(set(models) - set(CONFIGS))
     if unknown:
         raise ValueError(f"stage2.joint.models: unknown model(s) {unknown}; use one of {sorted(CONFIGS)}")
-    for model in [None, *(joint.get("models") or {})]:
+    for model in [None, *models]:
         config_joint(joint_settings(joint, model))
 
 
