@@ -125,6 +125,15 @@ def test_a_range_given_high_to_low_stops_the_parse(combos):
         parse(SMOKE, {"augment": {"zoom": [2, 1]}}, only(*combos))
 
 
+def test_a_hold_out_that_leaves_no_scene_to_train_on_stops_the_parse():
+    with pytest.raises(
+        ConfigError, match=r"stage1\.validation\.hold_out = 3 \(pix2pix\) keeps all 3 training scene\(s\) of scenes\.train"
+    ):
+        parse({"stage1": {"validation": {"hold_out": 3}}}, only("pix2pix+3dgs"))
+    parse({"stage1": {"validation": {"hold_out": 2}}}, only("pix2pix+3dgs"))
+    parse({"stage1": {"validation": {"hold_out": 3, "every": 0}}}, only("pix2pix+3dgs"))  # no validation: unused
+
+
 def test_the_parse_builds_the_augment_ranges_as_the_jobs_do():
     """Every key of the augment block but its count is a field of the settings the jobs build
     (spc3d.translate.train.training_data, workflow/scripts/augment_scene.py): the parse checks them all."""

@@ -349,6 +349,48 @@ def test_a_killed_run_resumes_exactly(world, tmp_path, scripted):
 TINY_RESTORMER = {"dim": 8, "heads": [1, 1, 1, 1]}
 
 
+def test_a_held_out_scene_is_validated_whole_and_never_trained_on(world, tmp_path, scripted):
+    """hold_out: 1 trains on orchard alone (online samples of its training views only) and validates
+    on every view of gallery, which no sample shows; the prior and each validation say per scene."""
+    job = _online_job(
+        world, tmp_path, scripted, {}, {"iterations": 8, "crop": 16, "log_every": 4, "batch_size": 2},
+        validation={"every": 4, "patience": 0, "hold_out": 1},
+    )
+    setup = train.setup_training(job)
+    assert [src.name for src in setup.sampler.sources] == ["orchard"]
+    assert [v.name for v in setup.validator.views] == [f"gallery/image{i:03d}" for i in range(9)]
+    rec = train.train_translator(job)
+    assert rec["validation"]["hold_out"] == 1 and rec["data"]["training_views"] == 7
+    assert rec["validation"]["views"] == [v.name for v in setup.validator.views]
+    assert [h["iteration"] for h in rec["validation"]["curve"]] == [0, 4, 8]
+    assert not any(k.startswith("val_psnr:") for k in rec["validation"]["curve"][0])  # one scene: its mean
+
+
+def test_held_out_scenes_are_scored_each(world):
+    """With two held-out scenes each gets its own mean PSNR, and the overall mean is over views."""
+    views = validate.load_views(*_dirs(world), frames=1, every_view=True)
+    assert len(views) == 18
+    grey = lambda b: torch.full_like(b, 0.5)  # noqa: E731
+    scores = validate.score(grey, views, per_scene=True)
+    per_view = [validate.score(grey, [v])["val_psnr"] for v in views]
+    assert scores["val_psnr"] == pytest.approx(np.mean(per_view))
+    assert scores["val_psnr:orchard"] == pytest.approx(np.mean(per_view[:9]))
+    assert scores["val_psnr:gallery"] == pytest.approx(np.mean(per_view[9:]))
+    assert set(validate.score(grey, views)) == {"val_psnr", "val_l1"}
+
+
+def test_hold_out_leaves_a_scene_to_train_on(world, tmp_path):
+    data = train.training_data("online", (), *_dirs(world))
+    with pytest.raises(ValueError, match=r"hold_out = 2 keeps every training scene out .*orchard, gallery"):
+        train.make_validator(data, {"every": 5, "hold_out": 2}, 1, 10)
+    with pytest.raises(ValueError, match="hold_out = -1"):
+        validate.validation_settings({"hold_out": -1})
+    fixed = train.training_data("fixed", [tmp_path / "a", tmp_path / "b"], *_dirs(world))
+    kept, scenes, spc_dirs = fixed.hold_out(1)
+    assert kept.augment_dirs == (str(tmp_path / "a"),) and kept.scene_dirs == (str(world / "scenes" / "orchard"),)
+    assert scenes == (str(world / "scenes" / "gallery"),) and spc_dirs == (str(world / "spc" / "gallery"),)
+
+
 def test_fixed_mode_counts_its_distinct_pairs(world, tmp_path):
     augment.augment_scene(
         world / "scenes" / "gallery", world / "spc" / "gallery", tmp_path / "aug", 5, AugmentSettings(), seed=0

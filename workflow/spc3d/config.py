@@ -290,7 +290,9 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
             settings, train = translator_settings(config["stage1"], method)
             cfg = model_config(base, settings)
             trainings.append((method, cfg, train_settings(train, base, pretrained=settings.get("checkpoint"))))
-            validation_settings(translator_validation(config["stage1"], method), f"stage1.{base}.validation")
+            valid = validation_settings(translator_validation(config["stage1"], method), f"stage1.{base}.validation")
+            if valid.every and valid.hold_out:
+                check_hold_out(config["scenes"], base, valid.hold_out)
             if settings.get("checkpoint"):
                 check_file(settings["checkpoint"], f"stage1.{base}.checkpoint", "published weights to start from")
                 check_pretrained(base, settings)
@@ -305,6 +307,20 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     check_consistency(config, methods, combinations)
     for warning in check_exposure(config):  # possible, but its frames would carry no image
         print(f"spc3d warning: {warning}", file=sys.stderr)
+
+
+def check_hold_out(scenes: dict, method: str, n: int) -> None:
+    """``stage1.validation.hold_out`` must leave every fold at least one scene to train on."""
+    from spc3d.jobs import training_folds
+
+    folds = training_folds(scenes["train"], scenes["eval"], scenes.get("leave_one_out", False))
+    for fold, train in folds.items():
+        if n >= len(train):
+            raise ValueError(
+                f"stage1.validation.hold_out = {n} ({method}) keeps all {len(train)} training scene(s) of "
+                f"{'the fold ' + fold if fold else 'scenes.train'} ({', '.join(train)}) out of the training; "
+                f"it must be below {min(map(len, folds.values()))}"
+            )
 
 
 def crop_key(config: dict, method: str) -> str:

@@ -33,6 +33,7 @@ import dataclasses
 import logging
 import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
@@ -42,7 +43,7 @@ from spc3d.training import build_config, default_device, peak_rss_mb, run, seed_
 from spc3d.translate.data import PairSampler, load_pairs
 from spc3d.translate.model_io import build_translator, model_config, write_model_folder
 from spc3d.translate.online import OnlineSampler, load_sources
-from spc3d.translate.validate import Validator, load_views, score, validation_settings
+from spc3d.translate.validate import Validator, load_views, validation_settings
 
 log = logging.getLogger(__name__)
 
@@ -214,6 +215,31 @@ class TrainingData:
         }
         return {f"{k}[{i}]": digest_path(d) for k, dirs in folders.items() for i, d in enumerate(dirs)}
 
+    def hold_out(self, n: int) -> tuple[TrainingData, tuple, tuple]:
+        """(this data without its last ``n`` scenes, their scene folders, their SPC folders): the
+        scenes ``stage1.validation.hold_out`` keeps out of the training to validate on. The rule
+        lists pairs, scenes and SPC folders in the same scene order."""
+        if n == 0:
+            return self, self.scene_dirs, self.spc_dirs
+        scenes = [Path(d).name for d in self.scene_dirs]
+        if n >= len(scenes):
+            raise ValueError(
+                f"stage1.validation.hold_out = {n} keeps every training scene out of the training "
+                f"(the fold has {len(scenes)}: {', '.join(scenes) or 'none'}); it must be below that"
+            )
+        if self.mode == "fixed" and len(self.augment_dirs) != len(scenes):
+            raise ValueError(
+                f"stage1.validation.hold_out needs one pairs folder per training scene, got "
+                f"{len(self.augment_dirs)} for {len(scenes)} scenes"
+            )
+        kept = dataclasses.replace(
+            self,
+            augment_dirs=self.augment_dirs[:-n] if self.mode == "fixed" else self.augment_dirs,
+            scene_dirs=self.scene_dirs[:-n],
+            spc_dirs=self.spc_dirs[:-n],
+        )
+        return kept, self.scene_dirs[-n:], self.spc_dirs[-n:]
+
 
 def training_data(
     mode: str = "fixed",
@@ -246,7 +272,8 @@ def make_sampler(data: TrainingData, s: TrainSettings, frames: int, seed: int, p
 
 
 def make_validator(data: TrainingData, validation: dict | None, frames: int, iterations: int) -> Validator | None:
-    """The validator of ``stage1.validation`` (None when ``every`` is 0 or ``validation`` None)."""
+    """The validator of ``stage1.validation`` (None when ``every`` is 0 or ``validation`` None):
+    the held-out views of ``data``'s scenes, or every view of its ``hold_out`` scenes."""
     v = validation_settings(validation)
     if v.every == 0:
         return None
@@ -255,7 +282,9 @@ def make_validator(data: TrainingData, validation: dict | None, frames: int, ite
             f"stage1.validation.every = {v.every} needs the training scenes' folders and SPC folders "
             "(their held-out views); set stage1.validation.every: 0 to train without validation"
         )
-    return Validator(load_views(list(data.scene_dirs), list(data.spc_dirs), frames, data.sensor), v, iterations)
+    _, scene_dirs, spc_dirs = data.hold_out(v.hold_out)
+    views = load_views(list(scene_dirs), list(spc_dirs), frames, data.sensor, every_view=v.hold_out > 0)
+    return Validator(views, v, iterations)
 
 
 @dataclass(frozen=True)
@@ -321,9 +350,10 @@ def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> Train
         s = dataclasses.replace(s, iterations=0)  # an untrained method: its fit_untrained is all there is
     if pretrained:
         model.load_pretrained(pretrained)
-    sampler = make_sampler(data, s, job.frames, job.seed, model.paired)
     validator = make_validator(data, job.validation, job.frames, s.iterations)
-    validate = (lambda translate: score(translate, validator.views)) if validator else None
+    trained_on = data.hold_out(validator.s.hold_out)[0] if validator else data
+    sampler = make_sampler(trained_on, s, job.frames, job.seed, model.paired)
+    validate = validator.score if validator else None
     # the prior's gain on the training data (restored as it is on resume); an untrained method's whole fit
     selection = model.fit_untrained(sampler.calibration_pairs, validate)
     meta = {
@@ -361,7 +391,7 @@ def prior_record(model, validator: Validator | None) -> dict | None:
     if model.prior is None:
         return None
     prior = model.prior
-    scores = score(lambda b: prior(b.to(prior.gain.device)).clamp(0.0, 1.0), validator.views) if validator else {}
+    scores = validator.score(lambda b: prior(b.to(prior.gain.device)).clamp(0.0, 1.0)) if validator else {}
     return {"sigma": prior.sigma, "gain": prior.gain.tolist(), **scores}
 
 

@@ -3,7 +3,10 @@ early stopping (``stage1.validation``).
 
 The slice is the held-out views (every 8th, :func:`spc3d.cameras.split_views`) of the *training*
 scenes, never an evaluation scene. Neither the fixed pairs (:mod:`spc3d.inputs.augment` draws training
-views only) nor the online samples (:mod:`.online`, likewise) ever show them. Their input is the
+views only) nor the online samples (:mod:`.online`, likewise) ever show them. Those views share
+their scenes' content with the training data, so they measure fitting; ``hold_out: N`` measures
+generalisation instead: the last N training scenes (in configured order) are kept out of the
+training altogether and every one of their views is validated (per scene too, ``val_psnr:{scene}``). Their input is the
 first ``frames`` stored frames of the scene's SPC folder (a seeded sample, fixed for the run),
 translated exactly as an evaluation scene is (:func:`.apply.translate_scene`).
 
@@ -41,10 +44,14 @@ class ValidationSettings:
 
     every: int = 25  # steps between validations, plus one at the last step (0: none, the last model is kept)
     patience: int = 2  # validations without a better PSNR before training stops (0: never stop early)
+    hold_out: int = 0  # the last N training scenes: not trained on, every view validated (0: held-out views)
 
     def __post_init__(self):
-        if self.every < 0 or self.patience < 0:
-            raise ValueError(f"need every >= 0 and patience >= 0, got every = {self.every}, patience = {self.patience}")
+        if min(self.every, self.patience, self.hold_out) < 0:
+            raise ValueError(
+                f"need every, patience and hold_out >= 0, got every = {self.every}, patience = {self.patience}, "
+                f"hold_out = {self.hold_out}"
+            )
 
 
 def validation_settings(values: dict | None, where: str = "stage1.validation") -> ValidationSettings:
@@ -63,17 +70,22 @@ class ValidationView:
 
 
 def load_views(
-    scene_dirs: list[str | os.PathLike], spc_dirs: list[str | os.PathLike], frames: int, sensor: dict | None = None
+    scene_dirs: list[str | os.PathLike],
+    spc_dirs: list[str | os.PathLike],
+    frames: int,
+    sensor: dict | None = None,
+    every_view: bool = False,
 ) -> list[ValidationView]:
-    """The held-out views of the training scenes with their stored binary input (as ``sensor``
-    records it, :func:`.data.binary_input`: its W / mono pixels drawn from the view at the scene's
-    exposure, seeded by the view)."""
+    """The held-out views of the training scenes (``every_view``: all their views, for scenes kept
+    out of the training) with their stored binary input (as ``sensor`` records it,
+    :func:`.data.binary_input`: its W / mono pixels drawn from the view at the scene's exposure,
+    seeded by the view)."""
     views, pattern = [], sensor_pattern(sensor)
     for scene_dir, spc_dir in zip(map(Path, scene_dirs), map(Path, spc_dirs)):
         names = llff.read_scene(scene_dir, with_images=False).names
         record = read_spc_record(spc_dir)
         exposure = camera_exposure(record, f"{spc_dir / 'spc.json'}")
-        for i in split_views(len(names))[1]:
+        for i in range(len(names)) if every_view else split_views(len(names))[1]:
             name = names[i]
             rgb = io.read_rgb(scene_dir / "images" / f"{name}.png")
             drawn = {}
@@ -85,20 +97,29 @@ def load_views(
     return views
 
 
-def score(translate: Callable[[Tensor], Tensor], views: list[ValidationView]) -> dict[str, float]:
+def score(
+    translate: Callable[[Tensor], Tensor], views: list[ValidationView], per_scene: bool = False
+) -> dict[str, float]:
     """Mean PSNR (dB) and L1 error of ``translate`` ((B, 3, H, W) binary -> camera image in [0, 1],
     e.g. a model's ``translate``) on ``views`` (views of one size batched), each output displayed
     at its view's exposure (:func:`.camera.from_camera`) and compared with the ground truth, as an
-    evaluation scene's translation is scored."""
-    psnrs, l1s = [], []
+    evaluation scene's translation is scored. ``per_scene``: also each scene's mean PSNR
+    (``val_psnr:{scene}``), when the views span more than one scene."""
+    psnrs, l1s = {}, {}
     for size in dict.fromkeys(tuple(v.binary.shape) for v in views):
         group = [v for v in views if tuple(v.binary.shape) == size]
         camera = translate(torch.stack([v.binary for v in group])).cpu()
         out = from_camera(camera, torch.tensor([v.exposure for v in group], dtype=torch.float64))
         for pred, v in zip(out, group):
-            psnrs.append(psnr(pred, v.rgb))
-            l1s.append(float((pred - v.rgb).abs().mean()))
-    return {"val_psnr": sum(psnrs) / len(psnrs), "val_l1": sum(l1s) / len(l1s)}
+            psnrs[v.name] = psnr(pred, v.rgb)
+            l1s[v.name] = float((pred - v.rgb).abs().mean())
+    scores = {"val_psnr": sum(psnrs.values()) / len(psnrs), "val_l1": sum(l1s.values()) / len(l1s)}
+    scenes = dict.fromkeys(name.split("/")[0] for name in psnrs)
+    if per_scene and len(scenes) > 1:
+        for scene in scenes:
+            values = [p for name, p in psnrs.items() if name.split("/")[0] == scene]
+            scores[f"val_psnr:{scene}"] = sum(values) / len(values)
+    return scores
 
 
 class Validator:
@@ -107,8 +128,8 @@ class Validator:
     def __init__(self, views: list[ValidationView], s: ValidationSettings, iterations: int):
         if s.every and not views:
             raise ValueError(
-                "stage1.validation: no held-out views to validate on (every 8th view of each "
-                "training scene); set stage1.validation.every: 0 to train without validation"
+                "stage1.validation: no views to validate on (every 8th view of each training scene, or "
+                "every view of the hold_out scenes); set stage1.validation.every: 0 to train without validation"
             )
         self.views, self.s, self.iterations = views, s, iterations
         self.history: list[dict] = []
@@ -118,9 +139,13 @@ class Validator:
     def due(self, it: int) -> bool:
         return self.s.every > 0 and (it % self.s.every == 0 or it == self.iterations)
 
+    def score(self, translate: Callable[[Tensor], Tensor]) -> dict[str, float]:
+        """:func:`score` on this validation's views (per scene when they are held-out scenes)."""
+        return score(translate, self.views, per_scene=self.s.hold_out > 0)
+
     def update(self, it: int, model) -> dict[str, float]:
         """Validate the model at step ``it``; keep it if it is the best so far."""
-        scores = score(model.translate, self.views)
+        scores = self.score(model.translate)
         self.history.append({"iteration": it, **scores})
         if self.best is None or scores["val_psnr"] > self.best["val_psnr"]:
             modules = {
@@ -144,6 +169,7 @@ class Validator:
         return {
             "every": self.s.every,
             "patience": self.s.patience,
+            "hold_out": self.s.hold_out,
             "views": [v.name for v in self.views],
             "best_step": best["step"],
             "best_psnr": best["val_psnr"],
