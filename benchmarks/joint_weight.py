@@ -2,6 +2,7 @@
 
     python benchmarks/joint_weight.py --results RUN/results [--scenes tabletop orchard gallery]
                                       [--model 3dgs] [--seeds 0] [--out joint.json]
+                                      [--method restormer] [--configfile preset.yaml]
 
 A joint row fits the SPAD likelihood of frame 0 plus ``w(t)`` times the model's two-stage image loss
 towards a stage-1 output (spc3d.reconstruct.objectives.JointObjective). Here the stage-1 output is
@@ -9,7 +10,10 @@ the run's untrained ``prior`` model (the translators' start) applied to each tra
 frames by the workflow's own translate_scene, and the likelihood's gain is the run's metered
 display (results/calibration/display-k1.json), both written once under ``--cache``. The prior has
 no network: a translator's output on its own training scenes would be in-sample (``--method``
-allows one, marked so). Each schedule is fitted once per (scene, seed) at config.yaml's budget,
+allows one, marked so). A translator trained with ``stage1.validation.hold_out`` (e.g. by
+benchmarks/scene_holdout_curves.py) never saw the scenes it held out: on those its output is out of
+sample, as on an evaluation scene. Each schedule is fitted once per (scene, seed) at config.yaml's budget
+(its stage2 block of the model, overlaid by ``--configfile``: e.g. a preset's larger budget),
 single-threaded, and scored on the held-out views against the ground truth (training scenes only;
 the evaluation scenes are refused). Two schedules are the rows the joint one lies between:
 
@@ -35,7 +39,7 @@ from nerf_grid_quality import REPO, held_out, warm_up_kernels
 from plateau_rule import settings_of
 
 from spc3d import llff
-from spc3d.inputs.exposure import write_display
+from spc3d.inputs.exposure import calibrate_display, write_display
 from spc3d.reconstruct import RECONSTRUCTORS
 from spc3d.reconstruct.sources import Source, load_source
 from spc3d.translate.apply import translate_scene
@@ -45,6 +49,7 @@ SCHEDULES = {
     "likelihood": {"weight": 0.0, "weight_final": 0.0},
     "prior only": {"likelihood": False},
     "w 0.1": {"weight": 0.1, "weight_final": 0.1},
+    "w 0.03": {"weight": 0.03, "weight_final": 0.03},
     "w 0.3": {"weight": 0.3, "weight_final": 0.3},
     "w 1": {"weight": 1.0, "weight_final": 1.0},
     "w 3": {"weight": 3.0, "weight_final": 3.0},
@@ -55,22 +60,32 @@ SCHEDULES = {
 }
 
 
-def joint_source(results: Path, scene: str, method: str, schedule: dict, cache: Path) -> Source:
-    """The ``joint-<method>`` source of a training scene: frame 0, the run's display gain, and
-    ``method``'s translation of its views (written once under ``cache``)."""
+def joint_source(results: Path, scene: str, method: str, schedule: dict, cache: Path, calibration: Path) -> Source:
+    """The ``joint-<method>`` source of a training scene: frame 0, the display gain of
+    ``calibration``, and ``method``'s translation of its views (written once under ``cache``)."""
     spc_dir, folder = results / "spc" / scene, cache / f"{results.resolve().parent.name}-{scene}"
     display, images = folder / "display-k1", folder / method
     if not display.is_dir():
-        write_display(spc_dir, results / "calibration" / "display-k1.json", 1, display)
+        write_display(spc_dir, calibration, 1, display)
     if not images.is_dir():
         translate_scene(results / "models" / method, spc_dir, results / "scenes" / scene, images, frames=1)
     joint = f"joint-{method}"
     return load_source(joint, results / "scenes" / scene, spc_dir, images / "images", 1, display, schedule)
 
 
-def fit(model: str, scene_dir: Path, src: Source, seed: int) -> dict:
-    """One joint fit at config.yaml's budget: held-out PSNR and CPU seconds."""
-    trainer, iterations, _ = RECONSTRUCTORS[model](src.views, src.objective, settings_of(model), seed)
+def sample_kind(results: Path, method: str, scene: str) -> str:
+    """Whether ``method``'s model saw ``scene`` in training ("in-sample") or held it out ("out of sample")."""
+    if method == "prior":
+        return "no network"
+    record = json.loads((results / "models" / method / "train.json").read_text())
+    validation = record.get("validation") or {}
+    held = {v.split("/")[0] for v in validation.get("views", [])} if validation.get("hold_out") else set()
+    return "out of sample" if scene in held else "in-sample"
+
+
+def fit(model: str, scene_dir: Path, src: Source, seed: int, settings: dict) -> dict:
+    """One joint fit at the budget ``settings``: held-out PSNR and CPU seconds."""
+    trainer, iterations, _ = RECONSTRUCTORS[model](src.views, src.objective, settings, seed)
     t0 = time.process_time()
     for it in range(1, iterations + 1):
         trainer.step(it)
@@ -88,7 +103,17 @@ def main() -> None:
     ap.add_argument("--method", default="prior", help="the stage-1 model of the run (not prior: in-sample)")
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_joint")
     ap.add_argument("--out", type=Path, help="also write every fit (JSON)")
+    ap.add_argument("--configfile", type=Path, help="a preset whose stage2 block of the model overlays config.yaml's")
+    ap.add_argument(
+        "--calibrate",
+        nargs="+",
+        metavar="SCENE",
+        help="fit the display level on these scenes of the run (default: its results/calibration/display-k1.json)",
+    )
     args = ap.parse_args()
+    settings = settings_of(args.model)
+    if args.configfile:
+        settings |= (yaml.safe_load(args.configfile.read_text()).get("stage2") or {}).get(args.model) or {}
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
     scenes = args.scenes or cfg["scenes"]["train"]
     refused = sorted(set(scenes) & set(cfg["scenes"]["eval"]))
@@ -97,17 +122,25 @@ def main() -> None:
     unknown = [s for s in args.schedules if s not in SCHEDULES]
     if unknown:
         raise SystemExit(f"--schedules {unknown}: choose from {list(SCHEDULES)}")
+    calibration = args.results / "calibration" / "display-k1.json"
+    if args.calibrate:
+        calibration = args.cache / f"{args.results.resolve().parent.name}-display-k1-{'+'.join(args.calibrate)}.json"
+        if not calibration.is_file():
+            scene_dirs, spc_dirs = ([str(args.results / k / s) for s in args.calibrate] for k in ("scenes", "spc"))
+            calibration.parent.mkdir(parents=True, exist_ok=True)
+            calibrate_display(scene_dirs, spc_dirs, 1, calibration)
     torch.set_num_threads(1)
     warm_up_kernels(args.model)
     runs = []
-    if args.method != "prior":
-        print(f"--method {args.method}: its output on the scenes it was trained on is in-sample")
+    for scene in scenes:
+        print(f"{scene}: {args.method} {sample_kind(args.results, args.method, scene)}")
     for scene in scenes:
         for seed in args.seeds:
             for name in args.schedules:
-                src = joint_source(args.results, scene, args.method, SCHEDULES[name], args.cache)
-                run = fit(args.model, args.results / "scenes" / scene, src, seed)
-                runs.append(run | {"scene": scene, "seed": seed, "schedule": name, "method": args.method})
+                src = joint_source(args.results, scene, args.method, SCHEDULES[name], args.cache, calibration)
+                run = fit(args.model, args.results / "scenes" / scene, src, seed, settings)
+                kind = {"method": args.method, "sample": sample_kind(args.results, args.method, scene)}
+                runs.append(run | {"scene": scene, "seed": seed, "schedule": name} | kind)
                 print(f"{scene} seed {seed} {name}: {run['psnr']:.2f} dB, {run['cpu_s']:.0f} CPU s", flush=True)
     if args.out:
         args.out.write_text(json.dumps(runs, indent=1))

@@ -45,7 +45,9 @@ def preset_scenes(preset: Path) -> list[str]:
     """The training scenes the preset lists (its folds are drawn from them)."""
     config = yaml.safe_load((REPO / "config.yaml").read_text())
     for key, value in yaml.safe_load(preset.read_text()).items():
-        config[key] = {**config[key], **value} if isinstance(value, dict) and isinstance(config.get(key), dict) else value
+        config[key] = (
+            {**config[key], **value} if isinstance(value, dict) and isinstance(config.get(key), dict) else value
+        )
     return training_scene_names(config)
 
 
@@ -55,7 +57,9 @@ def overrides(subset: tuple, scenes: list[str], args) -> dict:
     train = {"iterations": args.steps, "decay_from": 1.0, "log_every": args.every}
     validation = {"every": args.every, "patience": 0, "hold_out": len(rest)}
     # a method's own blocks (the preset's restormer.train) would override the common ones
-    stage1 = {"train": train, "validation": validation} | {m: {"train": dict(train), "validation": dict(validation)} for m in args.methods}
+    stage1 = {"train": train, "validation": validation} | {
+        m: {"train": dict(train), "validation": dict(validation)} for m in args.methods
+    }
     # evaluated: a built-in scene no job here builds (the targets are the models alone)
     return {"scenes": {"train": [*subset, *rest], "eval": ["courtyard"], "leave_one_out": False}, "stage1": stage1}
 
@@ -101,7 +105,8 @@ def fold_curves(table: pd.DataFrame, scenes: list[str]) -> pd.DataFrame:
     that never touch E, by step."""
     parts = []
     for scene in scenes:
-        mine = table[~table["trained_on"].str.split("+").apply(lambda s: scene in s) & (table["validated_on"] != scene)]
+        untouched = ~table["trained_on"].str.split("+").apply(lambda s, e=scene: e in s)
+        mine = table[untouched & (table["validated_on"] != scene)]
         mean = mine.groupby(["method", "step"], as_index=False).agg(gain=("gain", "mean"), pairs=("gain", "size"))
         parts.append(mean.assign(fold=f"without-{scene}"))
     return pd.concat(parts, ignore_index=True)
@@ -128,7 +133,9 @@ def figure(folds: pd.DataFrame, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, folds["method"].nunique(), figsize=(4.2 * folds["method"].nunique(), 3.4), squeeze=False)
+    fig, axes = plt.subplots(
+        1, folds["method"].nunique(), figsize=(4.2 * folds["method"].nunique(), 3.4), squeeze=False
+    )
     for ax, (method, g) in zip(axes[0], folds.groupby("method")):
         for fold, f in g.groupby("fold"):
             ax.plot(f["step"], f["gain"], marker="o", ms=2, lw=1, label=fold)

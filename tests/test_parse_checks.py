@@ -127,7 +127,8 @@ def test_a_range_given_high_to_low_stops_the_parse(combos):
 
 def test_a_hold_out_that_leaves_no_scene_to_train_on_stops_the_parse():
     with pytest.raises(
-        ConfigError, match=r"stage1\.validation\.hold_out = 3 \(pix2pix\) keeps all 3 training scene\(s\) of scenes\.train"
+        ConfigError,
+        match=r"stage1\.validation\.hold_out = 3 \(pix2pix\) keeps all 3 training scene\(s\) of scenes\.train",
     ):
         parse({"stage1": {"validation": {"hold_out": 3}}}, only("pix2pix+3dgs"))
     parse({"stage1": {"validation": {"hold_out": 2}}}, only("pix2pix+3dgs"))

@@ -10,8 +10,9 @@ in-process in test_nerf, test_translate_pipeline and test_sweeps):
     snakemake  SIGKILL of Snakemake alone: its training notices and stops by itself within seconds
 
 Then the same command (after `snakemake --unlock` where Snakemake itself was killed) resumes the
-training from its last checkpoint, at a checkpoint boundary, and the scores equal those of an
-uninterrupted run with the same seed on one thread (--cores 1) bit for bit; nothing temporary
+training from its last checkpoint, at a checkpoint boundary, and the scores (a translator: its
+weights, losses and validation curve) equal those of an uninterrupted run with the same seed on
+one thread (--cores 1) bit for bit; nothing temporary
 (``*.tmp``) and no checkpoint lock is left under results/. The upstream outputs (scenes, SPC data,
 LPIPS weights) are built once per test session and copied. Also: a kill while the SPC data
 is written, and same-seed determinism of stage 2 in-process.
@@ -77,7 +78,7 @@ UPSTREAM = [
 
 @dataclass(frozen=True)
 class Kind:
-    target: str  # what the command builds (scores of the training's model)
+    target: str  # what the command builds: scores of the trained model, or the model folder itself
     script: str  # the training job's script (workflow/scripts/<script>.py)
     record: str  # folder of the train.json that says where the training resumed
     checkpoint: str
@@ -103,7 +104,7 @@ KINDS = {
         "job",
     ),
     "pix2pix": Kind(
-        "results/stage1/courtyard/pix2pix.json",
+        "results/models/pix2pix",
         "train_translator",
         "results/models/pix2pix",
         "results/checkpoints/models/pix2pix/checkpoint.pt",
@@ -111,7 +112,7 @@ KINDS = {
         "group",
     ),
     "diffusion": Kind(
-        "results/stage1/courtyard/diffusion.json",
+        "results/models/diffusion",
         "train_translator",
         "results/models/diffusion",
         "results/checkpoints/models/diffusion/checkpoint.pt",
@@ -162,7 +163,14 @@ def _run(workdir, target, configs):
     return proc
 
 
-def _scores(path) -> dict:
+def _outcome(path) -> dict:
+    """What a run produced, to compare bit for bit: a reconstruction's scores, or a translator's
+    record (validation curve, losses, kept step) and weights."""
+    if path.is_dir():
+        record = io.read_json(path / "train.json")
+        weights = torch.load(path / "model.pt", weights_only=True)["modules"]
+        arrays = {f"{m}.{k}": t.numpy().tobytes() for m, state in weights.items() for k, t in state.items()}
+        return {k: record[k] for k in ("validation", "final_losses", "model_step")} | arrays
     record = io.read_json(path)
     return {k: record[k] for k in ("mean", "per_view", "views") if k in record}
 
@@ -210,7 +218,7 @@ def test_killed_training_resumes_where_it_stopped(name, upstream, tmp_path, lpip
     assert rec["iterations"] == kind.iterations and 0 < rec["resumed_from"] < kind.iterations, rec["checkpoint"]
     assert rec["resumed_from"] % every == 0 and rec["checkpoint"]["discarded"] is None
     assert "resuming from" in "".join(p.read_text() for p in log.rglob("*.log"))
-    assert _scores(killed / kind.target) == _scores(ref / kind.target)  # bit for bit
+    assert _outcome(killed / kind.target) == _outcome(ref / kind.target)  # bit for bit
     leftovers = [p for p in (killed / "results").rglob("*") if p.name.endswith((".tmp", ".lock"))]
     assert not leftovers, leftovers
     print(f"{name}: killed ({kind.kill}) and resumed from iteration {rec['resumed_from']} of {kind.iterations}")

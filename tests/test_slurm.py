@@ -265,12 +265,12 @@ def test_alive_reads_pid_files(tmp_path):
 
 def test_alive_survives_a_pid_file_deleted_while_it_reads(tmp_path):
     """`slurm_local.sh stop` races the daemons, which delete their pid files as they exit. A pid file
-    created and deleted in a tight loop while `alive` asks 3,000 times must never end the script (a
+    created and deleted in a tight loop while `alive` asks 1,500 times must never end the script (a
     failed `$(<file)` did, inside `||`, and failed CI after its tests had passed)."""
     run = _alive_in_bash(
         "( while true; do echo 999999999 > $DIR/flip.pid; rm -f $DIR/flip.pid; done ) & flipper=$!\n"
         "trap 'kill $flipper' EXIT\n"
-        "for i in $(seq 3000); do alive $DIR/flip.pid munged >/dev/null || true; done\n"
+        "for i in $(seq 1500); do alive $DIR/flip.pid munged >/dev/null || true; done\n"
         "echo survived\n",
         tmp_path,
     )

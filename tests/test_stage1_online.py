@@ -353,7 +353,11 @@ def test_a_held_out_scene_is_validated_whole_and_never_trained_on(world, tmp_pat
     """hold_out: 1 trains on orchard alone (online samples of its training views only) and validates
     on every view of gallery, which no sample shows; the prior and each validation say per scene."""
     job = _online_job(
-        world, tmp_path, scripted, {}, {"iterations": 8, "crop": 16, "log_every": 4, "batch_size": 2},
+        world,
+        tmp_path,
+        scripted,
+        {},
+        {"iterations": 8, "crop": 16, "log_every": 4, "batch_size": 2},
         validation={"every": 4, "patience": 0, "hold_out": 1},
     )
     setup = train.setup_training(job)
@@ -361,6 +365,7 @@ def test_a_held_out_scene_is_validated_whole_and_never_trained_on(world, tmp_pat
     assert [v.name for v in setup.validator.views] == [f"gallery/image{i:03d}" for i in range(9)]
     rec = train.train_translator(job)
     assert rec["validation"]["hold_out"] == 1 and rec["data"]["training_views"] == 7
+    assert rec["training_scenes"] == ["orchard"]
     assert rec["validation"]["views"] == [v.name for v in setup.validator.views]
     assert [h["iteration"] for h in rec["validation"]["curve"]] == [0, 4, 8]
     assert not any(k.startswith("val_psnr:") for k in rec["validation"]["curve"][0])  # one scene: its mean

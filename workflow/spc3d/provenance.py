@@ -13,6 +13,7 @@ trigger). Code outside the closure (tables, figures) can change without retraini
 from __future__ import annotations
 
 import ast
+import functools
 import hashlib
 import importlib.util
 from collections.abc import Iterable
@@ -56,13 +57,12 @@ def module_name(path: Path) -> str | None:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def type_checking_nodes(tree: ast.AST) -> set[int]:
-    """ids of the nodes under ``if TYPE_CHECKING:`` (imports for annotations only: never run)."""
-    skip = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            skip.update(id(n) for stmt in node.body for n in ast.walk(stmt))
-    return skip
+def is_type_checking(test: ast.expr) -> bool:
+    """Whether an ``if`` test names ``TYPE_CHECKING`` (its body: imports for annotations only, never run)."""
+    names = (
+        n.id if isinstance(n, ast.Name) else n.attr if isinstance(n, ast.Attribute) else "" for n in ast.walk(test)
+    )
+    return "TYPE_CHECKING" in names
 
 
 def imported_names(path: Path) -> set[str]:
@@ -72,11 +72,14 @@ def imported_names(path: Path) -> set[str]:
     here = module_name(path)
     package = here if path.name == "__init__.py" else here.rpartition(".")[0] if here else None
     tree = ast.parse(path.read_text(), filename=str(path))
-    skip, out = type_checking_nodes(tree), set()
-    for node in ast.walk(tree):
+    skip, out = set(), set()
+    for node in ast.walk(tree):  # breadth first: an ``if`` is met before the statements under it
         if id(node) in skip:
+            skip.update(id(child) for child in ast.iter_child_nodes(node))
             continue
-        if isinstance(node, ast.Import):
+        if isinstance(node, ast.If) and is_type_checking(node.test):
+            skip.update(id(stmt) for stmt in node.body)
+        elif isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
@@ -89,9 +92,16 @@ def imported_names(path: Path) -> set[str]:
     return out
 
 
-def imported_modules(path: Path) -> set[str]:
-    """The ``spc3d`` modules (files that exist) among :func:`imported_names`."""
-    return {name for name in imported_names(path) if module_file(name) is not None}
+def imported_modules(path: Path) -> frozenset[str]:
+    """The ``spc3d`` modules (files that exist) among :func:`imported_names`; parsed once per file
+    version (a workflow digests every translator's closure, and they share most files)."""
+    stat = path.stat()
+    return _imported_modules(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4096)
+def _imported_modules(path: Path, mtime_ns: int, size: int) -> frozenset[str]:
+    return frozenset(name for name in imported_names(path) if module_file(name) is not None)
 
 
 def closure(files: Iterable[str | Path]) -> list[Path]:

@@ -333,6 +333,7 @@ class TrainingSetup:
     pairs: int | None  # fixed pairs (None online)
     validator: Validator | None = None
     selection: dict | None = None  # what the model's fit_untrained returned (classical: its selection table)
+    trained_on: TrainingData | None = None  # the data without the scenes validation holds out
 
 
 def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> TrainingSetup:
@@ -382,7 +383,7 @@ def setup_training(job: TranslatorJob, vgg_weights: dict | None = None) -> Train
         else None
     )
     pairs = len(sampler.binary) if isinstance(sampler, PairSampler) else None
-    return TrainingSetup(model, sampler, s, ckpt, meta, pairs, validator, selection)
+    return TrainingSetup(model, sampler, s, ckpt, meta, pairs, validator, selection, trained_on)
 
 
 def prior_record(model, validator: Validator | None) -> dict | None:
@@ -416,7 +417,8 @@ def train_translator(job: TranslatorJob, vgg_weights: dict | None = None) -> dic
         "prior": prior_record(setup.model, setup.validator),
         "selection": setup.selection,
         "pairs": setup.pairs,
-        "augment_dirs": list(job.data.augment_dirs),
+        "augment_dirs": list(setup.trained_on.augment_dirs),
+        "training_scenes": [Path(d).name for d in setup.trained_on.scene_dirs] or None,
         "data": setup.sampler.describe(),
         "validation": setup.validator.record() if setup.validator else None,
         "model_step": setup.validator.best["step"] if best else result["stopped"]["step"],
