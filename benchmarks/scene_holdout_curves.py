@@ -39,6 +39,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "workflow"))
 
 from spc3d.jobs import training_scene_names  # noqa: E402
+from spc3d.plotting import pyplot, save_png  # noqa: E402
 
 
 def preset_scenes(preset: Path) -> list[str]:
@@ -128,14 +129,8 @@ def summary(folds: pd.DataFrame, at: list[int]) -> pd.DataFrame:
 
 
 def figure(folds: pd.DataFrame, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(
-        1, folds["method"].nunique(), figsize=(4.2 * folds["method"].nunique(), 3.4), squeeze=False
-    )
+    methods = folds["method"].nunique()
+    fig, axes = pyplot().subplots(1, methods, figsize=(4.2 * methods, 3.4), squeeze=False)
     for ax, (method, g) in zip(axes[0], folds.groupby("method")):
         for fold, f in g.groupby("fold"):
             ax.plot(f["step"], f["gain"], marker="o", ms=2, lw=1, label=fold)
@@ -143,8 +138,7 @@ def figure(folds: pd.DataFrame, path: Path) -> None:
         ax.set(title=method, xlabel="training step", ylabel="gain over the prior on unseen training scenes (dB)")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_png(fig, path, dpi=120)
 
 
 def main() -> None:
