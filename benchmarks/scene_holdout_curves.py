@@ -135,7 +135,7 @@ def figure(folds: pd.DataFrame, path: Path) -> None:
         for fold, f in g.groupby("fold"):
             ax.plot(f["step"], f["gain"], marker="o", ms=2, lw=1, label=fold)
         ax.axhline(0.0, color="0.5", lw=0.8)
-        ax.set(title=method, xlabel="training step", ylabel="gain over the prior on unseen training scenes (dB)")
+        ax.set(title=f"{method}: scenes it never saw", xlabel="training step", ylabel="gain over the prior (dB)")
         ax.legend(fontsize=7)
     fig.tight_layout()
     save_png(fig, path, dpi=120)
