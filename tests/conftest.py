@@ -3,6 +3,7 @@
 import contextlib
 import dataclasses
 import fcntl
+import importlib.util
 import json
 import os
 import shutil
@@ -35,6 +36,14 @@ TINY_TRANSLATORS = {
     "restormer": {"dim": 8, "num_blocks": (1, 1, 1, 1), "heads": (1, 1, 2, 2)},
     "diffusion": {"base_channels": 8, "channel_mults": (1, 2), "groups": 4, "timesteps": 50, "sample_steps": 4},
 }
+
+
+def load_script(path: Path, name: str | None = None):
+    """A script of the repository (a benchmark, a tool) imported as a module, for its functions."""
+    spec = importlib.util.spec_from_file_location(name or Path(path).stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def llff_scene(name: str) -> Path:

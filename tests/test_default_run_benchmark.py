@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import pytest
+
+from conftest import load_script
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "default_run.py"
 
 
 @pytest.fixture(scope="module")
 def drun():
-    spec = importlib.util.spec_from_file_location("default_run", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT)
 
 
 # Captured from benchmarks/rasterizer.py --sizes 10000 --repeats 3 (a loaded 2-core machine).

@@ -3,7 +3,6 @@ figures, captions and run times, and (where Chromium is installed) it renders in
 .ci/run installs Chromium and sets SPC3D_REQUIRE_BROWSER=1, which turns a missing browser into a failure."""
 
 import base64
-import importlib.util
 import json
 import os
 import re
@@ -13,7 +12,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from conftest import REPO, run_snakemake
+from conftest import REPO, load_script, run_snakemake
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
 TOOL = REPO / "workflow" / "tools" / "report_screenshot.py"
@@ -24,10 +23,7 @@ def snakemake(workdir, *args, timeout=900, **kw):
 
 
 def load_tool():
-    spec = importlib.util.spec_from_file_location("report_screenshot", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(TOOL, "report_screenshot")
 
 
 def embedded_json(html: str, name: str) -> dict:

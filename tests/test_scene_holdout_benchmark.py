@@ -4,11 +4,12 @@ use (never its evaluation scene), and the config a subset trains under, on synth
 from __future__ import annotations
 
 import argparse
-import importlib.util
 from pathlib import Path
 
 import pandas as pd
 import pytest
+
+from conftest import load_script
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "scene_holdout_curves.py"
 SCENES = ["a", "b", "c", "d"]
@@ -16,10 +17,7 @@ SCENES = ["a", "b", "c", "d"]
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("scene_holdout_curves", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT)
 
 
 def _table() -> pd.DataFrame:

@@ -4,7 +4,6 @@ every candidate denoiser against the true detection probability, the Gaussian ca
 training job's record and the denoiser benchmark."""
 
 import dataclasses
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,8 @@ import torch
 from spc3d import models
 from spc3d.translate import TRANSLATORS, blurred_mle, classical, model_io
 from spc3d.translate.classical import DENOISERS, GRID, P_MAX, Config, Translator, inverse_vst, vst, vst_sigma
+
+from conftest import load_script
 
 CPU = torch.device("cpu")
 RUNNABLE = [i for i, (name, _) in enumerate(GRID) if not classical.unavailable(name)]
@@ -204,9 +205,7 @@ def test_the_training_job_records_the_selection(world, tmp_path):
 
 
 def test_the_benchmark_compares_the_denoisers_on_the_held_out_views(world, capsys):
-    spec = importlib.util.spec_from_file_location("classical_denoisers", BENCHMARK)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_script(BENCHMARK)
     bench.main(["--results", str(world), "--scenes", "tabletop", "orchard", "--families", "gaussian", "tv"])
     out = capsys.readouterr().out
     assert "4 held-out views of tabletop, orchard" in out and "SSIM" in out and "ms / image" in out
