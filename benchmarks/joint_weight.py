@@ -132,15 +132,16 @@ def main() -> None:
     torch.set_num_threads(1)
     warm_up_kernels(args.model)
     runs = []
-    for scene in scenes:
-        print(f"{scene}: {args.method} {sample_kind(args.results, args.method, scene)}")
+    kinds = {scene: sample_kind(args.results, args.method, scene) for scene in scenes}
+    for scene, kind in kinds.items():
+        print(f"{scene}: {args.method} {kind}")
     for scene in scenes:
         for seed in args.seeds:
             for name in args.schedules:
                 src = joint_source(args.results, scene, args.method, SCHEDULES[name], args.cache, calibration)
                 run = fit(args.model, args.results / "scenes" / scene, src, seed, settings)
-                kind = {"method": args.method, "sample": sample_kind(args.results, args.method, scene)}
-                runs.append(run | {"scene": scene, "seed": seed, "schedule": name} | kind)
+                where = {"scene": scene, "seed": seed, "schedule": name, "sample": kinds[scene]}
+                runs.append(run | where | {"method": args.method})
                 print(f"{scene} seed {seed} {name}: {run['psnr']:.2f} dB, {run['cpu_s']:.0f} CPU s", flush=True)
     if args.out:
         args.out.write_text(json.dumps(runs, indent=1))

@@ -70,17 +70,24 @@ def train(work: Path, variant: str, methods: list[str], args) -> None:
         sys.exit(f"{variant}: snakemake failed (log in {work}/.snakemake/log):\n{proc.stderr[-3000:]}")
 
 
+def trained(work: Path, method: str) -> tuple[dict, float]:
+    """A workflow folder's trained method: its train.json and its CPU seconds per step (user + sys
+    of Snakemake's ``benchmarks/train_translator``, validation included)."""
+    record = json.loads((work / "results" / "models" / method / "train.json").read_text())
+    bench = pd.read_csv(work / "benchmarks" / "train_translator" / f"{method}.tsv", sep="\t")
+    cpu = float(bench["user_s"].iloc[-1] + bench["sys_s"].iloc[-1])
+    return record, cpu / max(int(record["stopped"]["step"]), 1)
+
+
 def curve(work: Path, method: str) -> tuple[pd.DataFrame, float, float]:
     """A trained method's validation curve (iteration, val_psnr), its CPU seconds per step and its
     physics prior's own validation PSNR (the translators' common baseline)."""
-    record = json.loads((work / "results" / "models" / method / "train.json").read_text())
+    record, per_step = trained(work, method)
     frame = pd.DataFrame(record["validation"]["curve"])[["iteration", "val_psnr"]]
     if frame["iteration"].iloc[0] != 0:
         raise ValueError(f"{work}/results/models/{method}: no validation at step 0 (trained by older code?)")
-    bench = pd.read_csv(work / "benchmarks" / "train_translator" / f"{method}.tsv", sep="\t")
-    cpu = float(bench["user_s"].iloc[-1] + bench["sys_s"].iloc[-1])
     prior = (record.get("prior") or {}).get("val_psnr", float("nan"))
-    return frame, cpu / max(int(record["stopped"]["step"]), 1), float(prior)
+    return frame, per_step, float(prior)
 
 
 def summary(frame: pd.DataFrame, at: list[int], prior: float) -> dict:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -34,9 +33,13 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
+from snakemake.utils import update_config
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "workflow"))
+sys.path.insert(0, str(Path(__file__).parent))
+
+from learning_curves import trained  # noqa: E402
 
 from spc3d.jobs import training_scene_names  # noqa: E402
 from spc3d.plotting import pyplot, save_png  # noqa: E402
@@ -45,10 +48,7 @@ from spc3d.plotting import pyplot, save_png  # noqa: E402
 def preset_scenes(preset: Path) -> list[str]:
     """The training scenes the preset lists (its folds are drawn from them)."""
     config = yaml.safe_load((REPO / "config.yaml").read_text())
-    for key, value in yaml.safe_load(preset.read_text()).items():
-        config[key] = (
-            {**config[key], **value} if isinstance(value, dict) and isinstance(config.get(key), dict) else value
-        )
+    update_config(config, yaml.safe_load(preset.read_text()))  # as --configfile merges it
     return training_scene_names(config)
 
 
@@ -77,12 +77,9 @@ def train(work: Path, config: dict, args) -> None:
 
 def runs(work: Path, subset: tuple, method: str) -> list[dict]:
     """One row per validation scene and validation: the gain over the prior's PSNR on that scene."""
-    model = work / "results" / "models" / method
-    record = json.loads((model / "train.json").read_text())
+    record, per_step = trained(work, method)
     curve, prior = record["validation"]["curve"], record.get("prior") or {}
     held = list(dict.fromkeys(v.split("/")[0] for v in record["validation"]["views"]))
-    bench = pd.read_csv(work / "benchmarks" / "train_translator" / f"{method}.tsv", sep="\t")
-    cpu = float(bench["user_s"].iloc[-1] + bench["sys_s"].iloc[-1])
     rows = []
     for scene in held:
         key = f"val_psnr:{scene}" if len(held) > 1 else "val_psnr"
@@ -95,7 +92,7 @@ def runs(work: Path, subset: tuple, method: str) -> list[dict]:
                     "step": point["iteration"],
                     "gain": point[key] - prior[key],
                     "prior_psnr": prior[key],
-                    "cpu_s_per_step": cpu / max(record["stopped"]["step"], 1),
+                    "cpu_s_per_step": per_step,
                 }
             )
     return rows

@@ -114,11 +114,11 @@ def score(
             psnrs[v.name] = psnr(pred, v.rgb)
             l1s[v.name] = float((pred - v.rgb).abs().mean())
     scores = {"val_psnr": sum(psnrs.values()) / len(psnrs), "val_l1": sum(l1s.values()) / len(l1s)}
-    scenes = dict.fromkeys(name.split("/")[0] for name in psnrs)
-    if per_scene and len(scenes) > 1:
-        for scene in scenes:
-            values = [p for name, p in psnrs.items() if name.split("/")[0] == scene]
-            scores[f"val_psnr:{scene}"] = sum(values) / len(values)
+    by_scene: dict[str, list[float]] = {}
+    for name, value in psnrs.items():
+        by_scene.setdefault(name.split("/")[0], []).append(value)
+    if per_scene and len(by_scene) > 1:
+        scores |= {f"val_psnr:{scene}": sum(v) / len(v) for scene, v in by_scene.items()}
     return scores
 
 
