@@ -13,8 +13,10 @@ never stopped early. Variants, each in ``WORKDIR/{variant}``: ``paper`` (each me
 losses), ``no-gan`` (Pix2Pix without its adversarial term, ``lambda_gan: 0``), ``pixel``
 (Pix2PixHD with a pixel L1 beside its losses, ``lambda_L1: 100``; CycleGAN on aligned pairs with
 ``lambda_pixel: 10``, its cycle terms' weight) and ``mean4`` (the diffusion
-stand-in returning the mean of 4 samples, ``samples: 4``). A second call reuses what a first built
-(Snakemake reruns nothing).
+stand-in returning the mean of 4 samples, ``samples: 4``) and ``published`` (each method's
+published network, the workflow's ``{method}-pub`` model: ``prior_sigma: 0``, no physics prior
+under it; its gain is over the untrained prior's PSNR, from ``results/models/prior``). A second
+call reuses what a first built (Snakemake reruns nothing).
 
 Prints per method and variant the validation PSNR gain over the physics prior's own validation
 PSNR at step 0 and at each of ``--at`` (the last validation at or before it), the best gain and its
@@ -43,7 +45,13 @@ VARIANTS = {
     "no-gan": {"pix2pix": {"lambda_gan": 0.0}},
     "pixel": {"pix2pixhd": {"lambda_L1": 100.0}, "cyclegan": {"lambda_pixel": 10.0}},
     "mean4": {"diffusion": {"samples": 4}},
+    "published": {m: {} for m in METHODS},  # trains the model folders "{method}-pub" (prior_sigma 0)
 }
+
+
+def folder(variant: str, method: str) -> str:
+    """The model folder a variant trains for ``method``: its published network in ``published``."""
+    return f"{method}-pub" if variant == "published" else method
 
 
 def overrides(args, variant: str) -> dict:
@@ -63,7 +71,9 @@ def train(work: Path, variant: str, methods: list[str], args) -> None:
     work.mkdir(parents=True, exist_ok=True)
     (work / "curves.yaml").write_text(yaml.safe_dump(overrides(args, variant)))
     configs = ["--configfile", *map(str, args.configfile), str(work / "curves.yaml")]
-    targets = [f"results/models/{m}" for m in methods]
+    # the published networks have no prior of their own: the untrained prior's folder gives the baseline
+    extra = ["prior"] if variant == "published" else []
+    targets = [f"results/models/{folder(variant, m)}" for m in methods] + [f"results/models/{m}" for m in extra]
     cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(work)]
     proc = subprocess.run([*cmd, "--cores", str(args.cores), *configs, "--", *targets], capture_output=True, text=True)
     if proc.returncode != 0:
@@ -86,7 +96,9 @@ def curve(work: Path, method: str) -> tuple[pd.DataFrame, float, float]:
     frame = pd.DataFrame(record["validation"]["curve"])[["iteration", "val_psnr"]]
     if frame["iteration"].iloc[0] != 0:
         raise ValueError(f"{work}/results/models/{method}: no validation at step 0 (trained by older code?)")
-    prior = (record.get("prior") or {}).get("val_psnr", float("nan"))
+    prior = (record.get("prior") or {}).get("val_psnr")
+    if prior is None:  # a published network (prior_sigma 0): the prior's own folder, same validation views
+        prior = json.loads((work / "results" / "models" / "prior" / "train.json").read_text())["prior"]["val_psnr"]
     return frame, per_step, float(prior)
 
 
@@ -142,7 +154,7 @@ def main() -> None:
         if not args.report_only:
             train(work, variant, methods, args)
         for method in methods:
-            frame, per_step, prior = curve(work, method)
+            frame, per_step, prior = curve(work, folder(variant, method))
             curves[(method, variant)] = frame.assign(val_psnr=frame["val_psnr"] - prior)
             row = {"method": method, "variant": variant, **summary(frame, args.at, prior)}
             rows.append(row | {"cpu_s_per_step": round(per_step, 3)})
