@@ -167,12 +167,12 @@ def test_real_llff_scene_through_the_workflow(tmp_path):
 
 @pytest.mark.parametrize(
     "preset,reconstructs,translators",
-    [("smoke", 11, 4), ("llff-cpu", 29, 7), ("paper", 87, 21), ("findings", 288, 36), ("findings-llff", 200, 56)],
+    [("smoke", 11, 4), ("llff-cpu", 29, 7), ("paper", 87, 21), ("findings", 216, 21), ("findings-llff", 200, 56)],
 )
 def test_presets_validate_and_plan(tmp_path, preset, reconstructs, translators):
     """Every preset passes the schema and plans its DAG (the paper preset: 29 combinations x 3 seeds,
-    each seed with its own translators: a repeat redraws everything random; the findings preset: 32
-    combinations x 3 evaluation scenes x 3 seeds, 12 translators per seed; the real-scene preset: 25
+    each seed with its own translators: a repeat redraws everything random; the findings preset: 24
+    combinations x 3 evaluation scenes x 3 seeds, 7 stage-1 methods per seed; the real-scene preset: 25
     combinations x 4 scenes x 2 seeds, 7 stage-1 methods per fold and seed)."""
     path = REPO / "workflow" / "presets" / f"{preset}.yaml"
     if "../shared/data/llff" in path.read_text() and not (LLFF_ROOT / "fern" / "poses_bounds.npy").is_file():
