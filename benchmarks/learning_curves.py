@@ -72,8 +72,8 @@ def train(work: Path, variant: str, methods: list[str], args) -> None:
     (work / "curves.yaml").write_text(yaml.safe_dump(overrides(args, variant)))
     configs = ["--configfile", *map(str, args.configfile), str(work / "curves.yaml")]
     # the published networks have no prior of their own: the untrained prior's folder gives the baseline
-    extra = ["prior"] if variant == "published" else []
-    targets = [f"results/models/{folder(variant, m)}" for m in methods] + [f"results/models/{m}" for m in extra]
+    folders = [folder(variant, m) for m in methods] + (["prior"] if variant == "published" else [])
+    targets = [f"results/models/{f}" for f in folders]
     cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(work)]
     proc = subprocess.run([*cmd, "--cores", str(args.cores), *configs, "--", *targets], capture_output=True, text=True)
     if proc.returncode != 0:

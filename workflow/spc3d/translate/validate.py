@@ -115,9 +115,9 @@ def score(
             l1s[v.name] = float((pred - v.rgb).abs().mean())
     scores = {"val_psnr": sum(psnrs.values()) / len(psnrs), "val_l1": sum(l1s.values()) / len(l1s)}
     by_scene: dict[str, list[float]] = {}
-    for name, value in psnrs.items():
+    for name, value in psnrs.items() if per_scene else ():
         by_scene.setdefault(name.split("/")[0], []).append(value)
-    if per_scene and len(by_scene) > 1:
+    if len(by_scene) > 1:
         scores |= {f"val_psnr:{scene}": sum(v) / len(v) for scene, v in by_scene.items()}
     return scores
 
