@@ -82,6 +82,11 @@ EVAL_SOURCES = frozenset(
         "proc:cobbles",
         "proc:masonry",
         "proc:tiles",
+        "proc:foliage",
+        "proc:glazing",
+        "proc:pegboard",
+        "proc:books",
+        "proc:carpet",
     }
 )
 MAX_SIZE = 512  # textures are area-downscaled once so that their longer side is at most this
