@@ -202,14 +202,27 @@ def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
         assert content(name) and content(name) <= pool, (name, sorted(content(name) - pool))
 
 
-def test_three_evaluation_layouts_hold_out_all_training_content():
-    """The statistics step needs three evaluation scenes; none shows a source of a training layout."""
+def test_six_evaluation_layouts_hold_out_all_training_content():
+    """The findings take the scene as the unit and need six evaluation scenes for any verdict; none
+    shows a source of a training layout."""
     from spc3d.inputs.scenes import LAYOUT_ROLES, shared_content
 
     train = sorted(n for n, role in LAYOUT_ROLES.items() if role == "train")
     evaluate = sorted(n for n, role in LAYOUT_ROLES.items() if role == "eval")
-    assert {"courtyard", "observatory", "harbour"} <= set(evaluate)
+    assert {"courtyard", "observatory", "harbour", "greenhouse", "workshop", "library"} <= set(evaluate)
     assert shared_content(train, evaluate) == {}
+
+
+def test_the_scenes_page_lists_every_layout_with_its_role():
+    """docs/scenes.md's table of layouts names each built-in layout once, with its LAYOUT_ROLES role."""
+    import re
+
+    from spc3d.inputs.scenes import LAYOUT_ROLES
+
+    from conftest import REPO
+
+    rows = re.findall(r"^\| `(\w+)` \| (train|eval) \|", (REPO / "docs" / "scenes.md").read_text(), re.M)
+    assert sorted(rows) == sorted(LAYOUT_ROLES.items())
 
 
 def test_harbour_renders_at_a_tiny_size():

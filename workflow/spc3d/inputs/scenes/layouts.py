@@ -5,8 +5,13 @@ so scene depth grows towards -z. Each builder returns a :class:`~.render.Layout`
 content is fixed per layout (the seed only moves the cameras). Colours are linear RGB.
 
 Content is split: ``tabletop``, ``orchard`` and ``gallery`` (the default training scenes) use only
-:data:`~.textures.TRAIN_SOURCES`; ``courtyard``, ``observatory`` and ``harbour`` (evaluation) only
-:data:`~.textures.EVAL_SOURCES` (``LAYOUT_ROLES``; a test keeps it so).
+:data:`~.textures.TRAIN_SOURCES`; ``courtyard``, ``observatory``, ``harbour``, ``greenhouse``, ``workshop``
+and ``library`` (evaluation: six, as the findings take the scene as the unit and need six for a
+verdict) only :data:`~.textures.EVAL_SOURCES` (``LAYOUT_ROLES``; a test keeps it so). Each scene has
+its own geometry, not another's re-skinned: scattered objects before a wall (courtyard), planets
+under a sky (observatory), a quay edge running into the distance (harbour), tiers rising away from
+the cameras (greenhouse), open shelving beside a bench (workshop), an aisle between walls that run
+in depth (library).
 """
 
 from __future__ import annotations
@@ -265,6 +270,123 @@ def harbour() -> Layout:
     )
 
 
+def greenhouse() -> Layout:
+    soil = texture("moon", (0.5, 0.36, 0.24), base=(0.05, 0.03, 0.02), gain=1.3)
+    clay = texture("moon", (0.8, 0.4, 0.22), base=(0.3, 0.1, 0.05), gain=1.2)
+    leaves = texture("proc:foliage")
+    brick = texture("proc:masonry", (0.8, 0.45, 0.35), base=(0.1, 0.05, 0.04))
+    prims = [
+        ground(0.0, soil, tile=1.5, shading=0.7),
+        backdrop(-7.5, texture("proc:glazing"), (3.0, 2.0), centre_y=1.0, shading=0.0),
+        # three-tier brick staging on the left, rising away from the cameras
+        box((-1.1, 0.0, -4.3), (2.0, 0.35, 0.6), brick, 1.0),
+        box((-1.1, 0.0, -4.9), (2.0, 0.7, 0.6), brick, 1.0),
+        box((-1.1, 0.0, -5.5), (2.0, 1.05, 0.6), brick, 1.0),
+    ]
+    for x, y0, z, pot, plant in (
+        (-1.6, 0.35, -4.3, 0.22, 0.24),
+        (-0.6, 0.7, -4.9, 0.25, 0.3),
+        (-1.35, 1.05, -5.5, 0.28, 0.36),
+    ):  # a clay pot on each tier, its plant a ball of leaves
+        prims += [box((x, y0, z), (pot,) * 3, clay, 0.5, yaw=20), ball(x, z, plant, leaves, y0=y0 + pot, spin=90 * x)]
+    prims += [
+        # a large potted plant on the floor at the front right, a hanging basket above the aisle
+        box((1.05, 0.0, -2.5), (0.42, 0.4, 0.42), texture("proc:tiles", (0.9, 0.95, 1.0)), 0.42, yaw=-25),
+        ball(1.05, -2.5, 0.45, leaves, y0=0.4, spin=-40),
+        ball(0.35, -3.6, 0.28, texture("coffee", (0.75, 0.6, 0.4), base=(0.12, 0.08, 0.04)), y0=1.55, spin=30),
+        box((0.35, 2.08, -3.6), (0.04, 1.5, 0.04), solid((0.3, 0.3, 0.28)), 0.1),  # its chain
+        # a watering-can-blue tub and a flowering ball (the colour wheel) on the path
+        box((0.15, 0.0, -1.9), (0.3, 0.22, 0.3), solid((0.08, 0.2, 0.45)), 0.3, yaw=10),
+        ball(1.7, -5.4, 0.35, texture("colorwheel", (1.0, 0.85, 0.9)), spin=150),
+    ]
+    prims += framed(texture("chelsea", (0.95, 0.95, 0.85)), (0.55, 0.7, -6.2), 0.5, yaw=-12, frame=(0.85, 0.85, 0.8))
+    return Layout(
+        "greenhouse",
+        "inside a glasshouse: three-tier brick staging with clay pots and leafy plants rising to the "
+        "glazing, a big plant in a tiled pot, a hanging basket, a blue tub, a flowering ball and a "
+        "seed-catalogue cat picture on an easel",
+        tuple(prims),
+        Rig((0.0, 1.1, 0.0), (0.0, 0.7, -4.2), (0.7, 0.5)),
+        Lighting((0.3, 0.9, 0.35), colour=(0.85, 0.85, 0.75), ambient=(0.24, 0.28, 0.26)),
+    )
+
+
+def workshop() -> Layout:
+    steel = texture("moon", (0.6, 0.62, 0.66), base=(0.15, 0.15, 0.17), gain=1.1)
+    plywood = texture("page", (0.85, 0.7, 0.48), base=(0.45, 0.32, 0.18), gain=0.8)
+    terrazzo = texture("hubble_deep_field", (0.95, 0.9, 0.85), base=(0.3, 0.29, 0.27), gain=2.5)
+    drum = texture("moon", (0.3, 0.5, 0.9), base=(0.03, 0.08, 0.25))
+    prims = [
+        # speckled terrazzo floor (the deep field's stars) and a pegboard tool wall
+        ground(0.0, terrazzo, 1.5, shading=0.7),
+        backdrop(-6.8, texture("proc:pegboard"), (1.6, 1.6), shading=0.5),
+        # workbench on the right: a thick top on a drawer cabinet and a trestle
+        box((0.6, 0.85, -5.2), (2.2, 0.08, 0.8), plywood, 0.8),
+        box((1.3, 0.0, -5.2), (0.7, 0.85, 0.7), texture("proc:tiles", (0.6, 0.65, 0.7)), 0.85),
+        box((-0.3, 0.0, -5.2), (0.1, 0.85, 0.6), steel, 0.5),
+        box((-0.05, 0.93, -5.05), (0.22, 0.2, 0.3), solid((0.5, 0.04, 0.03)), 0.3, yaw=15),  # vice
+        box((0.75, 0.93, -5.15), (0.55, 0.28, 0.3), texture("retina", (1.0, 0.4, 0.2), gain=1.1), 0.55, yaw=-8),
+        ball(1.3, -5.3, 0.16, texture("coffee"), y0=0.93, spin=80),
+        # tall open shelving at the front left: two uprights, three shelves, jars and a ball of twine
+        box((-0.9, 0.0, -2.5), (0.05, 1.7, 0.45), steel, 0.5),
+        box((-1.7, 0.0, -2.5), (0.05, 1.7, 0.45), steel, 0.5),
+    ]
+    prims += [box((-1.3, y, -2.5), (0.8, 0.04, 0.45), plywood, 0.8) for y in (0.25, 0.8, 1.35)]
+    prims += [
+        box((-1.45, 0.29, -2.45), (0.25, 0.3, 0.25), texture("immunohistochemistry", (0.95, 0.9, 0.8)), 0.3),
+        box((-1.15, 0.84, -2.5), (0.3, 0.22, 0.28), texture("page", (0.8, 0.75, 0.6)), 0.3, yaw=-12),
+        ball(-1.3, -2.5, 0.15, texture("chelsea", (0.8, 0.6, 0.35)), y0=1.39, spin=-45),
+        # an oil drum in the middle distance
+        box((-0.2, 0.0, -3.5), (0.45, 0.75, 0.45), drum, 0.5, yaw=30),
+    ]
+    prims += framed(texture("rocket"), (-1.2, 1.6, -6.78), 1.0, frame=(0.15, 0.15, 0.15))
+    return Layout(
+        "workshop",
+        "a workshop before a pegboard wall with a rocket poster: a workbench with a red vice, an "
+        "orange toolbox and a tin on a tiled drawer cabinet, open steel shelving with jars and a "
+        "ball of twine, a blue oil drum on a terrazzo floor",
+        tuple(prims),
+        Rig((0.0, 1.3, 0.0), (0.0, 0.75, -4.3), (0.7, 0.5)),
+        Lighting((-0.4, 0.85, 0.45), colour=(0.85, 0.82, 0.75), ambient=(0.22, 0.23, 0.26)),
+    )
+
+
+def library() -> Layout:
+    shelves = texture("proc:books")
+    oak = texture("retina", (0.45, 0.25, 0.1), base=(0.12, 0.06, 0.02), gain=1.0)
+    globe = texture("immunohistochemistry", (0.3, 0.5, 0.95), base=(0.9, 0.85, 0.6))
+    leather = texture("coffee", (0.55, 0.2, 0.12))
+    prims = [
+        ground(0.0, texture("proc:carpet"), tile=1.6, shading=0.6),
+        backdrop(-8.5, texture("page", (0.9, 0.85, 0.7), base=(0.3, 0.25, 0.18)), (1.2, 1.2), shading=0.4),
+        # an aisle between two bookcases that run away from the cameras (their ends stagger)
+        box((-1.9, 0.0, -5.0), (1.2, 2.6, 6.0), shelves, 1.4),
+        box((1.9, 0.0, -5.6), (1.2, 2.6, 5.6), shelves, 1.4),
+        # a reading table with a globe on a stand, a stack of books and a reading chair
+        box((0.15, 0.7, -3.1), (0.9, 0.06, 0.55), oak, 0.6, yaw=-10),
+        box((0.15, 0.0, -3.1), (0.14, 0.7, 0.14), oak, 0.6),
+        box((0.4, 0.76, -3.1), (0.06, 0.18, 0.06), solid((0.6, 0.45, 0.15)), 0.2),
+        ball(0.4, -3.1, 0.17, globe, y0=0.94, spin=20),
+        box((-0.15, 0.76, -3.05), (0.3, 0.07, 0.22), solid((0.35, 0.05, 0.05)), 0.3, yaw=5),
+        box((-0.15, 0.83, -3.05), (0.26, 0.06, 0.2), solid((0.06, 0.12, 0.35)), 0.3, yaw=-12, top=texture("page")),
+        box((-0.5, 0.0, -4.6), (0.55, 0.42, 0.5), leather, 0.5, yaw=25),
+        box((-0.55, 0.42, -4.85), (0.55, 0.5, 0.1), leather, 0.5, yaw=25),
+        # a standard lamp further down the aisle
+        box((0.65, 0.0, -6.0), (0.05, 1.3, 0.05), solid((0.1, 0.1, 0.1)), 0.2),
+        ball(0.65, -6.0, 0.2, texture("moon", (1.0, 0.9, 0.6), base=(0.6, 0.45, 0.2)), y0=1.3, shading=0.2),
+    ]
+    prims += framed(texture("hubble_deep_field", gain=1.4), (0.0, 1.5, -8.45), 1.2, frame=(0.25, 0.15, 0.08))
+    return Layout(
+        "library",
+        "a library aisle between two tall bookcases on an oriental runner: a reading table with a "
+        "blue globe and a stack of books, a leather reading chair, a standard lamp, a night-sky window "
+        "in a printed end wall",
+        tuple(prims),
+        Rig((0.0, 1.2, 0.0), (0.0, 0.8, -4.5), (0.6, 0.45)),
+        Lighting((0.25, 0.9, 0.4), colour=(0.8, 0.75, 0.62), ambient=(0.24, 0.23, 0.22)),
+    )
+
+
 # Which pool of content each layout draws from (spc3d.inputs.scenes.textures).
 LAYOUT_ROLES = {
     "tabletop": "train",
@@ -273,6 +395,9 @@ LAYOUT_ROLES = {
     "courtyard": "eval",
     "observatory": "eval",
     "harbour": "eval",
+    "greenhouse": "eval",
+    "workshop": "eval",
+    "library": "eval",
 }
 
 LAYOUT_BUILDERS = {
@@ -282,4 +407,7 @@ LAYOUT_BUILDERS = {
     "courtyard": courtyard,
     "observatory": observatory,
     "harbour": harbour,
+    "greenhouse": greenhouse,
+    "workshop": workshop,
+    "library": library,
 }
