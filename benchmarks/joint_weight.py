@@ -14,8 +14,13 @@ allows one, marked so). A translator trained with ``stage1.validation.hold_out``
 benchmarks/scene_holdout_curves.py) never saw the scenes it held out: on those its output is out of
 sample, as on an evaluation scene. Each schedule is fitted once per (scene, seed) at config.yaml's budget
 (its stage2 block of the model, overlaid by ``--configfile``: e.g. a preset's larger budget),
-single-threaded, and scored on the held-out views against the ground truth (training scenes only;
-the evaluation scenes are refused). Two schedules are the rows the joint one lies between:
+single-threaded, and scored on the held-out views against the ground truth (training scenes only:
+the evaluation scenes of the merged configuration, config.yaml overlaid by ``--configfile`` as
+Snakemake merges it, are refused; with a leave-one-out preset every scene is one, so ``--fold SCENE``
+names the fold explored: SCENE is refused, the others allowed, and the fold's models and display level
+are read, ``models-without-SCENE``). This is an exploratory tool: the workflow makes the choice itself,
+inside each fold (rule choose_joint_weight, ``stage2.joint.choose``). Two schedules are the rows the
+joint one lies between:
 
     likelihood   w = 0: the bernoulli row (its objective exactly)
     prior only   the likelihood off: the prior + model two-stage row's objective, on the render's sRGB
@@ -37,6 +42,7 @@ import torch
 import yaml
 from nerf_grid_quality import REPO, held_out, warm_up_kernels
 from plateau_rule import settings_of
+from snakemake.utils import update_config
 
 from spc3d import llff
 from spc3d.inputs.exposure import calibrate_display, write_display
@@ -60,7 +66,36 @@ SCHEDULES = {
 }
 
 
-def joint_source(results: Path, scene: str, method: str, schedule: dict, cache: Path, calibration: Path) -> Source:
+def merged_config(configfile: Path | None) -> dict:
+    """config.yaml overlaid by ``configfile`` as ``--configfile`` merges it (nested keys replaced one by one)."""
+    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
+    if configfile:
+        update_config(cfg, yaml.safe_load(Path(configfile).read_text()) or {})
+    return cfg
+
+
+def refused(scenes: list[str], cfg: dict, fold: str | None) -> str | None:
+    """Why ``scenes`` may not choose a schedule under ``cfg`` (None: they may): an evaluation scene
+    of the configuration, or, exploring the fold of left-out scene ``fold``, that scene."""
+    if fold:
+        loo = cfg["scenes"].get("leave_one_out") and fold in cfg["scenes"]["train"] and fold in cfg["scenes"]["eval"]
+        if not loo:
+            return f"--fold {fold}: not a left-out scene of this configuration (scenes.leave_one_out, train and eval)"
+        return f"--scenes {fold}: the fold's left-out scene" if fold in scenes else None
+    bad = sorted(set(scenes) & set(cfg["scenes"]["eval"]))
+    if bad:
+        hint = (
+            " (a leave-one-out preset: name the fold explored with --fold SCENE)"
+            if cfg["scenes"].get("leave_one_out")
+            else ""
+        )
+        return f"--scenes {bad}: evaluation scenes; the schedule is chosen on training scenes only{hint}"
+    return None
+
+
+def joint_source(
+    results: Path, scene: str, method: str, schedule: dict, cache: Path, calibration: Path, models: str = "models"
+) -> Source:
     """The ``joint-<method>`` source of a training scene: frame 0, the display gain of
     ``calibration``, and ``method``'s translation of its views (written once under ``cache``)."""
     spc_dir, folder = results / "spc" / scene, cache / f"{results.resolve().parent.name}-{scene}"
@@ -68,16 +103,16 @@ def joint_source(results: Path, scene: str, method: str, schedule: dict, cache: 
     if not display.is_dir():
         write_display(spc_dir, calibration, 1, display)
     if not images.is_dir():
-        translate_scene(results / "models" / method, spc_dir, results / "scenes" / scene, images, frames=1)
+        translate_scene(results / models / method, spc_dir, results / "scenes" / scene, images, frames=1)
     joint = f"joint-{method}"
     return load_source(joint, results / "scenes" / scene, spc_dir, images / "images", 1, display, schedule)
 
 
-def sample_kind(results: Path, method: str, scene: str) -> str:
+def sample_kind(results: Path, method: str, scene: str, models: str = "models") -> str:
     """Whether ``method``'s model saw ``scene`` in training ("in-sample") or held it out ("out of sample")."""
     if method == "prior":
         return "no network"
-    record = json.loads((results / "models" / method / "train.json").read_text())
+    record = json.loads((results / models / method / "train.json").read_text())
     validation = record.get("validation") or {}
     held = {v.split("/")[0] for v in validation.get("views", [])} if validation.get("hold_out") else set()
     return "out of sample" if scene in held else "in-sample"
@@ -104,6 +139,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_joint")
     ap.add_argument("--out", type=Path, help="also write every fit (JSON)")
     ap.add_argument("--configfile", type=Path, help="a preset whose stage2 block of the model overlays config.yaml's")
+    ap.add_argument("--fold", help="a leave-one-out preset's left-out scene: explore its fold (its models, display)")
     ap.add_argument(
         "--calibrate",
         nargs="+",
@@ -112,17 +148,17 @@ def main() -> None:
     )
     args = ap.parse_args()
     settings = settings_of(args.model)
-    if args.configfile:
-        settings |= (yaml.safe_load(args.configfile.read_text()).get("stage2") or {}).get(args.model) or {}
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    scenes = args.scenes or cfg["scenes"]["train"]
-    refused = sorted(set(scenes) & set(cfg["scenes"]["eval"]))
-    if refused:
-        raise SystemExit(f"--scenes {refused}: evaluation scenes; the schedule is chosen on training scenes only")
+    cfg = merged_config(args.configfile)
+    settings |= cfg["stage2"].get(args.model) or {}
+    fold = f"-without-{args.fold}" if args.fold else ""
+    scenes = args.scenes or [s for s in cfg["scenes"]["train"] if s != args.fold]
+    why = refused(scenes, cfg, args.fold)
+    if why:
+        raise SystemExit(why)
     unknown = [s for s in args.schedules if s not in SCHEDULES]
     if unknown:
         raise SystemExit(f"--schedules {unknown}: choose from {list(SCHEDULES)}")
-    calibration = args.results / "calibration" / "display-k1.json"
+    calibration = args.results / f"calibration{fold}" / "display-k1.json"
     if args.calibrate:
         calibration = args.cache / f"{args.results.resolve().parent.name}-display-k1-{'+'.join(args.calibrate)}.json"
         if not calibration.is_file():
@@ -132,13 +168,15 @@ def main() -> None:
     torch.set_num_threads(1)
     warm_up_kernels(args.model)
     runs = []
-    kinds = {scene: sample_kind(args.results, args.method, scene) for scene in scenes}
+    kinds = {scene: sample_kind(args.results, args.method, scene, f"models{fold}") for scene in scenes}
     for scene, kind in kinds.items():
         print(f"{scene}: {args.method} {kind}")
     for scene in scenes:
         for seed in args.seeds:
             for name in args.schedules:
-                src = joint_source(args.results, scene, args.method, SCHEDULES[name], args.cache, calibration)
+                src = joint_source(
+                    args.results, scene, args.method, SCHEDULES[name], args.cache, calibration, f"models{fold}"
+                )
                 run = fit(args.model, args.results / "scenes" / scene, src, seed, settings)
                 where = {"scene": scene, "seed": seed, "schedule": name, "sample": kinds[scene]}
                 runs.append(run | where | {"method": args.method})

@@ -72,7 +72,7 @@ LAYERS = (
     ("captures",),
     ("evaluation",),
     ("translate", "reconstruct"),  # side by side, never importing each other (test above)
-    ("jobs",),  # job glue: logging, scene specs (the sweeps' scene inputs use them)
+    ("jobs", "choices"),  # job glue: logging, scene specs; choices a fold makes with both stages
     ("sweeps",),
     ("config",),
 )

@@ -1,6 +1,6 @@
-"""The findings: claims decided on paired runs by the exact sign-flip test against the smallest
+"""The findings: claims decided on paired scenes by the exact sign-flip test against the smallest
 effect of interest δ (one-sided at 2.5 %, equivalence by two one-sided tests), Holm over a claim's
-comparisons per family, DESCRIPTIVE ONLY below MIN_RUNS, equal budgets only (cross-budget claims
+comparisons per family, DESCRIPTIVE ONLY below MIN_SCENES, equal budgets only (cross-budget claims
 labelled)."""
 
 import json
@@ -11,14 +11,16 @@ import pytest
 
 from spc3d import io
 from spc3d.evaluation.findings import (
-    MIN_RUNS,
+    MIN_SCENES,
     N_RANDOM,
+    Row,
     claim_families,
     effect_p,
     holm,
     interval,
-    needed_runs,
+    needed_scenes,
     one_sided_p,
+    paired,
     sign_flip_p,
     smallest_p,
     verdict,
@@ -26,7 +28,8 @@ from spc3d.evaluation.findings import (
 )
 
 NERF = "nerf-grid"
-SCENES, SEEDS = ("courtyard", "tabletop"), (0, 1, 2)  # 6 runs: the smallest n that can reach a verdict
+# 6 scenes x 2 seeds: 6 paired scenes, the smallest n that can reach a verdict (the seeds of a scene average)
+SCENES, SEEDS = ("courtyard", "tabletop", "orchard", "gallery", "harbour", "observatory"), (0, 1)
 
 
 # --- the test on known answers -------------------------------------------------------------------
@@ -103,7 +106,7 @@ def test_holm_against_a_hand_computation():
     # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1 = 0.02, 0.03, 0.06, 0.04; made monotone: 0.06 for the last
     assert holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
     np.testing.assert_allclose(holm([[0.5, 0.6], [0.01, 0.02]]), [[1.0, 1.0], [0.02, 0.02]])  # capped at 1, per row
-    assert [needed_runs(m) for m in (1, 2, 4, 8)] == [6, 7, 8, 9]  # 1 / 2^N ≤ 0.025 / m
+    assert [needed_scenes(m) for m in (1, 2, 4, 8)] == [6, 7, 8, 9]  # 1 / 2^N ≤ 0.025 / m
     holds, short, equivalent = claim_families([[0.01, 0.5]], [[0.9, 0.004]], [[0.001, 0.02]])
     np.testing.assert_allclose(holds, [[0.01, 0.5]])  # as they are: HOLDS is an intersection-union test
     np.testing.assert_allclose(short, [[0.9, 0.008]])
@@ -120,7 +123,7 @@ def test_verdict_rules():
     assert verdict([0.15, 1.0], [0.9, 0.015], [0.9, 0.02], 6) == "EQUIVALENT"  # short of δ, within ±δ
     assert verdict([1.0, 1.0], [0.01, 0.02], [0.01, 0.3], 6) == "DOES NOT HOLD"  # one failing is not equivalent
     assert verdict([1.0, 1.0], [0.3, 0.5], [0.01, 0.02], 6) == "INCONCLUSIVE"  # equivalence alone does not fail
-    assert verdict([0.005], [1.0], [1.0], MIN_RUNS - 1) == "DESCRIPTIVE ONLY"
+    assert verdict([0.005], [1.0], [1.0], MIN_SCENES - 1) == "DESCRIPTIVE ONLY"
     batch = verdict([[0.005], [1.0], [1.0]], [[1.0], [0.01], [0.01]], [[1.0], [0.5], [0.01]], 6)
     assert list(batch) == ["HOLDS", "DOES NOT HOLD", "EQUIVALENT"]  # vectorised over claims
 
@@ -229,7 +232,7 @@ def test_coverage_false_positives_and_power_by_run_count():
     for name in NULLS:
         for n in RUNS:
             assert rate[name, n, 0.0] <= 0.05 + slack, (name, n)  # false positives: at most 5 %
-            if n < MIN_RUNS:
+            if n < MIN_SCENES:
                 assert all(rate[name, n, s] == 0.0 for s in SHIFTS), (name, n)  # descriptive: never a verdict
         assert rate[name, 10, 0.5] <= rate[name, 10, 1.0] + 0.02 <= rate[name, 10, 2.0] + 0.04, name
         assert rate[name, 10, 2.0] > rate[name, 10, 0.5], name  # power rises with the shift
@@ -253,6 +256,55 @@ def test_false_positives_at_the_margin():
             assert np.mean(_verdicts(-delta + noise[:, :n], delta) == "EQUIVALENT") <= 0.025 + slack, (name, n)
         inside = _verdicts(0.1 * noise, delta)  # no effect, small noise: equivalence has power
         assert np.mean(inside == "EQUIVALENT") > 0.9, name
+
+
+# Clustered nulls: the paired difference of a run is δ + the scene's effect + the seed's noise, the
+# scene's effect (symmetric about 0) much larger than the seed noise, as on the real scenes (per-scene
+# Δ from −0.22 to +2.57 dB, seeds of one scene a median 0.17 dB apart).
+SCENE_EFFECTS = {
+    "normal": lambda rng, size: rng.normal(0.0, 1.0, size),
+    "two-point ±1": lambda rng, size: rng.choice([-1.0, 1.0], size),
+    "student t3": lambda rng, size: rng.standard_t(3, size) / math.sqrt(3),
+}
+
+
+def _clustered(rng, effect, reps: int, scenes: int, seeds: int, shift: float) -> list[np.ndarray]:
+    """Per replicate, the paired scene differences :func:`paired` makes of two rows whose run
+    differences are shift + scene effect + seed noise (sd 0.1 dB)."""
+    u = effect(rng, (reps, scenes, 1))
+    d = shift + u + rng.normal(0.0, 0.1, (reps, scenes, seeds))
+    out = []
+    for rep in d:
+        a = Row((1, 1), {(f"s{i}", k): float(rep[i, k]) for i in range(scenes) for k in range(seeds)})
+        b = Row((1, 1), {run: 0.0 for run in a.runs})
+        out.append(paired(a, b))
+    return out
+
+
+def test_clustered_nulls_keep_every_verdict_at_its_level():
+    """Scene effects ≫ seed noise, true Δ exactly δ (or −δ): with the scene as the unit, a wrong HOLDS,
+    a wrong exclusion of the effect (DOES NOT HOLD or EQUIVALENT) and a wrong EQUIVALENT at −δ each
+    happen at most 2.5 % of the time; fewer than six scenes never decide, however many seeds. Treating
+    each (scene, seed) as independent would not keep the level: shown on the same draws."""
+    delta, reps = 0.25, 2000
+    rng = np.random.default_rng(5)
+    slack = 3 * math.sqrt(0.025 * 0.975 / reps)
+    for name, effect in SCENE_EFFECTS.items():
+        for scenes, seeds in ((4, 2), (6, 2), (6, 3), (8, 2)):
+            at = np.stack(_clustered(rng, effect, reps, scenes, seeds, delta))
+            assert at.shape == (reps, scenes)  # one value per scene: the seeds averaged
+            v = _verdicts(at, delta)
+            below = np.stack(_clustered(rng, effect, reps, scenes, seeds, -delta))
+            if scenes < MIN_SCENES:
+                assert (v == "DESCRIPTIVE ONLY").all() and (_verdicts(below, delta) == "DESCRIPTIVE ONLY").all()
+                continue
+            assert np.mean(v == "HOLDS") <= 0.025 + slack, (name, scenes, seeds)
+            assert np.isin(v, ["DOES NOT HOLD", "EQUIVALENT"]).mean() <= 0.025 + slack, (name, scenes, seeds)
+            assert np.mean(_verdicts(below, delta) == "EQUIVALENT") <= 0.025 + slack, (name, scenes, seeds)
+    # the same clustered draws flipped run by run: 8 "runs" of 4 scenes hold far above the level
+    u = rng.normal(0.0, 1.0, (reps, 4, 1))
+    runs = (delta + u + rng.normal(0.0, 0.1, (reps, 4, 2))).reshape(reps, 8)
+    assert np.mean(_verdicts(runs, delta) == "HOLDS") > 0.05
 
 
 # --- the findings files --------------------------------------------------------------------------
@@ -284,6 +336,11 @@ def _rows(folder, offsets: dict[str, float], budgets: dict[str, dict] | None = N
     return files
 
 
+def _listed(*two_stage: str, mle: tuple = ("mle-x1+3dgs", "mle-x1-mse+3dgs")) -> dict:
+    """The claims' listed rivals (``findings.rivals``): these two-stage rows and MLE rows."""
+    return {"two_stage": list(two_stage), "mle": list(mle)}
+
+
 def _by_id(results: dict) -> dict:
     return {r["id"]: r for r in results["claims"]}
 
@@ -292,7 +349,7 @@ def _two_sided_verdict(entry: dict) -> str:
     """A claim's verdict by the rule without δ, from its comparisons' two-sided p at 5 %: HOLDS when
     every one is rejected with a positive mean (unadjusted: the claim needs all of them), DOES NOT
     HOLD when one is, Holm-adjusted over them, with a negative mean."""
-    if entry["verdict"] == "NOT RUN" or entry["n"] < MIN_RUNS:
+    if entry["verdict"] == "NOT RUN" or entry["n"] < MIN_SCENES:
         return entry["verdict"] if entry["verdict"] == "NOT RUN" else "DESCRIPTIVE ONLY"
     means, p = [c["mean"] for c in entry["comparisons"]], [c["p"] for c in entry["comparisons"]]
     if all(m > 0 and q <= 0.05 for m, q in zip(means, p)):
@@ -315,30 +372,33 @@ def test_one_run_is_descriptive_only(tmp_path):
         _record(tmp_path, "pix2pixhd+3dgs", "courtyard", 0, 21.0),
         _record(tmp_path, f"none-x1+{NERF}", "courtyard", 0, 15.0),
     ]
-    out = write_findings(files, tmp_path / "findings", NERF)
+    listed = _listed(f"pix2pixhd+{NERF}", "pix2pixhd+3dgs")
+    out = write_findings(files, tmp_path / "findings", NERF, rivals=listed)
     claims = _by_id(out)
     assert claims["best-nerf"]["verdict"] == "DESCRIPTIVE ONLY" and claims["best-nerf"]["n"] == 1
     assert claims["two-stage-nerf"]["decisive"]["low"] == claims["two-stage-nerf"]["decisive"]["high"] == 7.0
-    assert claims["denoisers"]["verdict"] == "NOT RUN" and claims["denoisers"]["note"] == "rows not in this run"
+    assert claims["denoisers"]["verdict"] == "NOT RUN"  # every listed row that did not run is named
+    assert claims["denoisers"]["note"] == f"not run: diffusion+3dgs, diffusion+{NERF}, restormer+3dgs, restormer+{NERF}"
     md = (tmp_path / "findings.md").read_text()
     line = md.splitlines()[2]
-    assert line.startswith("Base: 1 run (courtyard × seed 0)") and "sign-flip" in line and "MIN_RUNS = 6" in line
+    assert line.startswith("Base: 1 scene, 1 run (courtyard × seed 0)") and "sign-flip" in line
+    assert "MIN_SCENES = 6" in line and "the scene is the unit" in line
     assert line.endswith(
-        "This run is descriptive only: n = 1 run (courtyard × seed 0); a verdict needs ≥ 6 paired runs "
-        "(workflow/presets/findings.yaml)."
+        "This run is descriptive only: n = 1 scene, 1 run (courtyard × seed 0); a verdict needs ≥ 6 paired "
+        "scenes, whatever the seeds (workflow/presets/findings.yaml)."
     )
     assert (
         "| **DESCRIPTIVE ONLY** | pix2pixhd+nerf-grid vs pix2pixhd+3dgs | +1.00 | range [+1.00, +1.00] | – | 1 | 1 |"
         in md
     )
-    _at_zero_margin(files, tmp_path / "zero")
+    _at_zero_margin(files, tmp_path / "zero", rivals=listed)
 
 
-def test_verdicts_on_six_paired_runs(tmp_path):
+def test_verdicts_on_six_paired_scenes(tmp_path):
     offsets = {f"pix2pixhd+{NERF}": 3.0, "pix2pixhd+3dgs": 2.0, f"none-x1+{NERF}": -4.0, "restormer+3dgs": 2.5}
     offsets |= {"bernoulli+3dgs": 1.0, "gt+3dgs": 10.0}
-    files = _rows(tmp_path, offsets)
-    claims = _by_id(write_findings(files, tmp_path / "findings", NERF))
+    files, listed = _rows(tmp_path, offsets), _listed(f"pix2pixhd+{NERF}", "pix2pixhd+3dgs", "restormer+3dgs")
+    claims = _by_id(write_findings(files, tmp_path / "findings", NERF, rivals=listed))
     assert claims["two-stage-nerf"]["verdict"] == "HOLDS" and claims["two-stage-nerf"]["n"] == 6
     # one-sided against δ: the smallest p at n = 6, 1/64 (half the two-sided 2/64), from the "holds" family
     assert claims["two-stage-nerf"]["decisive"]["adj_holds"] == 1 / 64
@@ -351,7 +411,7 @@ def test_verdicts_on_six_paired_runs(tmp_path):
     assert claims["best-3dgs"]["family"] == "short"  # the Holm p of H0 Δ ≥ δ is shown
     assert "gt+3dgs" not in str(claims)
     assert "residual networks" in claims["best-nerf"]["claim"]
-    zero = _by_id(_at_zero_margin(files, tmp_path / "zero"))
+    zero = _by_id(_at_zero_margin(files, tmp_path / "zero", rivals=listed))
     assert [zero[k]["verdict"] for k in ("two-stage-nerf", "best-nerf", "best-3dgs")] == [
         "HOLDS",
         "HOLDS",
@@ -364,8 +424,8 @@ def test_equal_budgets_only_and_cross_budget_claims_labelled(tmp_path):
     offsets |= {"mle-k16+3dgs": 9.0, "pix2pixhd+3dgs": 2.0, "none+3dgs": -1.0, "none-x1-mse+3dgs": -6.0}
     offsets |= {"prior+3dgs": 0.5, "bernoulli+3dgs@mle-k16": 5.0}
     budgets = {"mle+3dgs": {"capture_factor": 4}, "none+3dgs": {"capture_factor": 4}, "mle-k16+3dgs": {"frames": 16}}
-    files = _rows(tmp_path, offsets, budgets)
-    claims = _by_id(write_findings(files, tmp_path / "findings", NERF))
+    files, listed = _rows(tmp_path, offsets, budgets), _listed("pix2pixhd+3dgs", "prior+3dgs")
+    claims = _by_id(write_findings(files, tmp_path / "findings", NERF, rivals=listed))
     spad_mle = claims["spad-mle"]
     assert [c["worse"] for c in spad_mle["comparisons"]] == ["mle-x1+3dgs", "mle-x1-mse+3dgs"]
     assert "(vs mle-x1+3dgs, mle-x1-mse+3dgs)" in spad_mle["claim"]
@@ -378,21 +438,23 @@ def test_equal_budgets_only_and_cross_budget_claims_labelled(tmp_path):
     spad = claims["spad-two-stage"]  # pix2pixhd is better than the SPAD likelihood here; the prior is not
     assert {c["worse"] for c in spad["comparisons"]} == {"pix2pixhd+3dgs", "prior+3dgs"}
     # a failure among 2 comparisons needs Holm p ≤ 0.0125; the smallest one-sided p at n = 6 is 0.016
-    assert spad["verdict"] == "INCONCLUSIVE" and spad["note"] == "a failure among 2 comparisons needs n ≥ 7"
-    _at_zero_margin(files, tmp_path / "zero")
+    assert spad["verdict"] == "INCONCLUSIVE" and spad["note"] == "a failure among 2 comparisons needs n ≥ 7 scenes"
+    _at_zero_margin(files, tmp_path / "zero", rivals=listed)
 
 
 def test_joint_rows_get_their_claims_at_equal_and_across_budgets(tmp_path):
     offsets = {"joint-restormer+3dgs": 2.0, "bernoulli+3dgs": 1.0, "restormer+3dgs": 0.5, "prior+3dgs": 0.4}
     offsets |= {f"restormer+{NERF}": 1.9, "mle-k16+3dgs": 3.0}
     files = _rows(tmp_path, offsets, {"mle-k16+3dgs": {"frames": 16}})
-    claims = _by_id(write_findings(files, tmp_path / "findings", NERF))
+    listed = _listed("restormer+3dgs", "prior+3dgs", f"restormer+{NERF}")
+    claims = _by_id(write_findings(files, tmp_path / "findings", NERF, rivals=listed))
     likelihood = claims["joint-likelihood:joint-restormer+3dgs"]
     assert likelihood["verdict"] == "HOLDS" and likelihood["decisive"]["worse"] == "bernoulli+3dgs"
     two_stage = claims["joint-two-stage:joint-restormer+3dgs"]  # +0.1 dB over restormer + NeRF: not by δ
     assert {c["worse"] for c in two_stage["comparisons"]} == {"restormer+3dgs", "prior+3dgs", f"restormer+{NERF}"}
     # equivalence to one of 3 rows needs Holm p <= 0.025 / 3: n >= 7 (1/128), not 6 (1/64)
-    assert two_stage["verdict"] == "INCONCLUSIVE" and two_stage["note"] == "a failure among 3 comparisons needs n ≥ 7"
+    assert two_stage["verdict"] == "INCONCLUSIVE"
+    assert two_stage["note"] == "a failure among 3 comparisons needs n ≥ 7 scenes"
     reference = claims["joint-mle16:joint-restormer+3dgs"]
     assert reference["cross_budget"] and reference["verdict"] == "DOES NOT HOLD"
     assert "cross-budget: mle-k16: 16 frames at 1× vs 1 frame at 1×" in reference["claim"]
@@ -402,7 +464,8 @@ def test_joint_rows_get_their_claims_at_equal_and_across_budgets(tmp_path):
 def test_unequal_budget_pairs_are_set_aside_and_mixed_budgets_refused(tmp_path):
     offsets = {"bernoulli+3dgs": 1.0, "pix2pixhd+3dgs": 2.0}
     files = _rows(tmp_path, offsets, {"pix2pixhd+3dgs": {"frames": 16}})
-    spad = _by_id(write_findings(files, tmp_path / "findings", NERF))["spad-two-stage"]
+    out = write_findings(files, tmp_path / "findings", NERF, rivals=_listed("pix2pixhd+3dgs"))
+    spad = _by_id(out)["spad-two-stage"]
     assert spad["verdict"] == "NOT RUN" and spad["note"] == "no row of equal budget in this run"
     assert spad["unequal_budget"] == [["bernoulli+3dgs", "pix2pixhd+3dgs"]]
     files.append(_record(tmp_path, "bernoulli+3dgs", "extra", 0, 20.0, frames=4))
@@ -425,7 +488,9 @@ def test_published_block_and_the_prior_table(tmp_path):
     out = write_findings(files, tmp_path / "findings", NERF, stage1_files=stage1)
     claims = _by_id(out)
     assert "published networks" in claims["best-nerf"]["claim"]
-    assert [c["worse"] for c in claims["denoisers"]["comparisons"]] == ["diffusion-pub+3dgs"]
+    denoisers = claims["denoisers"]  # its listed rows that did not run are named, none silently dropped
+    assert denoisers["verdict"] == "NOT RUN" and denoisers["comparisons"] == []
+    assert denoisers["not_run"] == [f"diffusion-pub+{NERF}", "restormer-pub+3dgs", f"restormer-pub+{NERF}"]
     prior = {(r["translator"], r["stage"]): r for r in out["over_prior"]}
     assert set(prior) == {
         ("pix2pixhd", "stage 1"),
@@ -488,7 +553,7 @@ def test_the_classical_baseline(tmp_path):
     md = (tmp_path / "findings.md").read_text()
     assert "### Δ over the classical method (`classical`)" in md
     assert (
-        "| classical | non-learned | nerf-grid | **EQUIVALENT** | +0.13 | [+0.09, +0.19] | 0.016 (H0: Δ ∉ (−δ, δ)) |"
+        "| classical | non-learned | nerf-grid | **EQUIVALENT** | +0.10 | [+0.04, +0.14] | 0.016 (H0: Δ ∉ (−δ, δ)) |"
         in md
     )
     html = (tmp_path / "findings.html").read_text()
@@ -498,10 +563,14 @@ def test_the_classical_baseline(tmp_path):
 def test_the_three_files_are_written(tmp_path):
     files = _rows(tmp_path, {"bernoulli+3dgs": 1.0, "mle-x1+3dgs": 0.0})
     files.append(_record(tmp_path, "bernoulli+3dgs", "capture", 0, None, reference=False))
-    out = write_findings(files, tmp_path / "findings", NERF)
+    out = write_findings(files, tmp_path / "findings", NERF, rivals=_listed(mle=("mle-x1+3dgs",)))
     assert io.read_json(tmp_path / "findings.json") == json.loads(json.dumps(out))
+    assert out["min_scenes"] == 6 and out["unit"].startswith("scene")
     md = (tmp_path / "findings.md").read_text()
-    assert md.startswith("# Findings\n\nBase: 6 runs (courtyard, tabletop × seeds 0, 1, 2);")
+    assert md.startswith(
+        "# Findings\n\nBase: 6 scenes, 12 runs "
+        "(courtyard, gallery, harbour, observatory, orchard, tabletop × seeds 0, 1);"
+    )
     assert "descriptive only" not in md.splitlines()[2]
     assert "| claim | by | verdict | decisive comparison | Δ PSNR (dB) | 95 % interval (or range) | adjusted p |" in md
     html = (tmp_path / "findings.html").read_text()
@@ -509,16 +578,16 @@ def test_the_three_files_are_written(tmp_path):
 
 
 def test_the_smallest_effect_is_stated_everywhere(tmp_path):
-    files = _rows(tmp_path, {"bernoulli+3dgs": 1.0, "mle-x1+3dgs": 0.0})
-    out = write_findings(files, tmp_path / "findings", NERF)
+    files, listed = _rows(tmp_path, {"bernoulli+3dgs": 1.0, "mle-x1+3dgs": 0.0}), _listed(mle=("mle-x1+3dgs",))
+    out = write_findings(files, tmp_path / "findings", NERF, rivals=listed)
     assert out["smallest_effect_db"] == 0.25 and io.read_json(tmp_path / "findings.json")["smallest_effect_db"] == 0.25
     md = (tmp_path / "findings.md").read_text()
     first, legend = md.splitlines()[2], md.split("\n\n")[3]
     assert "δ = 0.25 dB" in first and legend.startswith("δ = 0.25 dB, the smallest effect of interest.")
-    assert "| **HOLDS** | bernoulli+3dgs vs mle-x1+3dgs | +1.01 | [+0.95, +1.08] | 0.016 (H0: Δ ≤ δ) | 6 | 1 |" in md
+    assert "| **HOLDS** | bernoulli+3dgs vs mle-x1+3dgs | +0.99 | [+0.95, +1.02] | 0.016 (H0: Δ ≤ δ) | 6 | 1 |" in md
     html = (tmp_path / "findings.html").read_text()
     assert html.count("δ = 0.25 dB") == 2  # the opening line and the legend
-    out = write_findings(files, tmp_path / "wide", NERF, smallest_effect=1.5)  # +1 dB is within ±1.5 dB
+    out = write_findings(files, tmp_path / "wide", NERF, smallest_effect=1.5, rivals=listed)  # +1 dB: within ±1.5
     assert "δ = 1.5 dB" in (tmp_path / "wide.md").read_text() and out["smallest_effect_db"] == 1.5
     assert _by_id(out)["spad-mle"]["verdict"] == "EQUIVALENT"
     with pytest.raises(ValueError, match="smallest_effect"):
@@ -530,8 +599,9 @@ def test_the_smallest_effect_is_stated_everywhere(tmp_path):
 
 def _findings_run(folder, offsets: dict[str, float], seed_noise: int = 0):
     """A results/ folder as the findings preset leaves it: eval/{scene}/{row}{-seedK}/metrics.json
-    on the 6 runs (one base PSNR per run, shared by both compared runs) and tables/findings.json."""
-    base = dict(zip([(s, k) for s in SCENES for k in SEEDS], np.random.default_rng(0).uniform(18, 24, 6)))
+    on the 12 runs of 6 scenes (one base PSNR per run, shared by both compared runs) and tables/findings.json."""
+    runs = [(s, k) for s in SCENES for k in SEEDS]
+    base = dict(zip(runs, np.random.default_rng(0).uniform(18, 24, len(runs))))
     rng, files = np.random.default_rng(seed_noise), []
     for combo, offset in offsets.items():
         for (scene, seed), b in base.items():

@@ -41,6 +41,10 @@ SENSORS = {f"-{s['sensor_tag']}": s["sensor"] for s in SCENE_SPECS.values() if s
 NO_REFERENCE = [name for name, s in SCENE_SPECS.items() if s["kind"] == "capture" and not s["reference"]]
 COLMAP_INPUTS = list(config["colmap"]["inputs"])
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
+# The rivals the claims over "every" row compare with, listed (findings.rivals; the library's default for
+# a list not given): a listed rival that did not run makes its claim NOT RUN (spc3d.evaluation.findings).
+FINDINGS_RIVALS = {k: resolve_combinations(v, config["stage2"]["nerf_variant"], f"findings.rivals.{k}")
+                   for k, v in config["findings"]["rivals"].items()}
 STAGE1_USED = stage1_sources(COMBINATIONS)
 check_settings(config, STAGE1_USED, sorted({parse_combination(c)[1] for c in COMBINATIONS}), COMBINATIONS)
 # Repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}". A repeat redraws
@@ -172,6 +176,8 @@ def get_reconstruct_inputs(wildcards):
         inputs["colmap"] = f"results/colmap/{wildcards.scene}/rgb"
     if wildcards.poses:
         inputs["poses"] = f"results/poses/{wildcards.scene}/{wildcards.poses[1:]}{wildcards.rep}"
+    if name.joint and wildcards.model in JOINT_CHOOSE and not overlay_of(wildcards):
+        inputs["choice"] = f"results/choices{fold_of(wildcards)}/{wildcards.source}+{wildcards.model}{wildcards.rep}.json"
     return inputs
 
 
@@ -195,13 +201,47 @@ def get_eval_frames(wildcards):
     return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE and not overlay_of(wildcards) else []
 
 
-def get_model_settings(wildcards):
-    """The config's settings of the stage-2 model (overrides of its dataclass defaults); a 3DGS row
+def model_settings(model, estimated_poses=False):
+    """The config's settings of a stage-2 model (overrides of its dataclass defaults); a 3DGS row
     refines its cameras per stage2.refine_poses (by default: the rows on estimated poses)."""
-    settings, refine = dict(config["stage2"].get(wildcards.model, {})), config["stage2"]["refine_poses"]
-    if MODELS[wildcards.model].refines_poses and "pose_refine" not in settings:
-        settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(wildcards.poses))
+    settings, refine = dict(config["stage2"].get(model, {})), config["stage2"]["refine_poses"]
+    if MODELS[model].refines_poses and "pose_refine" not in settings:
+        settings["pose_refine"] = refine == "all" or (refine == "estimated" and estimated_poses)
+    return settings
+
+
+def get_model_settings(wildcards):
+    """:func:`model_settings` of the row (a sweep point's: at its budget)."""
+    settings = model_settings(wildcards.model, bool(wildcards.poses))
     return POINTS.stage2(overlay_of(wildcards), wildcards.model, settings) if overlay_of(wildcards) else settings
+
+
+# A joint row's prior weight, where its model lists candidates (stage2.joint.choose), is chosen per fold on
+# the fold's held-out training scenes (rule choose_joint_weight, spc3d.choices); else it is stage2.joint's.
+JOINT_CHOOSE = config["stage2"]["joint"].get("choose") or {}
+
+
+def held_out_scenes(fold, method):
+    """The fold's training scenes its ``method`` validates on and never trains on (stage1.validation.hold_out)."""
+    n = translator_validation(config["stage1"], method).get("hold_out", 0)
+    return FOLDS[fold][-n:] if n else []
+
+
+def get_choice_inputs(wildcards):
+    """The fold's model of the method, its display level, and its held-out training scenes with their frames."""
+    held, budget = held_out_scenes(wildcards.fold, wildcards.method), get_choice_display(wildcards)[2]
+    return {
+        "model": f"results/models{wildcards.fold}/{wildcards.method}{wildcards.rep}",
+        "calibration": f"results/calibration{wildcards.fold}/display-{budget}{wildcards.rep}.json",
+        "scenes": expand("results/scenes/{scene}", scene=held),
+        "spc": expand("results/spc/{scene}{rep}", scene=held, rep=wildcards.rep),
+    }
+
+
+def get_choice_display(wildcards):
+    """(K, capture, budget) of the display the joint row reads."""
+    budget = display_budget(f"joint-{wildcards.method}", config["stage2"]["frames"], config["stage1"]["frames"])
+    return (1, True, budget) if budget == "capture" else (int(budget[1:]), False, budget)
 
 
 def get_checkpoint_path(wildcards):

@@ -40,6 +40,30 @@ rule reconstruct:
         "../scripts/reconstruct.py"
 
 
+rule choose_joint_weight:
+    """A fold's prior weight of one joint row, among stage2.joint.choose's candidates: each fitted as the
+    row is, on the fold's held-out training scenes, scored on their held-out views (spc3d.choices)."""
+    input:
+        unpack(get_choice_inputs),
+        lpips=rules.lpips_weights.output,
+    output:
+        "results/choices{fold}/joint-{method}+{model}{rep}.json",
+    params:
+        settings=lambda w: model_settings(w.model),
+        joint=lambda w: joint_settings(config["stage2"]["joint"], w.model),
+        candidates=lambda w: JOINT_CHOOSE[w.model],
+        seed=get_seed,
+        frames=lambda w: source_frames(f"joint-{w.method}", config["stage1"]["frames"], config["stage2"]["frames"]),
+        display=get_choice_display,
+    log:
+        "logs/choose_joint_weight{fold}/joint-{method}+{model}{rep}.log",
+    threads: 1
+    conda:
+        ENV
+    script:
+        "../scripts/choose_joint_weight.py"
+
+
 rule evaluate:
     """PSNR / SSIM / LPIPS (alex, vgg) of the held-out renders against the ground truth; on a capture
     without reference views, how well the renders explain the held-out views' photons instead."""
@@ -114,6 +138,7 @@ rule write_all_tables:
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
         smallest_effect=config["findings"]["smallest_effect_db"],
+        rivals=FINDINGS_RIVALS,
     log:
         "logs/tables/write_all_tables.log",
     conda:
@@ -127,6 +152,7 @@ rule tables:
     params:
         nerf_variant=config["stage2"]["nerf_variant"],
         smallest_effect=config["findings"]["smallest_effect_db"],
+        rivals=FINDINGS_RIVALS,
         metrics=get_eval_outputs(),
         stage1=get_stage1_outputs(),
         spc=get_eval_spc(),

@@ -1,8 +1,10 @@
-"""Adapter: rule reconstruct -> spc3d.reconstruct.stage2.reconstruct (the job built here, once)."""
+"""Adapter: rule reconstruct -> spc3d.reconstruct.stage2.reconstruct (the job built here, once; a joint
+row's weight chosen by its fold where stage2.joint.choose lists candidates, spc3d.choices)."""
 
 from pathlib import Path
 
 from spc3d.checkpoints import CheckpointPolicy
+from spc3d.choices import chosen_joint
 from spc3d.jobs import logged
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 
@@ -27,6 +29,6 @@ with logged(snakemake.log[0]):
         checkpoint=p.checkpoint,
         policy=CheckpointPolicy(**p.policy),
         threads=snakemake.threads,
-        joint=p.joint,
+        joint=chosen_joint(p.joint, inp.get("choice")),  # the fold's weight, where chosen
     )
     reconstruct(job)

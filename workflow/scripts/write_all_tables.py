@@ -30,6 +30,13 @@ with logged(snakemake.log[0]):
         metrics, stage1 = list(snakemake.input.metrics), list(snakemake.input.stage1)
         folder, spc_dirs = Path(snakemake.output[0]).parent, list(snakemake.input.spc)
     write_all_tables(
-        metrics, stage1, folder, p.nerf_variant, LABELS, smallest_effect=p.smallest_effect, spc_dirs=spc_dirs
+        metrics,
+        stage1,
+        folder,
+        p.nerf_variant,
+        LABELS,
+        smallest_effect=p.smallest_effect,
+        spc_dirs=spc_dirs,
+        rivals=p.rivals,
     )
     stopping_table(metrics, Path(folder) / "stopping")

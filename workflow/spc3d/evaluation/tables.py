@@ -568,11 +568,13 @@ def write_all_tables(
     labels: dict[str, str] = LABELS,
     smallest_effect: float | None = None,
     spc_dirs: list[str] = (),
+    rivals: dict[str, list[str]] | None = None,
 ) -> None:
     """single_stage.*, two_stage.*, estimated_poses.*, stage1.*, no_reference.* and the findings
     (findings.md / .json / .html) in ``folder``; the findings decide against the smallest effect of
     interest ``smallest_effect`` (dB PSNR; None: the findings' SMALLEST_EFFECT). ``spc_dirs``: the
-    evaluation scenes' SPC folders, whose frame warnings the captions name (:func:`photon_note`)."""
+    evaluation scenes' SPC folders, whose frame warnings the captions name (:func:`photon_note`);
+    ``rivals``: the claims' listed rivals (``findings.rivals``, :func:`spc3d.evaluation.findings.claims`)."""
     from spc3d.evaluation.findings import SMALLEST_EFFECT, write_findings
 
     folder, note = Path(folder), photon_note(spc_dirs)
@@ -585,4 +587,4 @@ def write_all_tables(
         write_text_table(folder / "stage1", "Stage 1 alone: no evaluation scene has reference views, nothing scored")
     no_reference_table(metrics_files, folder / "no_reference")
     delta = SMALLEST_EFFECT if smallest_effect is None else smallest_effect
-    write_findings(metrics_files, folder / "findings", nerf_variant, stage1_files=stage1_files, smallest_effect=delta)
+    write_findings(metrics_files, folder / "findings", nerf_variant, stage1_files, smallest_effect=delta, rivals=rivals)

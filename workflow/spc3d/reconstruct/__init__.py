@@ -15,6 +15,8 @@ has ``step / render / capacity / state / load`` and is driven by :func:`spc3d.tr
 
 from __future__ import annotations
 
+import math
+
 from spc3d import models
 from spc3d.reconstruct.objectives import JointObjective, RGBObjective
 from spc3d.training import build_config
@@ -50,12 +52,23 @@ def check_joint(joint: dict) -> None:
     """stage2.joint and each of its per-model entries, as :func:`config_joint` builds them."""
     from spc3d.names import joint_settings
 
-    models = joint.get("models") or {}
-    unknown = sorted(set(models) - set(CONFIGS))
-    if unknown:
-        raise ValueError(f"stage2.joint.models: unknown model(s) {unknown}; use one of {sorted(CONFIGS)}")
+    models, choose = joint.get("models") or {}, joint.get("choose") or {}
+    for key, given in (("models", models), ("choose", choose)):
+        unknown = sorted(set(given) - set(CONFIGS))
+        if unknown:
+            raise ValueError(f"stage2.joint.{key}: unknown model(s) {unknown}; use one of {sorted(CONFIGS)}")
     for model in [None, *models]:
         config_joint(joint_settings(joint, model))
+    for model, candidates in choose.items():
+        check_candidates(candidates, f"stage2.joint.choose.{model}")
+
+
+def check_candidates(candidates, where: str) -> list[float]:
+    """Candidate prior weights of a fold's choice (spc3d.choices): distinct finite numbers >= 0."""
+    values = [float(c) for c in candidates or ()]
+    if not values or any(not math.isfinite(v) or v < 0 for v in values) or len(set(values)) != len(values):
+        raise ValueError(f"{where} = {candidates}: need distinct finite weights >= 0, e.g. [0.1, 0.3, 1.0]")
+    return values
 
 
 def own_objective(objective, own: RGBObjective):
