@@ -202,10 +202,15 @@ def test_one_stopping_rule_for_every_row_of_a_model():
     rows = ["restormer+3dgs", "bernoulli+3dgs", "joint-prior+nerf-grid"]
     with pytest.raises(ConfigError, match=r"stage2.3dgs.plateau_views = 2: the rows \['bernoulli\+3dgs'\]"):
         check_one_rule({"3dgs": {"plateau_views": 2}}, rows)
+    with pytest.raises(ConfigError, match=r"stage2.3dgs.plateau_patience = 2: .* set plateau_patience: 0"):
+        check_one_rule({"3dgs": {"plateau_patience": 2}}, rows)  # stops on the training loss: also a rule
     check_one_rule({"3dgs": {"plateau_views": 0}, "nerf-grid": {"plateau_views": 2}}, rows)  # grid: joint only
     check_one_rule({"3dgs": {"plateau_views": 2}}, ["restormer+3dgs", "gt+3dgs"])  # one kind: one rule
-    presets = sorted((REPO / "workflow" / "presets").glob("*.yaml")) + [REPO / "config.yaml"]
-    assert all("plateau_views: 2" not in p.read_text() for p in presets)
+    for preset in sorted((REPO / "workflow" / "presets").glob("*.yaml")) + [REPO / "config.yaml"]:
+        stage2 = yaml.safe_load(preset.read_text()).get("stage2") or {}
+        for model in ("3dgs", "nerf", "nerf-grid"):  # no preset stops a row early (one rule)
+            block = stage2.get(model) or {}
+            assert not block.get("plateau_views") and not block.get("plateau_patience"), (preset.name, model)
 
 
 def test_the_exploratory_benchmarks_guard_reads_the_merged_configuration(monkeypatch):

@@ -513,8 +513,8 @@ def check_consistency(config: dict, methods: list[str], combinations: list[str] 
 def check_one_rule(stage2: dict, combinations: list[str]) -> None:
     """Every row of a 3D model fits the same views with the same stopping rule (docs/protocol.md): the
     likelihood and joint rows always fit every view to their budget (their loss floor is photon noise,
-    no plateau to stop on), so a plateau rule that holds views out and stops the others early is
-    refused where both kinds of row share a model."""
+    no plateau to stop on), so a plateau rule that holds views out (``plateau_views``) or stops the
+    other rows early (``plateau_patience``) is refused where both kinds of row share a model."""
     from spc3d.names import parse_combination, parse_source
 
     by_model: dict[str, dict[bool, list[str]]] = {}
@@ -523,13 +523,15 @@ def check_one_rule(stage2: dict, combinations: list[str]) -> None:
         name = parse_source(source)
         by_model.setdefault(model, {}).setdefault(name.base == "bernoulli" or name.joint, []).append(combo)
     for model, kinds in sorted(by_model.items()):
-        held = (stage2.get(model) or {}).get("plateau_views", 0)
-        if held and len(kinds) == 2:
+        block = stage2.get(model) or {}
+        rule = {k: block.get(k, 0) for k in ("plateau_views", "plateau_patience") if block.get(k, 0)}
+        if rule and len(kinds) == 2:
+            set_ = ", ".join(f"stage2.{model}.{k} = {v}" for k, v in rule.items())
             raise ConfigError(
-                f"stage2.{model}.plateau_views = {held}: the rows {kinds[True]} fit every view to the whole "
-                f"budget (the SPAD likelihood has no plateau to stop on) while {kinds[False]} would hold "
-                f"{held} views out and stop on a plateau; every row of a comparison runs under one rule: "
-                f"set stage2.{model}.plateau_views: 0"
+                f"{set_}: the rows {kinds[True]} fit every view to the whole budget (the SPAD likelihood has "
+                f"no plateau to stop on) while {kinds[False]} would hold views out or stop early; every row "
+                f"of a comparison runs under one rule: set {' and '.join(f'{k}: 0' for k in rule)} in "
+                f"stage2.{model}"
             )
 
 
