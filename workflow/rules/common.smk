@@ -16,7 +16,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, stage2_row_settings, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -198,9 +198,7 @@ def get_eval_frames(wildcards):
 def get_model_settings(wildcards):
     """The config's settings of the stage-2 model (overrides of its dataclass defaults); a 3DGS row
     refines its cameras per stage2.refine_poses (by default: the rows on estimated poses)."""
-    settings, refine = dict(config["stage2"].get(wildcards.model, {})), config["stage2"]["refine_poses"]
-    if MODELS[wildcards.model].refines_poses and "pose_refine" not in settings:
-        settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(wildcards.poses))
+    settings = stage2_row_settings(config["stage2"], wildcards.model, wildcards.poses or None)
     return POINTS.stage2(overlay_of(wildcards), wildcards.model, settings) if overlay_of(wildcards) else settings
 
 
