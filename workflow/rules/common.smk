@@ -5,6 +5,7 @@ from pathlib import Path
 from snakemake.utils import validate
 
 from spc3d.config import check_config, check_settings, read_yaml, resolve_paths
+from spc3d.crosscheck import check_capture_frames
 
 # Short messages naming the key (Snakemake's own validate prints the whole schema), then its
 # validate fills in the defaults; every relative path is then taken from the repository root.
@@ -43,6 +44,7 @@ COLMAP_INPUTS = list(config["colmap"]["inputs"])
 COMBINATIONS = resolve_combinations(config["stage2"]["combinations"], config["stage2"]["nerf_variant"])
 STAGE1_USED = stage1_sources(COMBINATIONS)
 check_settings(config, STAGE1_USED, sorted({parse_combination(c)[1] for c in COMBINATIONS}), COMBINATIONS)
+check_capture_frames({s: SCENE_SPECS[s] for s in EVAL_SCENES}, COMBINATIONS, config)  # captures hold K frames
 # Repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}". A repeat redraws
 # everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
 SEEDS = [config["seed"] + k for k in range(config["seeds"])]

@@ -172,6 +172,32 @@ def check_point(points, combo: str, value: str) -> None:
         raise ConfigError(f"{where}: {e}") from None
 
 
+def check_capture_frames(specs: dict[str, dict], combinations: list[str], config: dict) -> None:
+    """Every row reads at most the frames per view each capture holds (``specs``: the scene specs,
+    a capture's ``frames`` from its sensor.json; a simulated scene's are spc.frames, checked by
+    :func:`spc3d.config.check_consistency`)."""
+    from spc3d.names import source_frames
+
+    needs = {}
+    for combo in combinations:
+        source, _, poses = parse_combination(combo)
+        for name in (source, poses):
+            if name:
+                k = source_frames(name, config["stage1"]["frames"], config["stage2"]["frames"])
+                if k and k > needs.get("k", (0,))[0]:
+                    needs["k"] = (k, combo)
+    if not needs:
+        return
+    k, combo = needs["k"]
+    for scene, spec in specs.items():
+        if spec["kind"] == "capture" and spec.get("frames") and spec["frames"] < k:
+            raise ConfigError(
+                f"captures.{scene}: holds {spec['frames']} frames per view (its sensor.json 'frames') but the row "
+                f"{combo!r} reads K = {k}; lower that row's K (stage1.frames, stage2.frames or '-k<K>') to at most "
+                f"{spec['frames']}, or leave the capture out of scenes.eval"
+            )
+
+
 def unused_blocks(given: dict, rows: list[str], nerf_variant: str) -> list[str]:
     """A warning for each non-empty settings block of ``stage1`` / ``stage2`` in ``given`` (what the
     user's own config files set, not config.yaml's defaults) that no row of ``rows`` (the main
