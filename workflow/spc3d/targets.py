@@ -78,10 +78,15 @@ def check_targets(targets: list[str], producible, named: list[str], scenes: list
     """Raise :class:`ConfigError` for the first of ``targets`` that is neither a rule (``rules``,
     ``named``), nor a file some rule makes (``producible(target)``) or that exists, explained by
     :func:`explain_target`."""
+    import os
     from pathlib import Path
 
     for target in targets:
+        if os.path.isabs(target) or target.startswith("."):  # as Snakemake reads it: relative to --directory
+            target = os.path.relpath(target) if not os.path.relpath(target).startswith("..") else target
         if target in named or target in rules or Path(target).exists() or producible(target):
+            continue
+        if os.path.isabs(target):  # outside the working directory: Snakemake's own answer
             continue
         raise ConfigError(explain_target(target, named, scenes, rows, list(rules)))
 
