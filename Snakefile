@@ -4,17 +4,26 @@ import os
 import sys
 from pathlib import Path
 
-from snakemake.utils import min_version
+from snakemake.utils import min_version, update_config
 
 min_version("8.0")
 sys.path.insert(0, f"{workflow.basedir}/workflow")  # a source checkout works without `pip install -e .`
 from spc3d.config import read_yaml
+from spc3d.crosscheck import unused_blocks
+from spc3d.targets import check_targets, command_line_targets, is_fresh_folder, remove_if_unused
+
+# A refused run leaves no --directory behind: Snakemake makes the folder before it reads this file,
+# so one that is new and still holds no file when the process ends goes (spc3d.targets).
+if workflow.overwrite_workdir and is_fresh_folder(os.getcwd()):
+    import atexit
+
+    atexit.register(remove_if_unused, os.getcwd())
 
 # The repository's config.yaml is the default even with --directory elsewhere; --configfile overrides.
 # Read once first: a YAML syntax error then names its line (Snakemake's own message does not).
 read_yaml(f"{workflow.basedir}/config.yaml")
-for _path in workflow.overwrite_configfiles:  # --configfile: a key given twice is named with its line
-    read_yaml(_path)
+# --configfile: a key given twice, an octal or base-60 number is named with its line
+USER_CONFIG = [read_yaml(_path) for _path in workflow.overwrite_configfiles]
 
 
 configfile: f"{workflow.basedir}/config.yaml"
@@ -45,3 +54,25 @@ rule all:
     input:
         get_final_output(),
     default_target: True
+
+
+# A target no rule makes is answered in the project's words: which scene, row or named target is
+# unknown, the configured ones and the nearest (Snakemake's "No rule to produce" lists none).
+check_targets(
+    command_line_targets(),
+    lambda target: any(r.is_producer(target) for r in workflow.rules),
+    ["all", *(r.name for r in workflow.rules if not r.output and r.name != "all")],
+    list(dict.fromkeys(ALL_SCENES + list(SWEEP_SPECS))),
+    COMBINATIONS + TRADEOFF_COMBOS + PHOTON_COMBOS,
+    [r.name for r in workflow.rules],
+)
+
+# A settings block the user's own files set for a model no row uses is ignored: say so (spc3d.crosscheck;
+# the presets set blocks for several targets on purpose).
+_given, _presets = {}, Path(workflow.basedir, "workflow", "presets").resolve()
+for _path, _part in zip(workflow.overwrite_configfiles, USER_CONFIG):
+    if Path(_path).resolve().parent != _presets:
+        update_config(_given, _part)
+update_config(_given, dict(workflow.config_settings.config or {}))
+for _warning in unused_blocks(_given, COMBINATIONS + TRADEOFF_COMBOS + PHOTON_COMBOS, config["stage2"]["nerf_variant"]):
+    print(f"spc3d warning: {_warning}", file=sys.stderr)

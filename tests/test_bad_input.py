@@ -133,7 +133,8 @@ CASES = [
     Case("no-eval-scene", r"scenes\.eval = \[\]: needs at least 1 item", {"scenes": {"eval": []}}),
     Case(
         "bad-combination",
-        r"stage2\.combinations\.0 = 'pix2pixhd': must match",
+        r"stage2\.combinations\.0 = 'pix2pixhd': a row is 'source\+model' and has no '\+' here "
+        r"\(e\.g\. 'pix2pixhd\+3dgs'",
         {"stage2": {"combinations": ["pix2pixhd"]}},
     ),
     Case(

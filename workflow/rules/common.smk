@@ -5,6 +5,7 @@ from pathlib import Path
 from snakemake.utils import validate
 
 from spc3d.config import check_config, check_settings, read_yaml, resolve_paths
+from spc3d.crosscheck import check_capture_frames
 
 # Short messages naming the key (Snakemake's own validate prints the whole schema), then its
 # validate fills in the defaults; every relative path is then taken from the repository root.
@@ -16,7 +17,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, stage2_row_settings, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -47,6 +48,7 @@ FINDINGS_RIVALS = {k: resolve_combinations(v, config["stage2"]["nerf_variant"], 
                    for k, v in config["findings"]["rivals"].items()}
 STAGE1_USED = stage1_sources(COMBINATIONS)
 check_settings(config, STAGE1_USED, sorted({parse_combination(c)[1] for c in COMBINATIONS}), COMBINATIONS)
+check_capture_frames({s: SCENE_SPECS[s] for s in EVAL_SCENES}, COMBINATIONS, config)  # captures hold K frames
 # Repeats: the first seed is `seed` (paths without a tag), the others add "-seed{N}". A repeat redraws
 # everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
 SEEDS = [config["seed"] + k for k in range(config["seeds"])]
@@ -201,18 +203,9 @@ def get_eval_frames(wildcards):
     return f"results/spc/{wildcards.scene}" if wildcards.scene in NO_REFERENCE and not overlay_of(wildcards) else []
 
 
-def model_settings(model, estimated_poses=False):
-    """The config's settings of a stage-2 model (overrides of its dataclass defaults); a 3DGS row
-    refines its cameras per stage2.refine_poses (by default: the rows on estimated poses)."""
-    settings, refine = dict(config["stage2"].get(model, {})), config["stage2"]["refine_poses"]
-    if MODELS[model].refines_poses and "pose_refine" not in settings:
-        settings["pose_refine"] = refine == "all" or (refine == "estimated" and estimated_poses)
-    return settings
-
-
 def get_model_settings(wildcards):
-    """:func:`model_settings` of the row (a sweep point's: at its budget)."""
-    settings = model_settings(wildcards.model, bool(wildcards.poses))
+    """The config's settings of the stage-2 model (spc3d.names.stage2_row_settings; a sweep point's: at its budget)."""
+    settings = stage2_row_settings(config["stage2"], wildcards.model, wildcards.poses or None)
     return POINTS.stage2(overlay_of(wildcards), wildcards.model, settings) if overlay_of(wildcards) else settings
 
 

@@ -49,7 +49,7 @@ rule choose_joint_weight:
     output:
         "results/choices{fold}/joint-{method}+{model}{rep}.json",
     params:
-        settings=lambda w: model_settings(w.model),
+        settings=lambda w: stage2_row_settings(config["stage2"], w.model, None),
         joint=lambda w: joint_settings(config["stage2"]["joint"], w.model),
         candidates=lambda w: JOINT_CHOOSE[w.model],
         seed=get_seed,

@@ -19,6 +19,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -44,9 +45,45 @@ class DuplicateKey(yaml.constructor.ConstructorError):
     """A key given twice in one YAML mapping (:class:`UniqueKeyLoader`)."""
 
 
+class SurprisingNumber(yaml.constructor.ConstructorError):
+    """A number YAML 1.1 reads as something else than it looks (:func:`yaml_number`)."""
+
+
+# YAML 1.1 (PyYAML) reads a leading-zero integer as octal (0064 -> 52) and colon-separated digits
+# as base 60 (1:30 -> 90, 1:30.5 -> 90.5): both look like a decimal number or a time and silently
+# become another value. YAML 1.2 reads neither way, so no spelling of a setting relies on them.
+OCTAL = re.compile(r"[-+]?0[0-7_]+")
+SEXAGESIMAL = re.compile(r"[-+]?[0-9][0-9_]*(:[0-5]?[0-9])+(\.[0-9_]*)?")
+
+
+def yaml_number(text: str) -> str | None:
+    """Why a plain scalar ``text`` that PyYAML reads as a number is refused, with the intended
+    spelling; None for an ordinary number. (``0128`` is not octal: YAML reads it as text, and the
+    schema's type check names it, :func:`type_hint`.)"""
+    if OCTAL.fullmatch(text):
+        decimal = int(text.replace("_", ""), 10)
+        octal = int(text.replace("_", ""), 8)
+        return (
+            f"{text} is read by YAML 1.1 as the octal number {octal}, not {decimal}; write {decimal} "
+            f"(no leading zero), or '{text}' in quotes for text"
+        )
+    if SEXAGESIMAL.fullmatch(text):
+        sign = -1 if text.startswith("-") else 1
+        parts = [float(p.replace("_", "")) for p in text.lstrip("+-").split(":")]
+        base60 = sum(p * 60**i for i, p in enumerate(reversed(parts))) * sign
+        head = parts[0] + parts[1] / 60 + sum(p / 60 ** (i + 2) for i, p in enumerate(parts[2:]))
+        return (
+            f"{text} is read by YAML 1.1 as a base-60 number ({base60:g}), not a time; write one number "
+            f"in the key's unit: {sign * head:g} (for {parts[0]:g} and {parts[1]:g}/60 of it, e.g. minutes: "
+            f"1.5 for 1 min 30 s) or {base60:g}; or '{text}' in quotes for text"
+        )
+    return None
+
+
 class UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last one
-    silently: a setting typed twice would lose its first value without a word)."""
+    silently: a setting typed twice would lose its first value without a word) and a number YAML
+    1.1 reads as another one (octal ``0064``, base-60 ``1:30``: :func:`yaml_number`)."""
 
     def construct_mapping(self, node, deep=False):
         seen = {}
@@ -59,14 +96,36 @@ class UniqueKeyLoader(yaml.SafeLoader):
             seen[key] = key_node.start_mark.line
         return super().construct_mapping(node, deep)
 
+    def construct_yaml_int(self, node):
+        return self._plain_number(node, super().construct_yaml_int)
 
-def read_yaml(path: str | os.PathLike) -> dict:
-    """The mapping in a YAML file; a syntax error or a key given twice names the file, line and column."""
+    def construct_yaml_float(self, node):
+        return self._plain_number(node, super().construct_yaml_float)
+
+    def _plain_number(self, node, construct):
+        why = yaml_number(str(node.value))
+        if why:
+            raise SurprisingNumber(None, None, why, node.start_mark)
+        return construct(node)
+
+
+UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", UniqueKeyLoader.construct_yaml_int)
+UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", UniqueKeyLoader.construct_yaml_float)
+
+
+def read_yaml(path: str | os.PathLike, empty_ok: bool = False) -> dict:
+    """The mapping in a YAML file; a syntax error, a key given twice or a number YAML 1.1 reads as
+    another (octal, base 60) names the file, line and column; a missing, unreadable or empty file
+    is one line naming it."""
     path = Path(path)
     try:
         data = yaml.load(path.read_text(encoding="utf-8"), Loader=UniqueKeyLoader)
     except FileNotFoundError:
         raise ConfigError(f"config file {path} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"config file {path} is a folder; name a YAML file (e.g. {path}/config.yaml)") from None
+    except (PermissionError, UnicodeDecodeError) as e:
+        raise ConfigError(f"config file {path} cannot be read as text ({e.__class__.__name__}: {e})") from None
     except yaml.YAMLError as e:
         mark, start = getattr(e, "problem_mark", None), getattr(e, "context_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
@@ -74,12 +133,19 @@ def read_yaml(path: str | os.PathLike) -> dict:
         problem = getattr(e, "problem", None) or str(e)
         if isinstance(e, DuplicateKey):
             raise ConfigError(f"{where}: {problem}; keep one of them") from None
+        if isinstance(e, SurprisingNumber):
+            raise ConfigError(f"{where}: {problem}") from None
         raise ConfigError(
             f"{where}: not valid YAML ({problem}{context}); check the indentation (spaces, not tabs) "
             "and the brackets there"
         ) from None
     if data is None:
-        return {}
+        if empty_ok:
+            return {}
+        raise ConfigError(
+            f"config file {path} is empty (or only comments); give the keys it changes, e.g. 'spc: {{frames: 4}}', "
+            "or leave the file out"
+        )
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: a config file must be a mapping of keys (got a {type(data).__name__})")
     return data
@@ -178,6 +244,12 @@ def schema_message(error) -> str:
     if kind in ("minItems", "maxItems"):
         return f"{key} = {shown}: needs {'at least' if kind == 'minItems' else 'at most'} {want} item(s)"
     if kind == "pattern":
+        if "combinations" in error.absolute_path and isinstance(value, str):
+            from spc3d.names import combination_problem
+
+            problem = combination_problem(value)
+            if problem:
+                return f"{key} = {shown}: {problem}"
         return f"{key} = {shown}: must match {want}"
     if kind == "uniqueItems":
         return f"{key} = {shown}: items must be unique"
@@ -270,6 +342,7 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``, the
     augmentation ranges), check published weights, input paths and the values that constrain each
     other, so that a wrong key or value is reported at parse time."""
+    from spc3d.crosscheck import check_rows
     from spc3d.inputs.augment import AugmentSettings
     from spc3d.names import parse_source, translator_settings, translator_validation
     from spc3d.reconstruct import CONFIGS, check_joint
@@ -305,6 +378,7 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
         raise ConfigError(str(e)) from None
     check_crops(config, trainings)
     check_consistency(config, methods, combinations)
+    check_rows(config, methods, combinations)
     for warning in check_exposure(config):  # possible, but its frames would carry no image
         print(f"spc3d warning: {warning}", file=sys.stderr)
 

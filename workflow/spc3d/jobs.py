@@ -218,6 +218,11 @@ def real_scene_spec(name: str, path: Path, res: dict) -> dict:
             f"{image_width} or a smaller resolution.llff_factor",
             file=sys.stderr,
         )
+    from spc3d.llff import rig_warnings
+
+    # From the poses alone (cheap); the images' motion is judged once, by the prepare_scene job.
+    for warning in rig_warnings(io.load_npy(files[0])):  # possible, unlikely right
+        print(f"spc3d warning: llff_scenes.{name}: {warning}", file=sys.stderr)
     return {"kind": "llff", "path": str(path), "factor": res["llff_factor"], "width": res["width"]}
 
 
@@ -238,9 +243,13 @@ def capture_spec(name: str, entry: str | dict, role: str, config: dict, base_dir
         raise ConfigError(f"{where}: {path} is not a capture folder (no sensor.json; see spc3d.captures.folders)")
     try:
         tag, sensor = capture_sensor(path, overrides)
+        frames, warnings = capture_plausibility(path, overrides)
     except (ValueError, FileNotFoundError) as e:
         raise ConfigError(f"{where}: {e}") from None
+    for warning in warnings:  # possible, unlikely right; the import job records them for the captions
+        print(f"spc3d warning: {where}: {warning}", file=sys.stderr)
     return {
+        "frames": frames,
         "kind": "capture",
         "path": str(path),
         "overrides": overrides,
@@ -250,6 +259,17 @@ def capture_spec(name: str, entry: str | dict, role: str, config: dict, base_dir
         "max_features": config["colmap"]["max_features"],
         "seed": config["seed"],
     }
+
+
+def capture_plausibility(path: Path, overrides: dict) -> tuple[int, list[str]]:
+    """(frames per view, warnings) of a capture folder whose sensor.json and listings passed
+    :func:`spc3d.captures.importing.capture_sensor`: what reads fine but cannot be right is refused
+    (:func:`spc3d.captures.plausibility.check_capture`)."""
+    from spc3d.captures.folders import capture_views, read_sensor
+    from spc3d.captures.plausibility import check_capture
+
+    sensor = read_sensor(path, overrides)
+    return sensor.params.frames, check_capture(path, sensor, capture_views(path, sensor.format))
 
 
 def folder_files(path: str | Path) -> list[str]:

@@ -184,6 +184,110 @@ def needs_intrinsics_file(cams: Cameras) -> bool:
     )
 
 
+def view_axes(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centres, viewing directions, right axes) of LLFF poses, each (N, 3): the rotation's columns
+    are [down, right, back], so a camera looks along -back."""
+    poses = poses_bounds[:, :15].reshape(-1, 3, 5)
+    return poses[:, :, 3], -poses[:, :, 2], poses[:, :, 1]
+
+
+def focus_depths(poses_bounds: np.ndarray) -> np.ndarray | None:
+    """Depth along each camera's viewing direction of the point its optical axes pass closest to
+    (least squares; LLFF's own ``focus`` point), or None when the axes are (nearly) parallel and
+    meet nowhere in particular. A forward-facing rig looks towards it: positive depths, of the
+    order of its near / far bounds."""
+    centres, dirs, _ = view_axes(poses_bounds)
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    proj = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]  # onto the plane normal to each axis
+    a, b = proj.sum(0), (proj @ centres[:, :, None]).sum(0)[:, 0]
+    eig = np.linalg.eigvalsh(a)
+    if eig[0] < 1e-6 * eig[-1] * len(dirs):
+        return None
+    point = np.linalg.solve(a, b)
+    return ((point - centres) * dirs).sum(1)
+
+
+SCALE_MISMATCH = 50.0  # camera spread or focus depth this many times the far bound (or 1/this of near)
+ORDER_PAIRS = 8  # consecutive view pairs with a sideways camera motion needed to judge the images' motion
+
+
+def rig_warnings(poses_bounds: np.ndarray, files: list[Path] | None = None) -> list[str]:
+    """What may be wrong with an LLFF folder's poses but cannot be refused for sure (a warning each;
+    the scene's records carry them into the tables' captions): translations in another unit than
+    the bounds (mm against m; from the poses alone, so the workflow checks it at parse time too),
+    and, from thumbnails of the images (``files``: :func:`motion_agreement`, about 50 ms an image,
+    so only the prepare_scene job reads them), poses in OpenCV axes instead of LLFF's
+    [down, right, back] (the images move with the LLFF "down" axis, not its "right" one) or pose
+    rows in the reverse order of the images (they move the wrong way)."""
+    out = []
+    centres, _, _ = view_axes(poses_bounds)
+    near, far = float(np.median(poses_bounds[:, 15])), float(np.median(poses_bounds[:, 16]))
+    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
+    depths = focus_depths(poses_bounds)
+    depth = float(np.median(depths)) if depths is not None and (depths > 0).all() else None
+    if spread > SCALE_MISMATCH * far or (depth is not None and depth > SCALE_MISMATCH * far):
+        aim = f" and aim at depth {depth:.3g}" if depth is not None else ""
+        out.append(
+            f"camera positions spread over {spread:.3g}{aim} against bounds {near:.3g}..{far:.3g}: the "
+            "translations look like another unit than the bounds (mm against m?); scale one of them"
+        )
+    elif depth is not None and depth * SCALE_MISMATCH < near:
+        out.append(
+            f"cameras aim at depth {depth:.3g} against bounds {near:.3g}..{far:.3g}: the bounds look like another "
+            "unit than the translations (mm against m?); scale one of them"
+        )
+    if files is None or len(files) != len(poses_bounds):
+        return out
+    thumbs = [_thumbnail(io.read_rgb(f)) for f in files]
+    right, n_right = motion_agreement(poses_bounds, thumbs, 1)
+    down, n_down = motion_agreement(poses_bounds, thumbs, 0)
+    if n_down >= ORDER_PAIRS and down >= 0.85 and right < 0.6:
+        out.append(
+            f"the images move sideways with the poses' first axis ({down:.0%} of {n_down} view pairs), which LLFF "
+            "reads as 'down', not with its second ('right'): the poses look like OpenCV axes [right, down, "
+            "forward]; LLFF's 3x3 columns are [down, right, back] (convert as [c1, c0, -c2])"
+        )
+    elif n_right >= ORDER_PAIRS and right < 0.1:
+        out.append(
+            f"consecutive images move the wrong way for their poses in {1 - right:.0%} of {n_right} view pairs: "
+            "the pose rows look reversed against the images (sorted by file name), or the images mirrored"
+        )
+    return out
+
+
+def motion_agreement(poses_bounds: np.ndarray, thumbs: list[np.ndarray], axis: int) -> tuple[float, int]:
+    """(share, count) of the consecutive views whose camera moves along its pose column ``axis``
+    (1: LLFF's right) whose image content moves the opposite way horizontally, as it must for the
+    right axis (a camera moving right sees the scene move left); from phase correlation of grey
+    thumbnails. Pairs with little motion along the axis (below half the median) do not vote."""
+    poses = poses_bounds[:, :15].reshape(-1, 3, 5)
+    centres, axes = poses[:, :, 3], poses[:, :, axis]
+    steps = np.array([float((centres[i + 1] - centres[i]) @ axes[i]) for i in range(len(thumbs) - 1)])
+    scale = float(np.median(np.abs(steps))) if steps.size else 0.0
+    votes = []
+    for i, step in enumerate(steps):
+        if scale > 0 and abs(step) >= 0.5 * scale and (shift := _shift_x(thumbs[i], thumbs[i + 1])):
+            votes.append(np.sign(shift) == -np.sign(step))
+    return (float(np.mean(votes)) if votes else 0.0), len(votes)
+
+
+def _thumbnail(image: np.ndarray, width: int = 64) -> np.ndarray:
+    grey = np.asarray(image, np.float64).mean(axis=2) if image.ndim == 3 else np.asarray(image, np.float64)
+    f = max(1, grey.shape[1] // width)
+    h, w = grey.shape[0] // f * f, grey.shape[1] // f * f
+    return grey[:h, :w].reshape(h // f, f, w // f, f).mean(axis=(1, 3))
+
+
+def _shift_x(a: np.ndarray, b: np.ndarray) -> int:
+    """Horizontal shift (px) of ``b``'s content against ``a``'s (positive: to the right)."""
+    window = np.hanning(a.shape[0])[:, None] * np.hanning(a.shape[1])[None, :]
+    fa, fb = np.fft.rfft2((a - a.mean()) * window), np.fft.rfft2((b - b.mean()) * window)
+    cross = fa.conj() * fb
+    corr = np.fft.irfft2(cross / (np.abs(cross) + 1e-12), s=a.shape)
+    x = int(np.unravel_index(np.argmax(corr), corr.shape)[1])
+    return x - a.shape[1] if x > a.shape[1] // 2 else x
+
+
 def check_poses_bounds(pb: np.ndarray, path) -> None:
     """LLFF poses_bounds (N, 17): finite numbers, proper rotations, positive hwf, 0 < near < far."""
     if pb.ndim != 2 or pb.shape[1] != 17 or pb.shape[0] == 0 or not np.issubdtype(pb.dtype, np.number):

@@ -9,6 +9,7 @@ objects or files.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from dataclasses import dataclass
 
 from spc3d import models
@@ -191,6 +192,39 @@ def parse_combination(combo: str) -> tuple[str, str, str | None]:
     return source, model, poses or None
 
 
+def nearest(name: str, valid, what: str) -> str:
+    """``unknown {what} 'name'; did you mean 'x'? valid: a, b, ...`` (the closest valid name by
+    :mod:`difflib`, tried also with '_' read as '-' and without separators)."""
+    valid = list(valid)
+    tries = (name, name.replace("_", "-"), name.replace("_", "").replace("-", ""), name.lower())
+    close = next((c[0] for t in tries if (c := difflib.get_close_matches(t, valid, n=1, cutoff=0.6))), None)
+    hint = f"did you mean {close!r}? " if close else ""
+    return f"unknown {what} {name!r}; {hint}valid: {', '.join(valid)}"
+
+
+def combination_problem(combo: str) -> str | None:
+    """What is wrong with a row name, part by part (the source before '+', the model after it, the
+    poses after '@'), with the valid parts and the nearest match; None when each part is known
+    (the suffixes' rules are then :func:`check_source`'s)."""
+    if "+" not in combo:
+        base = parse_source(combo).base
+        example = f"{combo}+3dgs" if base in PLAIN_SOURCES + STAGE1_METHODS else f"gt+{combo}"
+        if example == f"gt+{combo}" and combo not in STAGE2_MODELS:
+            example = "pix2pixhd+3dgs"
+        return f"a row is 'source+model' and has no '+' here (e.g. {example!r}; models: {', '.join(STAGE2_MODELS)})"
+    source, model, poses = parse_combination(combo)
+    if model not in STAGE2_MODELS:
+        return nearest(model, STAGE2_MODELS, "model")
+    base = parse_source(source).base
+    if base not in PLAIN_SOURCES + STAGE1_METHODS:
+        return nearest(base, PLAIN_SOURCES + STAGE1_METHODS, "source") + (
+            f" (with the suffixes -k<K>, {', '.join(SUFFIXES)}; joint rows: '{JOINT}<method>')"
+        )
+    if poses is not None and parse_source(poses).base not in SOURCE_IMAGES:
+        return nearest(parse_source(poses).base, sorted(SOURCE_IMAGES), "pose source after '@'")
+    return None
+
+
 def check_pose_source(poses: str, combo: str, where: str) -> None:
     name = parse_source(poses)
     if (
@@ -208,9 +242,9 @@ def check_pose_source(poses: str, combo: str, where: str) -> None:
 def check_source(source: str, combo: str, where: str) -> None:
     """A stage-2 source name: a known base with only the suffixes that apply to it."""
     name = parse_source(source)
-    known = f"use one of {list(PLAIN_SOURCES)} or a stage-1 method {list(STAGE1_METHODS)} (joint: '{JOINT}<method>')"
+    known = nearest(name.base, PLAIN_SOURCES + STAGE1_METHODS, "source")
     problems = {
-        f"unknown source {name.base!r}; {known}, with the suffixes {list(SUFFIXES)}": name.base
+        f"{known} (joint: '{JOINT}<method>'), with the suffixes {list(SUFFIXES)}": name.base
         not in PLAIN_SOURCES + STAGE1_METHODS,
         f"only {list(BUDGET_SOURCES)} take a frame budget '-k<K>' (translators use stage1.frames, "
         "'none' is one frame, 'gt' none)": name.k is not None and name.base not in BUDGET_SOURCES,
@@ -235,11 +269,9 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
     out = []
     for combo in combinations:
         source, model, poses = parse_combination(combo)
-        if "+" not in combo or not source or model not in STAGE2_MODELS:
-            raise ConfigError(
-                f"{where}: {combo!r} must be 'source+model' (or 'source+model@poses') "
-                f"with model one of {', '.join(STAGE2_MODELS)} (spc3d.models)"
-            )
+        problem = combination_problem(combo) if source else "a row is 'source+model' (e.g. 'pix2pixhd+3dgs')"
+        if problem:
+            raise ConfigError(f"{where}: {combo!r}: {problem}")
         if poses is not None:
             check_pose_source(poses, combo, where)
         check_source(source, combo, where)
@@ -254,6 +286,16 @@ def joint_settings(joint: dict, model: str | None) -> dict:
     ``choose`` (the candidates a fold chooses its weight among, spc3d.choices) is not a setting of the fit."""
     common = {k: v for k, v in joint.items() if k not in ("models", "choose")}
     return {**common, **((joint.get("models") or {}).get(model) or {})}
+
+
+def stage2_row_settings(stage2: dict, model: str, poses: str | None) -> dict:
+    """The settings a row's stage-2 job gets: the model's block of ``stage2``, and for a model that
+    refines cameras ``pose_refine`` per ``stage2.refine_poses`` unless the block sets it (all rows,
+    or by default the rows on estimated poses, ``poses`` not None)."""
+    settings, refine = dict(stage2.get(model) or {}), stage2.get("refine_poses", "estimated")
+    if models.RECONSTRUCTORS[model].refines_poses and "pose_refine" not in settings:
+        settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(poses))
+    return settings
 
 
 def uses_display(source: str) -> bool:

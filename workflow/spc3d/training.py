@@ -148,21 +148,45 @@ def _shape_text(hint) -> str:
 
 # The ranges of every numeric model and training setting, by name: none is signed (counts, loss
 # weights, rates, thresholds, blur widths are all >= 0, and 0 means "off" wherever it is allowed);
-# learning rates and scales must be > 0; momenta and decays lie in [0, 1).
+# learning rates and scales must be > 0; momenta and decays lie in [0, 1); and the settings below
+# have both ends: (low, high, high included, what the number is). A setting whose name is not
+# listed has no upper end (a count, an iteration, a loss weight such as lambda_L1 = 100).
 POSITIVE = ("lr", "lr_*", "*_lr", "*_lr_*", "residual_scale", "xy_extent", "ffn_expansion_factor")
-UNIT_INTERVAL = ("beta1", "beta2", "ema_decay", "adam_betas")
+UNIT_INTERVAL = ("beta1", "beta2", "ema_decay", "adam_betas", "betas")
+BOUNDED = {
+    "ssim_weight": (0.0, 1.0, True, "a mix weight: the loss is (1 - w) L1 + w D-SSIM, so w > 1 makes L1's negative"),
+    "percent_dense": (0.0, 1.0, False, "a fraction of the scene extent: 0.01 is 1 %"),
+    "background": (0.0, 1.0, True, "a colour in render space [0, 1]: white is [1, 1, 1], not 255"),
+    "alpha_init": (0.0, 1.0, False, "an opacity α of one sample"),
+    "occupancy_thres": (0.0, 1.0, False, "an opacity α below which a cell is empty; 1 or more empties every cell"),
+    "weight_thres": (0.0, 1.0, False, "a compositing weight"),
+    "min_trans": (0.0, 1.0, False, "a transmittance"),
+    "prune_opacity": (0.0, 1.0, False, "an opacity; 1 or more prunes every Gaussian"),
+    "plateau_gain": (0.0, 1.0, False, "a relative drop of the objective (0.01 = 1 %)"),
+    "decay_from": (0.0, 1.0, True, "a fraction of the run"),
+    "decay_until": (0.0, 1.0, True, "a fraction of the run"),
+    "lr_decay": (0.0, 1.0, True, "the final learning rate as a fraction of the initial one (a decay, not a rise)"),
+    "eta": (0.0, 1.0, True, "DDIM's stochasticity: 0 deterministic, 1 DDPM"),
+}
 
 
-def check_range(where: str, key: str, value) -> None:
-    """``value`` (a number, or a tuple of them) within the range of setting ``key``: see
-    :data:`POSITIVE` and :data:`UNIT_INTERVAL`; every other number >= 0."""
+def check_range(where: str, key: str, value, whole=None) -> None:
+    """``value`` (a number, or a tuple of them: ``whole`` is the setting shown) within the range of
+    setting ``key``: see :data:`POSITIVE`, :data:`UNIT_INTERVAL` and :data:`BOUNDED`; every other number >= 0."""
     if isinstance(value, tuple):
         for item in value:
-            check_range(where, key, item)
+            check_range(where, key, item, value if whole is None else whole)
         return
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return
-    if any(fnmatch.fnmatchcase(key, p) for p in POSITIVE):
+    if key in BOUNDED:
+        low, high, closed, what = BOUNDED[key]
+        if not (low <= value <= high if closed else low <= value < high):
+            shown = value if whole is None else _as_lists(whole)
+            raise ValueError(
+                f"{where}.{key} = {shown!r}: must be in [{low:g}, {high:g}{']' if closed else ')'} ({what})"
+            )
+    elif any(fnmatch.fnmatchcase(key, p) for p in POSITIVE):
         if not value > 0:
             raise ValueError(f"{where}.{key} = {value!r}: must be > 0 (a learning rate or scale)")
     elif key in UNIT_INTERVAL:

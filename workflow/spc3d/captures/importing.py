@@ -51,6 +51,7 @@ from spc3d.captures.folders import (
     read_sensor,
     reference_images,
 )
+from spc3d.captures.plausibility import capture_warnings
 from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
 from spc3d.physics import sensors, spc
 from spc3d.physics.flux_scale import dark_floor
@@ -239,7 +240,9 @@ def import_capture_frames(
             "wall_s": round(time.perf_counter() - t0, 3),
         }
         saturated = record["mean_saturated_fraction"]
-        record["warnings"] = frame_warnings(record["mean_detection_rate"], dark_floor(params), saturated)
+        record["warnings"] = capture_warnings(sensor) + frame_warnings(
+            record["mean_detection_rate"], dark_floor(params), saturated
+        )
         for warning in record["warnings"]:
             log.warning("capture %s: %s", folder, warning)
         io.write_json(tmp / "spc.json", record)

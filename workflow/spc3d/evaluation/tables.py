@@ -350,8 +350,10 @@ def scoring_note(files: list[str | os.PathLike]) -> str:
 
 def photon_note(spc_dirs: list[str | os.PathLike]) -> str:
     """The caption's sentence naming the evaluation scenes whose frames carry (almost) no image
-    (``warnings`` of their spc.json, :func:`spc3d.physics.record.frame_warnings`): their photon-fed
-    rows measure the exposure, not the method. "" when there are none."""
+    (``warnings`` of their spc.json, :func:`spc3d.physics.record.frame_warnings`) or whose data look
+    implausible (an LLFF folder's poses, :func:`spc3d.llff.rig_warnings`; a capture's sensor,
+    :func:`spc3d.captures.plausibility.capture_warnings`): their rows may measure the exposure or the
+    data, not the method. "" when there are none."""
     said = []
     for folder in spc_dirs:
         path = Path(folder) / "spc.json"
@@ -360,7 +362,10 @@ def photon_note(spc_dirs: list[str | os.PathLike]) -> str:
             said.append(f"{Path(folder).name}: {'; '.join(warnings)}")
     if not said:
         return ""
-    return f" Warning, frames without an image ({', '.join(said)}): the photon-fed rows there measure the exposure."
+    return (
+        f" Warning, frames without an image or implausible data ({', '.join(said)}): the rows there may measure "
+        "the exposure or the data, not the method."
+    )
 
 
 def reconstructor_note(summary: pd.DataFrame, nerf_variant: str) -> str:

@@ -114,6 +114,10 @@ def import_llff(src: str | os.PathLike, out_dir: str | os.PathLike, factor: int,
         "seed": None,
         "wall_s": round(time.perf_counter() - t0, 3),
     }
+    files, poses_bounds = llff.llff_contents(src, factor)
+    record["warnings"] = llff.rig_warnings(poses_bounds, files)  # simulate_scene carries them to the captions
+    for warning in record["warnings"]:
+        log.warning("%s: %s", src, warning)
     llff.write_scene(out_dir, scene, record)
 
 
@@ -300,7 +304,10 @@ def simulate_scene(
             **summarise(stats),
             "wall_s": round(time.perf_counter() - t0, 3),
         }
-        record["warnings"] = frame_warnings(record["mean_detection_rate"], dark_floor(params))
+        # The scene's own warnings (an LLFF folder's implausible poses: spc3d.llff.rig_warnings) join
+        # the frames' here: spc.json's warnings are what the tables' captions name.
+        scene_warnings = list(scene.meta.get("warnings") or [])
+        record["warnings"] = scene_warnings + frame_warnings(record["mean_detection_rate"], dark_floor(params))
         for warning in record["warnings"]:
             log.warning("%s: %s", name, warning)
         io.write_json(tmp / "spc.json", record)

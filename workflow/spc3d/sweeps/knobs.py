@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from spc3d.names import PLAIN_SOURCES, STAGE2_MODELS
+from spc3d.names import PLAIN_SOURCES, STAGE2_MODELS, combination_problem, nearest
 
 # Knob -> (type, what it sets). Order = the order of path components in a default table.
 KNOBS: dict[str, tuple[type, str]] = {
@@ -34,7 +34,7 @@ def split_combination(combo: str) -> tuple[str, str]:
     """``"pix2pixhd+3dgs"`` -> ``("pix2pixhd", "3dgs")``."""
     source, sep, model = combo.partition("+")
     if not sep or not source or model not in STAGE2_MODELS:
-        raise ValueError(f"combination {combo!r} must be 'source+model' with model one of {list(STAGE2_MODELS)}")
+        raise ValueError(f"combination {combo!r}: {combination_problem(combo) or 'must be source+model'}")
     return source, model
 
 
@@ -49,7 +49,7 @@ def parse_combinations(
         except ValueError as e:
             raise ValueError(f"{key}: {e}") from None
         if source not in sources:
-            raise ValueError(f"{key}: {combo!r} has unknown source {source!r}; use one of {list(sources)}")
+            raise ValueError(f"{key}: {combo!r}: {nearest(source, sources, 'source')}")
         out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
     if not out:
         raise ValueError(f"{key}: give at least one combination")

@@ -210,16 +210,25 @@ def sweep_points(
                     "recon": f"{root}recon/{scene}/{combo}",
                     "model": f"{root}models/{parse_source(source).method}" if source not in PLAIN_SOURCES else None,
                     "spc": f"{root}spc/{scene}" if source != "gt" else None,
-                    **planned_jobs(combo, value, scene, points.train, points.frames(value, source)),
+                    **planned_jobs(combo, value, scene, points.train, points.frames(value, source), points),
                 }
             )
     return out
 
 
-def planned_jobs(combo: str, value: str, scene: str, train: list[str], frames: int | None) -> dict:
-    """``{"jobs": ...}`` of a point, or ``{"jobs": [], "error": why}`` when it cannot run."""
+def planned_jobs(
+    combo: str, value: str, scene: str, train: list[str], frames: int | None, points: PointSettings | None = None
+) -> dict:
+    """``{"jobs": ...}`` of a point, or ``{"jobs": [], "error": why}`` when it cannot run: its jobs
+    cannot be planned, or its settings contradict each other (:func:`spc3d.crosscheck.check_point`,
+    the main configuration's cross-checks with the point's knobs applied)."""
+    from spc3d.crosscheck import check_point
+
     try:
-        return {"jobs": point_jobs(combo, value, scene, train, frames)}
+        jobs = point_jobs(combo, value, scene, train, frames)
+        if points is not None:
+            check_point(points, combo, value)
+        return {"jobs": jobs}
     except ValueError as e:
         return {"jobs": [], "error": str(e)}
 
