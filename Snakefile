@@ -9,11 +9,11 @@ from snakemake.utils import min_version, update_config
 min_version("8.0")
 sys.path.insert(0, f"{workflow.basedir}/workflow")  # a source checkout works without `pip install -e .`
 from spc3d.config import read_yaml
-from spc3d.crosscheck import unused_blocks
-from spc3d.targets import check_targets, command_line_targets, is_fresh_folder, remove_if_unused
+from spc3d.checks.crosscheck import unused_blocks
+from spc3d.checks.targets import check_targets, command_line_targets, is_fresh_folder, remove_if_unused
 
 # A refused run leaves no --directory behind: Snakemake makes the folder before it reads this file,
-# so one that is new and still holds no file when the process ends goes (spc3d.targets).
+# so one that is new and still holds no file when the process ends goes (spc3d.checks.targets).
 if workflow.overwrite_workdir and is_fresh_folder(os.getcwd()):
     import atexit
 
@@ -67,7 +67,7 @@ check_targets(
     [r.name for r in workflow.rules],
 )
 
-# A settings block the user's own files set for a model no row uses is ignored: say so (spc3d.crosscheck;
+# A settings block the user's own files set for a model no row uses is ignored: say so (spc3d.checks.crosscheck;
 # the presets set blocks for several targets on purpose).
 _given, _presets = {}, Path(workflow.basedir, "workflow", "presets").resolve()
 for _path, _part in zip(workflow.overwrite_configfiles, USER_CONFIG):

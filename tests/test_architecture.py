@@ -72,7 +72,7 @@ LAYERS = (
     ("captures",),
     ("evaluation",),
     ("translate", "reconstruct"),  # side by side, never importing each other (test above)
-    ("jobs", "choices"),  # job glue: logging, scene specs; choices a fold makes with both stages
+    ("jobs", "choices", "checks"),  # job glue: logging, scene specs; a fold's choices; checks of settings and targets
     ("sweeps",),
     ("config",),
 )

@@ -18,14 +18,14 @@ from test_parse_checks import SMOKE, merged, only, parse
 from spc3d import config as spc_config
 from spc3d import io, llff
 from spc3d.captures import folders as captures
+from spc3d.checks.crosscheck import check_capture_frames, check_point, unused_blocks
+from spc3d.checks.targets import check_targets, command_line_targets, explain_target, is_fresh_folder, remove_if_unused
 from spc3d.config import read_yaml
-from spc3d.crosscheck import check_capture_frames, check_point, unused_blocks
 from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.names import ConfigError, combination_problem, resolve_combinations
 from spc3d.physics import spc
 from spc3d.sweeps import plan
-from spc3d.targets import check_targets, command_line_targets, explain_target, is_fresh_folder, remove_if_unused
 
 from conftest import LLFF_ROOT
 

@@ -174,7 +174,7 @@ def test_knobs_reach_every_rule():
         points.translator(value, "pix2pix", {"num_downs": 6}, {})
     s = points.stage2(value, "3dgs", TINY_3DGS)
     assert s["iterations"] == 6 and s["densify_until"] == 5 and s["densify_every"] == 2  # schedules scale 6/12
-    assert s["max_gaussians"] == 100 and s["init_points"] == 300  # below the cap: spc3d.crosscheck refuses it
+    assert s["max_gaussians"] == 100 and s["init_points"] == 300  # below the cap: spc3d.checks.crosscheck refuses it
     grid = points.stage2(
         plan.overlay("tradeoff", "iters~100/grid~48"),
         "nerf-grid",

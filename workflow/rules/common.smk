@@ -5,7 +5,7 @@ from pathlib import Path
 from snakemake.utils import validate
 
 from spc3d.config import check_config, check_settings, read_yaml, resolve_paths
-from spc3d.crosscheck import check_capture_frames
+from spc3d.checks.crosscheck import check_capture_frames
 
 # Short messages naming the key (Snakemake's own validate prints the whole schema), then its
 # validate fills in the defaults; every relative path is then taken from the repository root.

@@ -342,7 +342,7 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     """Build every settings dataclass the run uses (stage-1 ``methods``, stage-2 ``models``, the
     augmentation ranges), check published weights, input paths and the values that constrain each
     other, so that a wrong key or value is reported at parse time."""
-    from spc3d.crosscheck import check_rows
+    from spc3d.checks.crosscheck import check_rows
     from spc3d.inputs.augment import AugmentSettings
     from spc3d.names import parse_source, translator_settings, translator_validation
     from spc3d.reconstruct import CONFIGS, check_joint

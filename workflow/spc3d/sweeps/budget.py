@@ -85,7 +85,7 @@ def stage2_settings(settings: dict, model: str, knobs: dict) -> dict:
             cfg[key] = max(1, round(cfg[key] * factor))
         if model == "nerf-grid":
             cfg["res_schedule"] = [[round(it * factor), r] for it, r in cfg["res_schedule"]]
-    if model == "3dgs" and "cap" in knobs:  # a cap below init_points is refused (spc3d.crosscheck.check_point)
+    if model == "3dgs" and "cap" in knobs:  # a cap below init_points is refused (spc3d.checks.crosscheck.check_point)
         cfg["max_gaussians"] = knobs["cap"]
     if model == "nerf-grid" and "grid" in knobs:
         final = cfg["res_schedule"][-1][1]

@@ -220,9 +220,9 @@ def planned_jobs(
     combo: str, value: str, scene: str, train: list[str], frames: int | None, points: PointSettings | None = None
 ) -> dict:
     """``{"jobs": ...}`` of a point, or ``{"jobs": [], "error": why}`` when it cannot run: its jobs
-    cannot be planned, or its settings contradict each other (:func:`spc3d.crosscheck.check_point`,
+    cannot be planned, or its settings contradict each other (:func:`spc3d.checks.crosscheck.check_point`,
     the main configuration's cross-checks with the point's knobs applied)."""
-    from spc3d.crosscheck import check_point
+    from spc3d.checks.crosscheck import check_point
 
     try:
         jobs = point_jobs(combo, value, scene, train, frames)
