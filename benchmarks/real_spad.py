@@ -219,14 +219,18 @@ def stage1(real: dict, models: Path, sim_frames: int, ensemble: int, block: int,
 
 
 def trained_text(record: dict) -> str:
-    """What a model folder's train.json says was trained: steps run / budget, and the pairs."""
-    steps = record.get("model_step", record.get("iterations"))
+    """What a model folder's train.json says was trained: the step kept of the budget, where it
+    stopped, and the training pairs."""
     budget = (record.get("train") or {}).get("iterations", record.get("iterations"))
-    if record.get("trainable") is False or steps is None:
-        return "no network trained (fitted on the training scenes)"
-    pairs = record.get("pairs", record.get("training_pairs"))
-    text = f"{steps} of {budget} steps" if budget is not None else f"{steps} steps"
-    return text + (f", {pairs} pairs" if pairs else "")
+    pairs = record.get("pairs")
+    on = f"{pairs} pairs" if pairs else "the training scenes"
+    if not budget:
+        return f"no network; fitted on {on}"
+    stopped = record.get("stopped") or {}
+    text = f"step {record.get('model_step')} of {budget}"
+    if stopped.get("step") is not None and stopped["step"] < budget:
+        text += f" (stopped at {stopped['step']}: {stopped.get('reason')})"
+    return f"{text}; {on}"
 
 
 def stage1_table(rows: list[dict], pixels: int, shape, sim_frames: int, ensemble: int, models: Path) -> str:

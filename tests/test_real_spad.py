@@ -14,10 +14,10 @@ from spc3d.captures import photon_cubes as pc
 from spc3d.physics import real_frames as rf
 from spc3d.translate import model_io
 from spc3d.translate.__main__ import main as translate_main
-from spc3d.translate.pix2pix import Config as Pix2PixConfig
-from spc3d.translate.pix2pix import Translator as Pix2Pix
+from spc3d.translate.blurred_mle import Config as PriorConfig
+from spc3d.translate.blurred_mle import Translator as Prior
 
-from conftest import REPO, TINY_TRANSLATORS, load_script
+from conftest import REPO, load_script
 
 SPAD = REPO.parent / "shared" / "data" / "spad" / "wision_yellowthroat"
 
@@ -154,17 +154,21 @@ def test_real_bits_are_binomial_at_k_1_and_4():
 # one frame through a model; the benchmark
 
 
-def tiny_model(folder, sensor=None):
-    cfg = Pix2PixConfig(**TINY_TRANSLATORS["pix2pix"])
-    model = Pix2Pix(cfg, torch.device("cpu"))
-    model_io.write_model_folder(
-        folder, model, {"method": "pix2pix", "settings": dataclasses.asdict(cfg), "sensor": sensor}, []
-    )
-    return folder
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    """The physics prior (the stage-1 method with no network: built in milliseconds) as a model folder
+    of the simulated RGB sensor, and the same recorded as trained for an RGGB sensor."""
+    root = tmp_path_factory.mktemp("models")
+    cfg = PriorConfig()
+    model = Prior(cfg, torch.device("cpu"))
+    for folder, sensor in (("models", None), ("models-rggb", {"cfa": "RGGB"})):
+        record = {"method": "prior", "settings": dataclasses.asdict(cfg), "sensor": sensor}
+        model_io.write_model_folder(root / folder / "prior", model, record, [])
+    return root
 
 
-def test_the_command_translates_a_frame_and_names_a_bad_one(tmp_path, capsys):
-    model = tiny_model(tmp_path / "models" / "pix2pix")
+def test_the_command_translates_a_frame_and_names_a_bad_one(tmp_path, capsys, models):
+    model = models / "models" / "prior"
     frame = grey_png(tmp_path / "frame.png", counts_of(1, (24, 40)) * 255)
     assert translate_main([str(model), str(frame), str(tmp_path / "out.png")]) == 0
     out = io.read_image(tmp_path / "out.png")
@@ -174,18 +178,17 @@ def test_the_command_translates_a_frame_and_names_a_bad_one(tmp_path, capsys):
     assert translate_main([str(model), str(bad), str(tmp_path / "bad_out.png"), "--frames", "4"]) == 2
     assert f"{bad}: 1 pixels hold levels that are not multiples of 1/4" in capsys.readouterr().err
     assert not (tmp_path / "bad_out.png").exists()
-    rggb = tiny_model(tmp_path / "models-rggb" / "pix2pix", {"cfa": "RGGB"})
+    rggb = models / "models-rggb" / "prior"
     assert translate_main([str(rggb), str(frame), str(tmp_path / "x.png")]) == 2
     assert "trained for the RGGB colour-filter sensor" in capsys.readouterr().err
 
 
-def test_the_benchmark_smoke_mode_writes_both_tables(tmp_path):
+def test_the_benchmark_smoke_mode_writes_both_tables(tmp_path, models):
     real_capture(1)
     bench = load_script(REPO / "benchmarks" / "real_spad.py")
-    tiny_model(tmp_path / "models" / "pix2pix")
-    assert bench.main(["--smoke", "--models", str(tmp_path / "models"), "--out", str(tmp_path / "out")]) == 0
+    assert bench.main(["--smoke", "--models", str(models / "models"), "--out", str(tmp_path / "out")]) == 0
     physics = (tmp_path / "out" / "tables" / "real_spad_physics.md").read_text()
     stage1 = (tmp_path / "out" / "tables" / "real_spad_stage1.md").read_text()
     assert "64 x 48 = 3,072 pixels" in physics and physics.count("| Var(m_K") == 8
-    assert "| pix2pix |" in stage1 and "| binary frame, MLE (no model) |" in stage1
+    assert "| prior |" in stage1 and "| binary frame, MLE (no model) |" in stage1
     assert (tmp_path / "out" / "real_spad_stage1.png").is_file()

@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--level", type=float, default=0.18, help="linear grey the mean is shown at (average metering)")
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     try:
         record = translate_frame(
             args.model_dir, args.frame, args.out, args.frames, args.ensemble, args.level, args.threads

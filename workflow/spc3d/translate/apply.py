@@ -206,6 +206,16 @@ def translate_frame(
     if threads:
         torch.set_num_threads(threads)
     method, model = load_translator(model_dir)
+    train_json = Path(model_dir) / "train.json"
+    trained_frames = io.read_json(train_json).get("frames") if train_json.is_file() else None
+    if trained_frames is not None and trained_frames != frame_mean.frames:
+        log.warning(
+            "%s was trained on means of %s frames (stage1.frames) and is given a mean of %d: its input is "
+            "outside what it learnt",
+            model_dir,
+            trained_frames,
+            frame_mean.frames,
+        )
     t0 = time.perf_counter()
     lam = translate_mean(model, frame_mean.mean, ensemble)
     seconds = time.perf_counter() - t0
@@ -217,6 +227,7 @@ def translate_frame(
         "frame": str(frame),
         "frames": frame_mean.frames,
         "frames_from": frame_mean.frames_from,
+        "model_frames": trained_frames,
         "size": list(frame_mean.counts.shape),
         "input": kind,
         "output": "Rec. 709 luminance of the model's camera image, as detections per frame",
