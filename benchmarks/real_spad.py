@@ -242,9 +242,10 @@ def stage1_table(rows: list[dict], pixels: int, shape, sim_frames: int, ensemble
         f"on the reference) against the reference, the mean of the capture's other 255 binary frames (as λT, "
         f"average-metered); {w} x {h} = {pixels:,} pixels. Real: the capture's one binary frame [95 % interval: "
         f"bootstrap over pixel blocks]. Simulated: {sim_frames} binary frames the project's simulator draws from "
-        f"the reference's λT, mean [min, max]. Gap = simulated − real. Models: `{models}` "
-        f"(trained on the simulated RGB sensor; the mono frame copied to their three channels, the luminance "
-        f"of their output scored), self-ensemble {ensemble}.",
+        f"the reference's λT, mean [min, max]. Gap = simulated − real. Models: `{shown_path(models)}` "
+        f"(trained on the simulated RGB sensor's training scenes; the mono frame copied to their three channels, "
+        f"the luminance of their output scored; trained: the step kept of the budget, as train.json records it), "
+        f"self-ensemble {ensemble}.",
         "",
         "| method | trained | real K = 1 frame | simulated K = 1 frames | sim-to-real gap |",
         "|---|---|---|---|---|",
@@ -256,6 +257,12 @@ def stage1_table(rows: list[dict], pixels: int, shape, sim_frames: int, ensemble
             f"{np.mean(r['sim']):.2f} [{min(r['sim']):.2f}, {max(r['sim']):.2f}] | {r['gap']:+.2f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def shown_path(path: Path) -> str:
+    """``path`` relative to the repository when inside it (a table names no machine's folders)."""
+    path = Path(path).resolve()
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
 
 
 def figure(real_frame: np.ndarray, shown: dict, ref: np.ndarray, path: Path) -> None:
