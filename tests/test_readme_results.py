@@ -94,3 +94,20 @@ def test_a_kept_run_leaves_its_blocks_as_they_are(tmp_path):
     text = readme.read_text()
     assert "| new | 1 |" in text and text.endswith(kept)  # the kept run's block is untouched
     assert run_tool(tmp_path / "res", readme, "--keep") == 2  # --keep without a name: the usage
+
+
+def test_one_run_alone_refreshes_its_blocks_and_keeps_every_other(tmp_path):
+    """refresh_run (a benchmark writing its own tables): only the named run's blocks change, in the
+    README and docs/; the default run's and other runs' blocks stay as they are."""
+    (tmp_path / "spad" / "tables").mkdir(parents=True)
+    (tmp_path / "spad" / "tables" / "t.md").write_text("# Title\n\n| new | 1 |\n")
+    (tmp_path / "docs").mkdir()
+    others = "<!-- generated: tables/t.md -->\nold default\n<!-- /generated -->\n"
+    others += "<!-- generated: real:tables/t.md -->\nold real\n<!-- /generated -->\n"
+    readme, doc = tmp_path / "README.md", tmp_path / "docs" / "a.md"
+    readme.write_text(others)
+    doc.write_text("intro\n<!-- generated: spad:tables/t.md -->\nold\n<!-- /generated -->\n" + others)
+    counts = runpy.run_path(str(TOOL), run_name="not_main")["refresh_run"](readme, "spad", tmp_path / "spad")
+    assert counts == {readme: 0, doc: 1} and readme.read_text() == others
+    text = doc.read_text()
+    assert "| new | 1 |" in text and "\nold\n" not in text and text.endswith(others)

@@ -107,6 +107,26 @@ def image_shape(path: str | os.PathLike) -> tuple[int, int, int]:
         inp.close()
 
 
+def read_image_codes(path: str | os.PathLike) -> tuple[np.ndarray, int]:
+    """(integer codes (H, W, C) int64, full scale): an 8- or 16-bit image's stored values exactly
+    (full scale 255 or 65535), for data whose levels carry meaning (a K-frame mean's counts)."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format or missing file'}")
+    try:
+        spec = inp.spec()
+        full = {oiio.UINT8: 255, oiio.UINT16: 65535}.get(spec.format.basetype)
+        if full is None:
+            raise ValueError(f"{path}: {spec.format} pixels; expected an 8- or 16-bit integer image")
+        data = inp.read_image(0, 0, 0, spec.nchannels, spec.format)
+    finally:
+        inp.close()
+    if data is None or data.ndim != 3:
+        raise ValueError(f"cannot decode image {path}: {oiio.geterror()}")
+    return np.asarray(data, dtype=np.int64), full
+
+
 def read_rgb(path: str | os.PathLike) -> np.ndarray:
     """Read an image as float32 (H, W, 3) in [0, 1]: gray is replicated, alpha dropped."""
     img = read_image(path)

@@ -70,6 +70,23 @@ def write_atomically(path: Path, text: str) -> None:
     tmp.replace(path)
 
 
+def refresh_run(readme: Path, name: str, results: Path) -> dict[Path, int]:
+    """Refresh only the blocks of run ``name`` (``NAME:tables/...``, read from ``results``) in the
+    README and docs/, every other block left as it is (a benchmark that writes its own tables, e.g.
+    ``benchmarks/real_spad.py --docs``). Returns {document: blocks of that run}; all documents are
+    rendered before any is written, as in :func:`main`."""
+    docs = documents(readme)
+    names = {m.group("path").rpartition(":")[0] for doc in docs for m in BLOCK.finditer(doc.read_text())}
+    runs = {n: None for n in names} | {name: results}
+    refreshed = [(doc, *refresh(runs, doc)) for doc in docs]
+    counts = {}
+    for doc, text, _ in refreshed:
+        if text != doc.read_text():
+            write_atomically(doc, text)
+        counts[doc] = sum(m.group("path").rpartition(":")[0] == name for m in BLOCK.finditer(text))
+    return counts
+
+
 def parse_args(argv: list[str]) -> tuple[dict[str, Path | None], Path] | None:
     """({run name: results dir, or None for a kept run}, README) from the command line ("" is
     RESULTS_DIR); None if malformed."""

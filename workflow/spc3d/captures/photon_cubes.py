@@ -21,6 +21,12 @@ A photon cube is bool ``(K, H, W)``: K binary frames of the raw sensor plane, on
 ``npz``     the project's own :func:`spc3d.io.save_frames` file (``packed``, ``shape``; little bit
             order over the whole flattened array, :func:`spc3d.physics.spc.pack_frames`), shape ``(K, H, W)``.
 
+A single binary frame or the mean of K frames may also come as one 8- or 16-bit PNG (the form in
+which SPAD datasets often publish a capture: ``average1.png``, ``average16.png``, ...):
+:func:`read_frame_mean` reads it back to counts of ones per pixel, K stated by the caller or read
+from a sidecar ``{name}.json`` (``{"frames": K}``) beside it, and :func:`read_cube` reads a binary
+one as a one-frame cube.
+
 :func:`read_cube` picks the format from the name (a folder is PNG frames) and checks what it
 reads: every error names the file and what was expected. Writers go through
 :func:`spc3d.io.atomic_path`; every format round-trips exactly.
@@ -29,9 +35,11 @@ reads: every error names the file and what was expected. Writers go through
 from __future__ import annotations
 
 import gzip
+import math
 import os
 import re
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -289,6 +297,173 @@ def write_png_frames(folder: str | os.PathLike, cube: np.ndarray) -> Path:
 
 
 # --------------------------------------------------------------------------------------------
+# one PNG: a binary frame or the mean of K frames
+
+SIDECAR_KEY = "frames"
+MAX_MEAN_FRAMES = 1 << 20  # more frames than any single-PNG mean needs; bounds the level search
+
+
+@dataclass(frozen=True, eq=False)
+class FrameMean:
+    """The ones per pixel among K binary frames, read from one monochrome PNG."""
+
+    counts: np.ndarray  # (H, W) int64 in [0, K]
+    frames: int  # K
+    path: Path
+    frames_from: str  # "argument", "sidecar" or "binary" (only 0 and full scale: one frame)
+    ambiguous: int = 0  # pixels whose level two counts round to (only when K > the full scale)
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(H, W) float64 fraction of frames that fired."""
+        return self.counts / self.frames
+
+
+def sidecar_path(path: str | os.PathLike) -> Path:
+    """``{name}.json`` beside ``{name}.png``: the sidecar that states K of a K-frame mean."""
+    return Path(path).with_suffix(".json")
+
+
+def read_sidecar_frames(path: str | os.PathLike) -> int | None:
+    """K from the sidecar of a frame-mean PNG (None: no sidecar); errors name the sidecar."""
+    side = sidecar_path(path)
+    if not side.is_file():
+        return None
+    rec = io.read_json(side)
+    value = rec.get(SIDECAR_KEY) if isinstance(rec, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(
+            f"{side}: {SIDECAR_KEY}={value!r}; the sidecar of {Path(path).name} states the number of binary "
+            f'frames its mean holds as a positive integer, e.g. {{"{SIDECAR_KEY}": 16}}'
+        )
+    return value
+
+
+def _mono_codes(path: Path) -> tuple[np.ndarray, int]:
+    """(H, W) integer levels and full scale of a single-channel PNG (equal RGB channels accepted)."""
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"{path}: a frame mean is read from a .png file (8 or 16 bit, one channel)")
+    codes, full = io.read_image_codes(path)
+    channels = codes.shape[2]
+    if channels in (2, 4):  # grey + alpha / RGBA: the alpha must be opaque
+        if (codes[:, :, -1] != full).any():
+            raise ValueError(f"{path}: its alpha channel is not opaque everywhere; a SPAD frame has no transparency")
+        codes = codes[:, :, :-1]
+    if codes.shape[2] == 3:
+        if not ((codes[:, :, 0] == codes[:, :, 1]) & (codes[:, :, 1] == codes[:, :, 2])).all():
+            raise ValueError(
+                f"{path}: a colour image (its RGB channels differ); a SPAD frame or frame mean is monochrome, "
+                "one value per pixel (a colour-filter sensor's raw mosaic, not a demosaiced image)"
+            )
+        codes = codes[:, :, :1]
+    if codes.shape[2] != 1:
+        raise ValueError(f"{path}: {channels} channels; a SPAD frame mean is a single-channel image")
+    return codes[:, :, 0], full
+
+
+def _levels_fit(levels: np.ndarray, full: int, frames: int) -> np.ndarray:
+    """Which stored levels lie within half a code of a multiple of full/K (any rounding rule)."""
+    nearest = np.rint(levels * frames / full)
+    return np.abs(levels - nearest * full / frames) <= 0.5 + 1e-9
+
+
+def _smallest_k(levels: np.ndarray, full: int, start: int = 1) -> int | None:
+    """The smallest K >= start whose multiples of full/K explain every level (None: none up to the full scale)."""
+    for k in range(start, full + 1):
+        if _levels_fit(levels, full, k).all():
+            return k
+    return None
+
+
+def read_frame_mean(path: str | os.PathLike, frames: int | None = None) -> FrameMean:
+    """A single binary frame or a K-frame mean stored as one monochrome PNG -> :class:`FrameMean`.
+
+    The PNG holds mean x full scale (255 or 65535), rounded by any rule. K is ``frames`` if given,
+    else the sidecar's (:func:`sidecar_path`; both given must agree), else 1 when the PNG holds only
+    0 and full scale (a binary frame). Checks, each an error naming the file and the fault: a frame
+    stated binary (K = 1) holds only 0 and full scale; every level lies within half a code of a
+    multiple of 1/K; and the levels present are not all multiples of g/K for some g > 1 (then the
+    file is a K/g-frame mean: the stated K does not match it). With K above the full scale two
+    counts can share a level; such pixels are decoded to the nearer count and counted in
+    ``ambiguous``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"frame mean {path} does not exist (expected a monochrome PNG)")
+    if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int) or frames < 1):
+        raise ValueError(f"{path}: frames={frames!r}; the number of binary frames averaged must be a positive integer")
+    if frames is not None and frames > MAX_MEAN_FRAMES:
+        raise ValueError(f"{path}: frames={frames} is more than {MAX_MEAN_FRAMES} frames in one PNG mean")
+    side = read_sidecar_frames(path)
+    if frames is not None and side is not None and frames != side:
+        raise ValueError(f"{path}: frames={frames} was given but its sidecar {sidecar_path(path).name} says {side}")
+    codes, full = _mono_codes(path)
+    levels = np.unique(codes)
+    binary = bool(np.isin(levels, (0, full)).all())
+    k, source = (frames, "argument") if frames is not None else (side, "sidecar") if side is not None else (None, "")
+    if k is None:
+        if not binary:
+            raise ValueError(
+                f"{path}: {levels.size} grey levels, so not a binary frame; a K-frame mean needs K: "
+                f"state it (frames=K; --frames K on the command line) or write {sidecar_path(path).name} with "
+                f'{{"{SIDECAR_KEY}": K}}' + _k_hint(levels, full)
+            )
+        k, source = 1, "binary"
+    if k == 1 and not binary:
+        bad = (codes != 0) & (codes != full)
+        y, x = np.argwhere(bad)[0]
+        raise ValueError(
+            f"{path}: not a binary frame: {int(bad.sum())} pixels are neither 0 nor {full} (e.g. {int(codes[y, x])} "
+            f"at row {y}, column {x}); a single binary frame (K = 1, {source}) holds only 0 and full scale"
+            + _k_hint(levels, full)
+        )
+    fit = _levels_fit(levels, full, k)
+    if not fit.all():
+        bad_levels = levels[~fit]
+        n_bad = int(np.isin(codes, bad_levels).sum())
+        y, x = np.argwhere(codes == bad_levels[0])[0]
+        raise ValueError(
+            f"{path}: {n_bad} pixels hold levels that are not multiples of 1/{k} (K = {k}, {source}; e.g. "
+            f"{int(bad_levels[0])}/{full} at row {y}, column {x}, between counts "
+            f"{math.floor(bad_levels[0] * k / full)} and {math.ceil(bad_levels[0] * k / full)} of {k})"
+            + _k_hint(levels, full)
+        )
+    counts = np.rint(codes * k / full).astype(np.int64)
+    present = np.unique(counts)
+    step = math.gcd(*(int(c) for c in present)) if present.any() else 1
+    if k > 1 and step > 1 and k % step == 0 and present.size > 1:
+        raise ValueError(
+            f"{path}: K = {k} ({source}) does not match the levels present: every count is a multiple of {step}, "
+            f"as in {'a single binary frame' if k == step else f'the mean of {k // step} frames'}; "
+            "state the K the file was averaged over"
+        )
+    ambiguous = 0
+    if k > full:
+        lower = np.abs(levels - (np.rint(levels * k / full) - 1) * full / k) <= 0.5 + 1e-9
+        upper = np.abs(levels - (np.rint(levels * k / full) + 1) * full / k) <= 0.5 + 1e-9
+        ambiguous = int(np.isin(codes, levels[lower | upper]).sum())
+    return FrameMean(counts, k, path, source, ambiguous)
+
+
+def _k_hint(levels: np.ndarray, full: int) -> str:
+    k = _smallest_k(levels, full)
+    return f" (its levels fit a mean of K = {k} frames)" if k is not None and k > 1 else ""
+
+
+def write_frame_mean(path: str | os.PathLike, counts: np.ndarray, frames: int, sidecar: bool = True) -> Path:
+    """Write ones per pixel among ``frames`` binary frames as an 8-bit PNG of their mean (16 bit when K > 255,
+    exact up to K = 65535), and with ``sidecar`` its ``{name}.json`` stating K; each file atomically."""
+    path = Path(path)
+    counts = np.asarray(counts)
+    if frames < 1 or counts.ndim != 2 or counts.min() < 0 or counts.max() > frames:
+        raise ValueError(f"writing {path}: counts {counts.shape} in [{counts.min()}, {counts.max()}] of K = {frames}")
+    io.write_image(path, (counts / frames).astype(np.float64)[:, :, None], bits=8 if frames <= 255 else 16)
+    if sidecar:
+        io.write_json(sidecar_path(path), {SIDECAR_KEY: int(frames)})
+    return path
+
+
+# --------------------------------------------------------------------------------------------
 # the project's .npz
 
 
@@ -370,12 +545,15 @@ def read_cube(
 ) -> np.ndarray:
     """Any photon cube -> bool (K, H, W), the raw sensor plane.
 
-    path: a ``.npy`` / ``.npy.gz`` (``width`` and ``bitorder`` apply), a ``.npz``, or a folder of PNG
-    frames. max_frames: read only the first frames (a plain ``.npy`` is memory-mapped, a ``.npy.gz``
+    path: a ``.npy`` / ``.npy.gz`` (``width`` and ``bitorder`` apply), a ``.npz``, a folder of PNG
+    frames, or one binary PNG frame (a one-frame cube).
+    max_frames: read only the first frames (a plain ``.npy`` is memory-mapped, a ``.npy.gz``
     streamed, so a long capture costs only what is read).
     """
     if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1):
         raise ValueError(f"max_frames={max_frames!r}: must be a positive integer or None")
+    if Path(path).is_file() and Path(path).suffix.lower() == ".png":  # one binary frame
+        return read_frame_mean(path, 1).counts.astype(bool)[None]
     fmt = cube_format(path)
     if fmt == "png":
         return read_png_frames(path, max_frames)

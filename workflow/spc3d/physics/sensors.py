@@ -217,8 +217,7 @@ def simulate_mosaic(
 ) -> np.ndarray:
     """Flux (H, W, 3) photons/s -> bool (K, H, W) frames of the sensor, K = params.frames, drawn with
     the simulator's own sampler for ``params.mode``."""
-    plane = mosaic(spc._check_flux(phi), pattern)
-    return spc._SAMPLERS[params.mode](plane, params, rng)  # noqa: SLF001 - the simulator's sampler, reused
+    return spc.simulate_plane(mosaic(spc._check_flux(phi), pattern), params, rng)
 
 
 def sensor_frames(

@@ -273,6 +273,14 @@ def simulate_frames(srgb: np.ndarray, flux_scale: float, params: SPCParams, rng:
     return _SAMPLERS[params.mode](phi, params, rng)
 
 
+def simulate_plane(phi: np.ndarray, params: SPCParams, rng: np.random.Generator) -> np.ndarray:
+    """K independent 1-bit frames of a flux map of any shape (photons/s; one value per pixel of a
+    sensor plane): bool (K, *phi.shape), drawn with the sampler of ``params.mode``."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng: got {type(rng).__name__}, need a numpy.random.Generator (see view_rng)")
+    return _SAMPLERS[params.mode](_check_flux(phi), params, rng)
+
+
 def view_rng(seed: int, scene: str, view: int) -> np.random.Generator:
     """PCG64 generator fixed by (seed, scene name, view index); independent of PYTHONHASHSEED."""
     seed, view = _integer("seed", seed, 0), _integer("view", view, 0)

@@ -19,6 +19,11 @@ of the noise, and the diffusion stand-in's one sample is one draw of many. On th
 held-out views (never an evaluation scene) 4 beat 1 for four of the five
 methods (docs/stage1.md). Validation while training scores single passes (:mod:`.validate`).
 Its images are scored before 3D by :func:`spc3d.evaluation.stage1.score_images`.
+
+``translate_frame`` (``python -m spc3d.translate MODEL_DIR FRAME.png OUT.png``) turns one real
+capture frame, a binary frame or a K-frame mean as a monochrome PNG, into an image with a trained
+model: the frame copied to the model's three channels, the luminance of its output kept
+(:func:`translate_mean` says why).
 """
 
 from __future__ import annotations
@@ -34,8 +39,10 @@ import torch
 from torch import Tensor
 
 from spc3d import io, llff
+from spc3d.inputs.exposure import PREVIEW_LEVEL, display_srgb, metered_gain
+from spc3d.physics import sensors, spc
 from spc3d.physics.record import camera_exposure, read_spc_record
-from spc3d.translate.camera import from_camera
+from spc3d.translate.camera import CAMERA_WHITE, from_camera
 from spc3d.translate.data import binary_input
 from spc3d.translate.model_io import load_translator
 
@@ -134,3 +141,99 @@ def input_sensor(model_dir: str | os.PathLike, spc_dir: str | os.PathLike):
             f"{have or 'simulated RGB'} frames; the workflow trains one model per sensor (results/models-<sensor>)"
         )
     return (None, None) if found is None else found
+
+
+# --------------------------------------------------------------------------------------------
+# one real frame (a monochrome PNG) through a trained model
+
+
+def mono_input_kind(model_dir: str | os.PathLike) -> str:
+    """How a monochrome frame enters the model in ``model_dir``: ``"replicated"`` for a model of the
+    simulator's RGB sensor (the frame mean copied to its three channels), ``"mono"`` for one trained
+    for a colourless sensor (whose input is that same copy: :func:`spc3d.physics.sensors.demosaic_bilinear`).
+    A model trained for a colour-filter mosaic is refused: a mono frame is not that sensor's data."""
+    from spc3d.translate.data import sensor_pattern
+
+    train_json = Path(model_dir) / "train.json"
+    trained = sensor_pattern(io.read_json(train_json).get("sensor")) if train_json.is_file() else None
+    if trained is None:
+        return "replicated"
+    if not trained.colour:
+        return "mono"
+    raise ValueError(
+        f"{model_dir} was trained for the {trained.name} colour-filter sensor; a monochrome frame needs a model "
+        "of the simulator's RGB sensor (results/models/{method}) or of a colourless sensor (results/models-mono/)"
+    )
+
+
+def translate_mean(model, mean: np.ndarray, ensemble: int = 1) -> np.ndarray:
+    """(H, W) frame mean (fraction of K frames that fired) -> (H, W) float64 detections per frame
+    λT the model's output implies, from the Rec. 709 luminance of its camera image.
+
+    The translators see three channels, each the mean of its own channel's bits; a monochrome
+    pixel has one bit of all the light, so the mean is copied to all three (what the RGB sensor
+    records of a grey scene, its channels firing alike). The output's colour is then the model's
+    guess, not a measurement, so only its luminance is kept: in the camera domain
+    (:mod:`.camera`) linear light x Λ is photons per frame, so λT = Λ Y(lin(c)).
+    """
+    x = torch.from_numpy(np.repeat(np.asarray(mean, np.float32)[None, None], 3, axis=1)).to(model.device)
+    with torch.no_grad():
+        camera = self_ensemble(model.translate, x, ensemble)[0].permute(1, 2, 0).cpu().numpy().astype(np.float64)
+    return CAMERA_WHITE * (spc.srgb_to_linear(camera) @ np.asarray(sensors.LUMINANCE))
+
+
+def translate_frame(
+    model_dir: str | os.PathLike,
+    frame: str | os.PathLike,
+    out: str | os.PathLike,
+    frames: int | None = None,
+    ensemble: int = 1,
+    level: float = PREVIEW_LEVEL,
+    threads: int | None = None,
+) -> dict:
+    """Translate one capture frame (a binary frame or a K-frame mean as a monochrome PNG,
+    :func:`spc3d.captures.photon_cubes.read_frame_mean`; ``frames`` = K or its sidecar) with the model
+    in ``model_dir`` and write ``out`` (a grey 8-bit PNG, atomically): the output's λT
+    (:func:`translate_mean`) shown with average metering (mean at linear ``level``, the
+    exposure being unknown, as ``capture.py inspect`` shows its previews). Returns the record."""
+    from spc3d.captures.photon_cubes import read_frame_mean
+
+    check_ensemble(ensemble)
+    if not str(out).lower().endswith(".png"):
+        raise ValueError(f"output {out}: write the translation as a .png file")
+    frame_mean = read_frame_mean(frame, frames)  # the file's faults are named before the model loads
+    kind = mono_input_kind(model_dir)
+    if threads:
+        torch.set_num_threads(threads)
+    method, model = load_translator(model_dir)
+    train_json = Path(model_dir) / "train.json"
+    trained_frames = io.read_json(train_json).get("frames") if train_json.is_file() else None
+    if trained_frames is not None and trained_frames != frame_mean.frames:
+        log.warning(
+            "%s was trained on means of %s frames (stage1.frames) and is given a mean of %d: its input is "
+            "outside what it learnt",
+            model_dir,
+            trained_frames,
+            frame_mean.frames,
+        )
+    t0 = time.perf_counter()
+    lam = translate_mean(model, frame_mean.mean, ensemble)
+    seconds = time.perf_counter() - t0
+    gain = metered_gain(lam, level)
+    io.write_image(out, display_srgb(lam, gain)[..., None])
+    record = {
+        "method": method,
+        "model_dir": str(model_dir),
+        "frame": str(frame),
+        "frames": frame_mean.frames,
+        "frames_from": frame_mean.frames_from,
+        "model_frames": trained_frames,
+        "size": list(frame_mean.counts.shape),
+        "input": kind,
+        "output": "Rec. 709 luminance of the model's camera image, as detections per frame",
+        "display": {"rule": "average metering", "level": level, "gain": gain},
+        "ensemble": ensemble,
+        "seconds": seconds,
+    }
+    log.info("%s: %s (K = %d) -> %s in %.2f s", method, frame, frame_mean.frames, out, seconds)
+    return record
