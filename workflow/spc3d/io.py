@@ -94,34 +94,34 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     return np.ascontiguousarray(data, dtype=np.float32)
 
 
-def image_shape(path: str | os.PathLike) -> tuple[int, int, int]:
-    """(H, W, C) of an image from its header alone (no pixel is decoded)."""
+@contextlib.contextmanager
+def _image_input(path: str | os.PathLike):
+    """An open OpenImageIO input of ``path`` and its spec, closed afterwards; a clear error if unreadable."""
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format or missing file'}")
     try:
-        spec = inp.spec()
-        return spec.height, spec.width, spec.nchannels
+        yield inp, inp.spec()
     finally:
         inp.close()
+
+
+def image_shape(path: str | os.PathLike) -> tuple[int, int, int]:
+    """(H, W, C) of an image from its header alone (no pixel is decoded)."""
+    with _image_input(path) as (_, spec):
+        return spec.height, spec.width, spec.nchannels
 
 
 def read_image_codes(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     """(integer codes (H, W, C) int64, full scale): an 8- or 16-bit image's stored values exactly
     (full scale 255 or 65535), for data whose levels carry meaning (a K-frame mean's counts)."""
     oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format or missing file'}")
-    try:
-        spec = inp.spec()
+    with _image_input(path) as (inp, spec):
         full = {oiio.UINT8: 255, oiio.UINT16: 65535}.get(spec.format.basetype)
         if full is None:
             raise ValueError(f"{path}: {spec.format} pixels; expected an 8- or 16-bit integer image")
         data = inp.read_image(0, 0, 0, spec.nchannels, spec.format)
-    finally:
-        inp.close()
     if data is None or data.ndim != 3:
         raise ValueError(f"cannot decode image {path}: {oiio.geterror()}")
     return np.asarray(data, dtype=np.int64), full
