@@ -354,7 +354,8 @@ def get_augment_ranges(wildcards):
 
 # The library code a translator's weights depend on (the scripts of its job and of the jobs upstream,
 # its model's module, every spc3d module they import): a param, so it keys Snakemake's between-workflow
-# cache (`--cache`) and reruns the training when that code changes (spc3d/provenance.py).
+# cache (`--cache`) and reruns the training when that code changes (spc3d/provenance.py; comments,
+# docstrings and formatting do not count).
 TRAINING_SCRIPTS = [
     Path(workflow.basedir) / "workflow" / "scripts" / f"{name}.py"
     for name in ("prepare_scene", "simulate_scene", "augment_scene", "train_translator")
@@ -368,6 +369,20 @@ def translator_code(method):
 
 def get_translator_code(wildcards):
     return translator_code(get_translator_base(wildcards))
+
+
+# The same key for a stage-2 fit: its script, its model's factory module and every spc3d module they
+# import (the sources, the objectives, the trainers, the rasterizer): a change there reruns the fits.
+RECONSTRUCT_SCRIPT = Path(workflow.basedir) / "workflow" / "scripts" / "reconstruct.py"
+
+
+@functools.lru_cache(maxsize=None)
+def reconstruct_code(model):
+    return closure_digest([RECONSTRUCT_SCRIPT, entry_file(MODELS[model].factory.rpartition(":")[0])])
+
+
+def get_reconstruct_code(wildcards):
+    return reconstruct_code(wildcards.model)
 
 
 def get_translator_sensor(wildcards):
