@@ -16,7 +16,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, scored_before_3d, source_frames, source_images, spc_settings, stage1_sources, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -47,10 +47,8 @@ check_settings(config, STAGE1_USED, sorted({parse_combination(c)[1] for c in COM
 # everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
 SEEDS = [config["seed"] + k for k in range(config["seeds"])]
 REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
-# Sources scored before 3D (score_images): the translators in use and the training-free images
-# (the binary frame always; MLE and binary variants as the rows use them, without their stage-2 loss).
-STAGE1_SCORED = STAGE1_USED + sorted({parse_source(parse_combination(c)[0]).images for c in COMBINATIONS
-                                      if parse_source(parse_combination(c)[0]).base in ("mle", "none")} | {"none"})
+# Sources scored before 3D (score_images): the translators in use and the training-free images.
+STAGE1_SCORED = scored_before_3d(COMBINATIONS)
 # Sweep points (tradeoff.smk) are these rules' jobs under a settings overlay: the {overlay} wildcard
 # after results/ ("" for the grid, "sweeps/tradeoff/iters~300/res~64/" for a point: spc3d.sweeps.plan).
 # A get_* helper below returns the grid's value for "" and POINTS' for a point.
