@@ -4,7 +4,7 @@
     python benchmarks/paper_budget.py --smoke          # the plan at full size, the steps timed tiny
 
 Plans from the preset's own configuration (config.yaml with the preset merged over it, as
-``snakemake --configfile`` reads it: :func:`spc3d.jobs.workflow_config`): every translator training
+``snakemake --configfile`` reads it: :func:`spc3d.config.workflow_config`): every translator training
 its combinations need (stage-1 model folders x training folds x seeds, each at its own iterations;
 the untrained prior and classical denoiser cost no training) and every stage-2 fit (combinations x
 evaluation scenes x seeds, each at its model's iterations). Times a few optimisation steps of each
@@ -35,9 +35,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 from rasterizer import make_scene, train_step  # noqa: E402
 
 from spc3d import models  # noqa: E402
+from spc3d.config import workflow_config  # noqa: E402
 from spc3d.evaluation import lpips_specs  # noqa: E402
 from spc3d.inputs.scenes import render_scene  # noqa: E402
-from spc3d.jobs import scene_fold, training_scene_names, workflow_config  # noqa: E402
+from spc3d.jobs import scene_fold, training_scene_names  # noqa: E402
 from spc3d.names import parse_combination, parse_source, resolve_combinations, stage1_sources, translator_settings  # noqa: E402
 from spc3d.reconstruct import RECONSTRUCTORS  # noqa: E402
 from spc3d.reconstruct.views import Views  # noqa: E402

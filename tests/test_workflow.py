@@ -8,8 +8,9 @@ import pytest
 import yaml
 
 from spc3d import io
+from spc3d.config import workflow_config
 from spc3d.inputs.scenes import LAYOUTS
-from spc3d.jobs import scene_fold, scene_specs, training_scene_names, workflow_config
+from spc3d.jobs import scene_fold, scene_specs, training_scene_names
 from spc3d.names import (
     ConfigError,
     display_budgets,

@@ -94,26 +94,6 @@ def translator_checkpoint(model_dir: str | os.PathLike) -> Path:
     return model_dir.parent.parent / "checkpoints" / model_dir.parent.name / model_dir.name / "checkpoint.pt"
 
 
-REPO = Path(__file__).resolve().parents[2]  # a source checkout: config.yaml, workflow/schemas/
-
-
-def workflow_config(*changes: str | os.PathLike | dict) -> dict:
-    """The configuration a run of this checkout reads, before its scenes are checked: config.yaml
-    (the one home of every default the Snakefile reads), each change (a ``--configfile`` path or a
-    dict) merged over it as Snakemake merges them (blocks key by key, anything else replaced), then
-    the schema's defaults of the keys config.yaml leaves unset. For benchmarks and tests that plan
-    from a preset (``benchmarks/paper_budget.py``) without running Snakemake."""
-    from snakemake.utils import update_config, validate
-
-    from spc3d.config import read_yaml
-
-    config = read_yaml(REPO / "config.yaml")
-    for change in changes:
-        update_config(config, change if isinstance(change, dict) else read_yaml(change))
-    validate(config, schema=str(REPO / "workflow" / "schemas" / "config.schema.yaml"))
-    return config
-
-
 def training_scene_names(config: dict) -> list[str]:
     """``scenes.train``, and with ``scenes.train_llff`` (the default) every ``llff_scenes`` entry not
     in ``scenes.eval`` after it: configured real photographs are training content. An evaluation
