@@ -136,7 +136,8 @@ def step_of(item: Item, smoke: bool):
         gs = make_scene(n, h, w)
         return f"3dgs fwd+bwd {n // 1000}k Gaussians {w}x{h}", lambda: train_step(gs, "native")
     settings = {**item.settings, "batch_rays": 64, "chunk": 1024} if smoke else item.settings
-    return f"{item.name} ({settings.get('batch_rays', 'default')} rays)", ray_step(item.name, settings)
+    rays = models.load(models.RECONSTRUCTORS[item.name].config)(settings).batch_rays  # a preset's included
+    return f"{item.name} ({rays} rays)", ray_step(item.name, settings)
 
 
 def smoke_sizes(method: str) -> dict:
