@@ -9,6 +9,7 @@ reprojection error of the sparse points through the reference poses (px) and wal
     python benchmarks/colmap_poses.py                          # courtyard + fern + flower, 128 px wide
     python benchmarks/colmap_poses.py --width 504 --scenes fern flower
 Real scenes are read from ../shared/data/llff (skipped when absent).
+``--smoke``: courtyard at 64 px wide, K = 2 (seconds).
 """
 
 from __future__ import annotations
@@ -54,7 +55,10 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=["courtyard", "fern", "flower"])
     ap.add_argument("--width", type=int, default=128)
     ap.add_argument("--frames", type=int, default=16, help="K for the average input")
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(scenes=["courtyard"], width=64, frames=2)
     print(f"width {args.width}, K = {args.frames}")
     print(f"{'scene':<10} {'input':<8} {'reg':>7} {'rot_deg':>8} {'centre_%':>9} {'reproj_px':>9} {'wall_s':>7}")
     with tempfile.TemporaryDirectory() as tmp:

@@ -12,6 +12,7 @@ evaluation scenes. The scene cache is keyed by name and width only: delete it af
     python benchmarks/nerf_grid_quality.py                                   # config.yaml's settings
     python benchmarks/nerf_grid_quality.py --set n_samples=48 --set batch_rays=2048 --seeds 0 1
     python benchmarks/nerf_grid_quality.py --model nerf --set n_iters=300    # the MLP NeRF instead
+``--smoke``: gallery at 32 px wide, 3 iterations of 64 rays on a 12-voxel grid (seconds).
 """
 
 from __future__ import annotations
@@ -144,7 +145,12 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--label", default="", help="name of this variant in the output")
     ap.add_argument("--every", type=int, default=0, help="also print the held-out PSNR every N iterations")
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(
+            scenes=["gallery"], width=32, set=[*args.set, "n_iters=3", "batch_rays=64", "res_schedule=[[0, 12]]"]
+        )
     torch.set_num_threads(args.threads)
     base = {} if args.no_config else dict(yaml.safe_load(Path(args.config).read_text())["stage2"].get(args.model) or {})
     settings = {**base, **parse_sets(args.set)}

@@ -20,6 +20,7 @@ budget) are paired on the same run. Targets stand for the kinds of images stage 
     noisy   the ground truth plus N(0, 0.1) noise per pixel (a noisy single-frame estimate)
 
 The evaluation scenes are refused: the rule is chosen here and then frozen.
+``--smoke``: 3DGS on gt targets, 4 iterations in windows of 2, one rule (seconds).
 """
 
 from __future__ import annotations
@@ -162,7 +163,11 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=REPO / ".cache" / "bench_scenes")
     ap.add_argument("--out", type=Path, help="also write every run's window curve here (JSON)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="override the models' settings")
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        sets = [*args.set, "iterations=4", "plateau_window=2"]  # --set applies to every model: 3DGS alone
+        vars(args).update(models=["3dgs"], targets=["gt"], gains=[0.01], tols=[0.0], patiences=[1], set=sets)
     torch.set_num_threads(1)
     sets, runs = parse_sets(args.set), []
     for scene in args.scenes:

@@ -4,7 +4,7 @@
         [--lr 5e-4] [--lr-final 5e-6] [--start 300] [--iterations 1200] [--seeds 0] [--refined-only]
         [--jobs 2] [--out runs.json]
 
-Each built-in scene is rendered at 128 x 96 (24 views); its training cameras are perturbed by a
+Each built-in scene is rendered at 128 x 96 (``--width``; 24 views); its training cameras are perturbed by a
 random rotation of ``noise`` degrees RMS and a shift of 2 % of the camera spread per degree (a
 seeded draw per view), and 3DGS is fitted to the ground-truth images on those cameras, with and
 without :mod:`spc3d.reconstruct.pose_refine`. Printed per scene and noise: held-out PSNR (rendered
@@ -12,6 +12,7 @@ after the re-alignment the workflow uses), the median rotation error of the trai
 before and after refinement, and the wall time. This is how ``pose_lr``, ``pose_lr_final`` and ``pose_from`` were
 chosen (stage2.3dgs); at zero noise it shows what refinement costs on exact poses, which is why
 stage2.refine_poses refines only the rows on estimated poses by default.
+``--smoke``: tabletop 32 px wide at 0.5 degrees of noise, 4 iterations, refinement from step 2 (seconds).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ def perturbed(cams: Cameras, noise_deg: float, seed: int = 0) -> Cameras:
 
 
 def point(args: tuple) -> dict:
-    scene_name, noise, refine, lr, lr_final, start, iterations, seed = args
+    scene_name, noise, refine, lr, lr_final, start, iterations, seed, width = args
     import torch
 
     from spc3d import llff
@@ -69,7 +70,7 @@ def point(args: tuple) -> dict:
 
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
-        prepare_scene(named_spec(scene_name, 128, tmp), Path(tmp) / scene_name)
+        prepare_scene(named_spec(scene_name, width, tmp), Path(tmp) / scene_name)
         scene = llff.read_scene(Path(tmp) / scene_name)
     train, test = split_views(len(scene.names))
     ref = scene.cameras.subset(train)
@@ -107,12 +108,16 @@ def main() -> None:
     ap.add_argument("--refined-only", action="store_true", help="skip the runs without refinement")
     ap.add_argument("--iterations", type=int, default=1200)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--width", type=int, default=128, help="scene width in pixels (height: 3/4 of it)")
     ap.add_argument("--out", type=Path, help="also write every run (one JSON record each) to this file")
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="noise draw and training seed; means over them")
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     a = ap.parse_args()
+    if a.smoke:
+        vars(a).update(scenes=["tabletop"], noise=[0.5], iterations=4, start=2, seeds=[0], jobs=1, width=32)
     modes = (True,) if a.refined_only else (False, True)
     jobs = [
-        (s, n, r, a.lr, a.lr_final, a.start, a.iterations, seed)
+        (s, n, r, a.lr, a.lr_final, a.start, a.iterations, seed, a.width)
         for s in a.scenes
         for n in a.noise
         for r in modes
@@ -123,7 +128,7 @@ def main() -> None:
     if a.out:  # every run, for paired comparisons between settings (same scene, noise and seed)
         io.write_json(a.out, {"settings": vars(a), "runs": rows})
     print(
-        f"pose_lr {a.lr} -> {a.lr_final}, pose_from {a.start}, {a.iterations} iterations, 128 x 96, "
+        f"pose_lr {a.lr} -> {a.lr_final}, pose_from {a.start}, {a.iterations} iterations, {a.width} px wide, "
         f"ground-truth images; mean over seeds {a.seeds} (± std over seeds when several)"
     )
     print("| scene | noise (deg) | PSNR fixed | PSNR refined | rotation error before -> after (deg) | s (refined) |")

@@ -17,6 +17,7 @@ see the same load from other jobs; the first step after a switch is not timed), 
 native / reference, and the numba
 first-call compile time measured in fresh processes with an empty cache and with the cache filled.
 The last line, ``speedup_10k_128x96: <ratio>``, is machine-readable.
+``--smoke``: 300 Gaussians, one run, no compile timing in fresh processes (seconds; its rates mean nothing).
 """
 
 from __future__ import annotations
@@ -128,15 +129,21 @@ def main() -> None:
     ap.add_argument("--min-seconds", type=float, default=1.5)
     ap.add_argument("--sizes", default="2000,10000,30000", help="comma-separated Gaussian counts")
     ap.add_argument("--threads", type=int, default=0, help="torch (and native) threads; 0: torch's default")
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(sizes="300", repeats=1, min_seconds=0.0)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
-    with tempfile.TemporaryDirectory() as cache:
-        cold, warm = compile_seconds(cache), compile_seconds(cache)
-    print(
-        f"numba first call: {cold:.1f} s with an empty cache, {warm:.2f} s from the cache "
-        f"(torch threads {torch.get_num_threads()})"
-    )
+    if args.smoke:
+        print("numba first call: not timed (--smoke)")
+    else:
+        with tempfile.TemporaryDirectory() as cache:
+            cold, warm = compile_seconds(cache), compile_seconds(cache)
+        print(
+            f"numba first call: {cold:.1f} s with an empty cache, {warm:.2f} s from the cache "
+            f"(torch threads {torch.get_num_threads()})"
+        )
     print(
         f"{'gaussians':>9} {'size':>7} {'native':>8} {'native raster':>14} {'reference':>10} {'speedup':>8}"
         "   (iterations/s; speedup = native / reference)"

@@ -10,6 +10,7 @@ simulator / memcpy. The ratio is large by design: the simulator is bound by the 
 rate (one uint32 per bit in bernoulli mode, one float64 normal per bit in paper mode) plus a
 per-image setup (sRGB decode, detection probabilities, thresholds) that K = 1 pays in full, not by
 memory bandwidth. The last line, ``ratio_bernoulli_1024x768_K1: <ratio>``, is machine-readable.
+``--smoke``: 32x24 px, K = 2, one repeat (seconds; its ratios mean nothing).
 """
 
 from __future__ import annotations
@@ -73,7 +74,10 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=768)
     ap.add_argument("--frames", type=int, default=8, help="the larger K (K = 1 is always run)")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(width=32, height=24, frames=2, repeats=1)
     sizes = [(args.height, args.width), (max(args.height // 4, 1), max(args.width // 4, 1))]
     rows = [
         run_case(mode, h, w, k, args.repeats) for mode in spc.MODES for h, w in sizes for k in sorted({1, args.frames})

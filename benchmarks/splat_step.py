@@ -4,8 +4,8 @@
 
 For each Gaussian count N it builds a :class:`SplatTrainer` on the built-in ``tabletop`` scene (a
 training scene: no speed choice looks at an evaluation scene; 9 views rendered at 128x96, 6 of them
-for training; objective 0.8 L1 + 0.2 (1 - SSIM), SH degree 3 active, densification pushed past
-the run so that N stays fixed), initialised with N random points, runs a few warm-up steps (Adam
+for training; objective 0.8 L1 + 0.2 (1 - SSIM), SH degree 3 active, density control off
+(densify_until: 0) so that N stays fixed), initialised with N random points, runs a few warm-up steps (Adam
 state, numba compile), then times two variants on the same Gaussians:
 
     raster  project_gaussians_native + rasterize(backend="native") + L1 to the target, backward
@@ -20,6 +20,7 @@ footprints. The process keeps freed memory for reuse, as a workflow job does
 steps (the first step of each run is not timed), so that both see the same load from other jobs. It prints the median
 iterations/s of each and the ratio step / raster (time per step over time per raster pass); the
 last line, ``step_over_raster_10k: <ratio>``, is machine-readable.
+``--smoke``: 300 Gaussians, one run (seconds; its rates mean nothing).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ def make_trainer(views: Views, n: int, warmup: int = 5) -> SplatTrainer:
     """A trainer on ``views`` with ``n`` Gaussians that stay ``n`` (no density control), SH degree
     3 active, after ``warmup`` steps."""
     big = 10**9
-    cfg = GaussianConfig(iterations=big, init_points=n, densify_from=big, densify_until=big, opacity_reset_every=big)
+    cfg = GaussianConfig(iterations=big, init_points=n, densify_until=0, opacity_reset_every=big)
     trainer = SplatTrainer(views, RGBObjective("l1", cfg.ssim_weight), cfg, seed=0)
     m, g = trainer.model, torch.Generator().manual_seed(0)
     with torch.no_grad():  # footprints and opacities of a trained model, not of the coarse start
@@ -144,7 +145,10 @@ def main() -> None:
     ap.add_argument("--min-seconds", type=float, default=2.0)
     ap.add_argument("--sizes", default="4000,10000,30000", help="comma-separated Gaussian counts")
     ap.add_argument("--threads", type=int, default=1, help="torch (and native) threads; 0: torch's default")
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(sizes="300", repeats=1, min_seconds=0.0)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     keep_freed_memory()  # as every workflow job does at its start (spc3d.jobs): no page faults per step

@@ -9,6 +9,7 @@ capacity. Single-threaded by default, as the workflow runs each job (`threads: 1
     python benchmarks/stage2_quality.py --combos gt+3dgs --scene fern --width 504 --marks 60 300
     python benchmarks/stage2_quality.py --combos gt+3dgs --scene flower --width 126 \
         --config workflow/presets/findings-llff.yaml --set 3dgs.iterations=6000 --steps 600 1500 3000
+``--smoke``: 32 px wide, gt+3dgs and bernoulli+nerf-grid for 3 iterations (seconds).
 """
 
 from __future__ import annotations
@@ -97,7 +98,21 @@ def main() -> None:
     ap.add_argument("--set", nargs="*", default=[], metavar="MODEL.KEY=VALUE", help="override a stage2 setting")
     ap.add_argument("--config", default=str(REPO / "config.yaml"), help="settings from its stage2 section")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(
+            width=32,
+            combos=["gt+3dgs", "bernoulli+nerf-grid"],
+            steps=[2],
+            set=[
+                *args.set,
+                "3dgs.iterations=3",
+                "nerf-grid.n_iters=3",
+                "nerf-grid.batch_rays=64",
+                "nerf-grid.res_schedule=[[0, 12]]",
+            ],
+        )
     torch.set_num_threads(args.threads)
     settings = yaml.safe_load(Path(args.config).read_text())["stage2"]
     settings["nerf"] = settings.get("nerf", {})

@@ -15,6 +15,7 @@ workers spinning while they wait for a descheduled partner) and the share of it 
 kernel. ``--allocator keep`` (the default) sets up the process as a workflow job is set up
 (:func:`spc3d.runtime.keep_freed_memory`); ``default`` leaves glibc's malloc as it is.
 The last line, ``steps_per_s_1thread: method=value ...``, is machine-readable.
+``--smoke``: batch 1, one thread, one round of one step (seconds; its rates mean nothing).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 import torch
 
 from spc3d.evaluation import lpips_specs
+from spc3d.models import TRANSLATORS as SPECS
 from spc3d.translate import TRANSLATORS
 
 
@@ -96,7 +98,8 @@ def main() -> None:
     ap.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
     ap.add_argument("--steps", type=int, default=6, help="timed steps per round")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--methods", default=",".join(TRANSLATORS), help="comma-separated methods")
+    trained = [m for m in TRANSLATORS if SPECS[m].trained]  # the prior and classical: no step
+    ap.add_argument("--methods", default=",".join(trained), help="comma-separated methods")
     ap.add_argument(
         "--allocator",
         choices=("keep", "default"),
@@ -109,7 +112,10 @@ def main() -> None:
         default="contiguous",
         help="comma-separated memory formats of the networks, timed in turns: contiguous, channels_last",
     )
+    ap.add_argument("--smoke", action="store_true", help="a tiny run in seconds (tests/test_benchmarks_smoke.py)")
     args = ap.parse_args()
+    if args.smoke:
+        vars(args).update(batch=1, threads="1", steps=1, rounds=1)
     if args.allocator == "keep":
         from spc3d.runtime import keep_freed_memory
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -52,6 +53,18 @@ def test_the_digest_changes_with_the_code_the_job_reaches_and_only_that(fake_pac
     (pkg / "c.py").write_text("Y = 3\n")  # not imported: tables, figures
     assert provenance.closure_digest([script]) == before
     (pkg / "sub" / "b.py").write_text("X = 2\n")  # imported lazily by a: a loss, a layer
+    assert provenance.closure_digest([script]) != before
+
+
+def test_comments_docstrings_and_formatting_are_not_code(fake_package):
+    pkg, script = fake_package
+    (pkg / "sub" / "b.py").write_text('"""The loss."""\n\nclass L:\n    """A loss."""\n\n    w: float = 0.1\n')
+    before = provenance.closure_digest([script])
+    edited = '"""The loss, reworded."""\n# a comment\nclass L:\n    """Another docstring."""\n'
+    edited += '    w : float=0.1  # why\n    """w\'s doc."""\n'
+    (pkg / "sub" / "b.py").write_text(edited)
+    assert provenance.closure_digest([script]) == before
+    (pkg / "sub" / "b.py").write_text(edited.replace("0.1", "0.2"))  # a constant: what runs
     assert provenance.closure_digest([script]) != before
 
 
@@ -106,3 +119,53 @@ def test_a_second_workflow_directory_trains_nothing_and_a_changed_setting_retrai
     third, log = train("w3", "--config", "seed=1")  # another seed: other weights, trained anew
     assert "Moving output file results/models/pix2pix to cache" in log
     assert len(list(store.iterdir())) == 2 and third.resolve() != entries[0].resolve()
+
+
+def test_the_real_reconstruct_closure_has_the_objectives_trainers_and_rasterizer():
+    scripts = Path(__file__).resolve().parents[1] / "workflow" / "scripts"
+    names = {provenance.module_name(p) for p in provenance.closure([scripts / "reconstruct.py"])}
+    assert {"spc3d.reconstruct.objectives", "spc3d.reconstruct.splatting", "spc3d.reconstruct.nerf_trainer"} <= names
+    assert "spc3d.reconstruct.splat.native" in names and "spc3d.evaluation.tables" not in names
+
+
+def copy_workflow(dest: Path) -> Path:
+    """The workflow's files (Snakefile, config.yaml, workflow/, envs/) in ``dest``, to edit there."""
+    import shutil
+
+    repo = Path(__file__).resolve().parents[1]
+    dest.mkdir()
+    for name in ("Snakefile", "config.yaml"):
+        shutil.copy2(repo / name, dest / name)
+    for name in ("workflow", "envs"):
+        shutil.copytree(repo / name, dest / name, ignore=shutil.ignore_patterns("__pycache__"))
+    return dest
+
+
+@pytest.mark.slow
+def test_a_docstring_reruns_no_fit_and_a_loss_constant_reruns_the_fits(tmp_path, lpips_cache):
+    """The stage-2 fits' code key (rule reconstruct's ``code`` param) on a real run: a fit done, its
+    objectives' docstring edited (nothing to do), then a constant of the likelihood (the fit reruns)."""
+    import subprocess
+    import sys
+
+    repo = copy_workflow(tmp_path / "repo")
+    work, target = tmp_path / "work", "results/recon/courtyard/bernoulli+3dgs"
+    local = tmp_path / "local.yaml"
+    local.write_text(yaml.safe_dump({"metrics": {"lpips_source": str(lpips_cache)}}))
+
+    def snakemake(*args):
+        cmd = [sys.executable, "-m", "snakemake", "-s", str(repo / "Snakefile"), "--directory", str(work)]
+        cmd += ["--cores", "2", "--configfile", str(SMOKE), str(local), *args, "--", target]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return done.stdout + done.stderr
+
+    snakemake()
+    objectives = repo / "workflow" / "spc3d" / "reconstruct" / "objectives.py"
+    text = objectives.read_text()
+    objectives.write_text(text.replace('"""SPAD likelihood of the binary frames;', '"""The likelihood of the bits;'))
+    assert objectives.read_text() != text
+    assert "Nothing to be done" in snakemake("-n")
+    objectives.write_text(text.replace("clamp_min(1e-12)", "clamp_min(1e-11)"))
+    plan = snakemake("-n")
+    assert re.search(r"^reconstruct\s+1$", plan, re.M) and "Params have changed" in plan, plan[-3000:]

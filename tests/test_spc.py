@@ -46,6 +46,12 @@ def test_srgb_curves_invert_and_match_iec_values():
 # ------------------------------------------------------------------------------ detection stats
 
 
+def test_srgb_curves_clip_to_the_unit_range():
+    """Both curves clip their input to [0, 1] (a render above 1 displays as white, not brighter)."""
+    for curve in (spc.srgb_to_linear, spc.linear_to_srgb):
+        assert curve(np.array([-0.5, 0.0, 1.0, 1.5])).tolist() == pytest.approx([0.0, 0.0, 1.0, 1.0], abs=1e-12)
+
+
 @pytest.mark.parametrize("T", [1e-12, 1e-9, 1e-6, 1e-4, 1.0, 1e3])
 @pytest.mark.parametrize("tau", [0.0, 150e-9])
 @pytest.mark.parametrize("dcr", [0.0, 100.0])
@@ -147,7 +153,12 @@ def test_paper_frames_are_thresholded_paper_counts():
 def test_paper_counts_are_clipped_to_dead_time_limit():
     params = _params(mode="paper", tau_d=1e-6, exposure_s=1e-5)  # at most T/tau = 10 counts
     counts = spc._paper_sampler(np.full(10_000, 1e12), params)(np.random.default_rng(4))
-    assert counts.max() <= 10 and counts.min() >= 0
+    assert counts.max() == 10 and counts.min() >= 0  # the limit is reached, not a lower one
+    # T/tau = 2 at lam*tau = 1: E[N] = 1, sd 0.5, so unclipped draws would reach 3 (mutation testing).
+    short = _params(mode="paper", tau_d=1e-6, exposure_s=2e-6)
+    phi = (1e6 - short.dark_count_rate) / short.q
+    counts = spc._paper_sampler(np.full(10_000, phi), short)(np.random.default_rng(4))
+    assert counts.max() == 2 and counts.min() == 0
     frames = spc.simulate_frames(np.ones((5, 5, 3)), 1e12, replace(params, frames=4), np.random.default_rng(5))
     assert frames.all()
 
@@ -196,8 +207,43 @@ def test_params_validation_names_field_and_value(field, value, match):
 
 
 @pytest.mark.parametrize(
+    "field, value", [("q", 1.0), ("tau_d", 0.0), ("dark_count_rate", 0.0), ("exposure_s", 1e-12), ("frames", 1)]
+)
+def test_params_accept_the_edges_of_their_ranges(field, value):
+    """An ideal detector (q = 1), no dead time, no dark counts, one frame: the closed ends of the
+    ranges are valid settings (mutation testing: ``<=`` turned into ``<`` went unnoticed)."""
+    assert getattr(spc.SPCParams(**{field: value}), field) == value
+
+
+@pytest.mark.parametrize("field", ["tau_d", "dark_count_rate"])
+def test_params_refuse_infinite_rates_and_times(field):
+    with pytest.raises(ValueError, match=rf"{field}=inf: .*must be finite"):
+        spc.SPCParams(**{field: float("inf")})
+
+
+def test_params_are_frozen_and_one_frame_by_default():
+    """Frozen: a camera shared by every view of a scene cannot be changed by one of them; K = 1 (the
+    paper's single binary frame) unless asked."""
+    import dataclasses
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        DEFAULT.q = 0.9
+    assert DEFAULT.frames == 1
+    assert spc.simulate_frames(np.full((2, 3, 3), 0.5), 1e4, DEFAULT, np.random.default_rng(0)).shape == (1, 2, 3, 3)
+
+
+def test_flux_scale_zero_and_below_one_are_valid_and_infinity_is_not():
+    img = np.full((2, 2, 3), 0.5)
+    assert spc.flux_from_srgb(img, 0.0).max() == 0.0  # no light: a valid (black) exposure
+    assert spc.flux_from_srgb(img, 0.5).max() == pytest.approx(0.5 * spc.srgb_to_linear(0.5))
+    with pytest.raises(ValueError, match=r"flux_scale=inf: flux scale .* must be finite and >= 0"):
+        spc.flux_from_srgb(img, float("inf"))
+
+
+@pytest.mark.parametrize(
     "phi, match",
     [
+        (np.array([0.0, 0.5, -1.0, np.nan]), r"phi: 1 NaN, 1 negative and 0 infinite values out of 4"),
         (np.array([1.0, -2.0, -3.0]), r"phi: 0 NaN, 2 negative .*minimum -3.0"),
         (np.array([np.nan, 1.0]), r"phi: 1 NaN, 0 negative .*minimum 1.0"),
         (np.array([np.inf]), r"phi: .*1 infinite"),
@@ -217,6 +263,7 @@ def test_flux_validation(phi, match):
         (np.zeros((4, 4, 3), np.uint8), r"srgb: dtype uint8 must be floating"),
         (np.full((4, 4, 3), 1.5), r"srgb: values span \[1.5, 1.5\]"),
         (np.full((4, 4, 3), np.nan), r"NaN: 48"),
+        (np.array([[[0.5, np.nan, 1.5]]]), r"values span \[0.5, 1.5\] \(NaN: 1\)"),
     ],
 )
 def test_simulate_frames_validation(img, match):
@@ -249,7 +296,7 @@ def test_other_argument_validation():
 # ------------------------------------------------------------------------- storage and seeding
 
 
-@pytest.mark.parametrize("shape", [(1, 1, 1, 1), (3, 5, 7, 3), (2, 3, 1, 1), (1, 13, 11, 3)])
+@pytest.mark.parametrize("shape", [(1, 1, 1, 1), (3, 5, 7, 3), (2, 3, 1, 1), (1, 13, 11, 3), (2, 2, 2, 2)])
 def test_pack_unpack_round_trip(shape):
     frames = np.random.default_rng(8).random(shape) < 0.3
     packed, got_shape = spc.pack_frames(frames)
@@ -257,6 +304,27 @@ def test_pack_unpack_round_trip(shape):
     assert got_shape == shape and np.array_equal(spc.unpack_frames(packed, got_shape), frames)
     with pytest.raises(ValueError, match="does not hold shape"):
         spc.unpack_frames(packed[:-1], shape)
+
+
+def test_unpack_refuses_other_dtypes_ranks_and_sizes_naming_the_bytes_needed():
+    packed, shape = spc.pack_frames(np.ones((1, 8, 8, 1), bool))  # 64 bits: 8 bytes
+    for bad in (packed.astype(np.int16), packed.reshape(2, 4), packed[:7]):
+        with pytest.raises(ValueError, match=r"does not hold shape \(1, 8, 8, 1\); need uint8 1-D with 8 bytes$"):
+            spc.unpack_frames(bad, shape)
+
+
+def test_frames_draw_one_raw_word_per_two_bits():
+    """A view's K frames consume exactly ceil(bits / 2) raw 64-bit words of its generator, so the
+    same seed gives the same frames (and the same stream after them) as the data already written."""
+    rng, ref = np.random.default_rng(7), np.random.default_rng(7)
+    spc.simulate_frames(np.full((2, 2, 3), 0.5), 1e4, _params(frames=3), rng)  # 36 bits: 18 words
+    ref.bit_generator.random_raw(18)
+    assert rng.bit_generator.random_raw(2).tolist() == ref.bit_generator.random_raw(2).tolist()
+
+
+def test_view_and_seed_zero_are_valid():
+    first = spc.view_rng(0, "room", 0).bit_generator.random_raw(2).tolist()
+    assert first != spc.view_rng(0, "room", 1).bit_generator.random_raw(2).tolist()
 
 
 def test_view_rng_is_stable_across_interpreters():
@@ -391,3 +459,6 @@ def test_deadtime_flux_clamps_saturated_counts():
     assert phi[0] == 0.0
     short = _params(tau_d=1e-6, exposure_s=1e-7)  # T < tau: margin shrinks to T/(2 tau)
     assert np.all(np.isfinite(spc.deadtime_flux(np.array([0.0, 1.0, 3.0]), short)))
+    # There N is clamped to T/(2 tau), so lam = N / (T - N tau) = 1/tau (mutation testing: T/(3 tau) passed).
+    expected = (1.0 / short.tau_d - short.dark_count_rate) / short.q
+    assert spc.deadtime_flux(np.array([1.0]), short)[0] == pytest.approx(expected, rel=1e-9)

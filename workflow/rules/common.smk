@@ -17,7 +17,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, source_frames, source_images, spc_settings, stage1_sources, stage2_row_settings, translator_settings, translator_validation, uses_display
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, scored_before_3d, source_frames, source_images, spc_settings, stage1_sources, stage2_row_settings, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -53,10 +53,8 @@ check_capture_frames({s: SCENE_SPECS[s] for s in EVAL_SCENES}, COMBINATIONS, con
 # everything random: SPC noise of every scene, augmentation, translator init and crops, stage-2 init.
 SEEDS = [config["seed"] + k for k in range(config["seeds"])]
 REPS = ["" if s == config["seed"] else f"-seed{s}" for s in SEEDS]
-# Sources scored before 3D (score_images): the translators in use and the training-free images
-# (the binary frame always; MLE and binary variants as the rows use them, without their stage-2 loss).
-STAGE1_SCORED = STAGE1_USED + sorted({parse_source(parse_combination(c)[0]).images for c in COMBINATIONS
-                                      if parse_source(parse_combination(c)[0]).base in ("mle", "none")} | {"none"})
+# Sources scored before 3D (score_images): the translators in use and the training-free images.
+STAGE1_SCORED = scored_before_3d(COMBINATIONS)
 # Sweep points (tradeoff.smk) are these rules' jobs under a settings overlay: the {overlay} wildcard
 # after results/ ("" for the grid, "sweeps/tradeoff/iters~300/res~64/" for a point: spc3d.sweeps.plan).
 # A get_* helper below returns the grid's value for "" and POINTS' for a point.
@@ -387,7 +385,8 @@ def get_augment_ranges(wildcards):
 
 # The library code a translator's weights depend on (the scripts of its job and of the jobs upstream,
 # its model's module, every spc3d module they import): a param, so it keys Snakemake's between-workflow
-# cache (`--cache`) and reruns the training when that code changes (spc3d/provenance.py).
+# cache (`--cache`) and reruns the training when that code changes (spc3d/provenance.py; comments,
+# docstrings and formatting do not count).
 TRAINING_SCRIPTS = [
     Path(workflow.basedir) / "workflow" / "scripts" / f"{name}.py"
     for name in ("prepare_scene", "simulate_scene", "augment_scene", "train_translator")
@@ -401,6 +400,20 @@ def translator_code(method):
 
 def get_translator_code(wildcards):
     return translator_code(get_translator_base(wildcards))
+
+
+# The same key for a stage-2 fit: its script, its model's factory module and every spc3d module they
+# import (the sources, the objectives, the trainers, the rasterizer): a change there reruns the fits.
+RECONSTRUCT_SCRIPT = Path(workflow.basedir) / "workflow" / "scripts" / "reconstruct.py"
+
+
+@functools.lru_cache(maxsize=None)
+def reconstruct_code(model):
+    return closure_digest([RECONSTRUCT_SCRIPT, entry_file(MODELS[model].factory.rpartition(":")[0])])
+
+
+def get_reconstruct_code(wildcards):
+    return reconstruct_code(wildcards.model)
 
 
 def get_translator_sensor(wildcards):

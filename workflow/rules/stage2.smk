@@ -29,6 +29,7 @@ rule reconstruct:
         checkpoint=get_checkpoint_path,
         policy=config["checkpoints"],
         joint=get_joint_settings,
+        code=get_reconstruct_code,  # the library code the fit runs: a change reruns it (spc3d/provenance.py)
     log:
         "logs/reconstruct/{overlay}{scene}/{source}+{model}{poses}{rep}.log",
     threads: 1

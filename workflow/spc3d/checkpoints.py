@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from spc3d import io
+from spc3d.provenance import ROOT, files_digest
 
 try:
     import fcntl  # POSIX only: where it is missing (Windows) a checkpoint is not locked
@@ -98,13 +99,9 @@ def digest_arrays(arrays: dict | None) -> str | None:
 
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
-    """sha256 of this package's Python sources: a code change invalidates every checkpoint."""
-    root = Path(__file__).resolve().parent
-    h = hashlib.sha256()
-    for file in sorted(root.rglob("*.py")):
-        h.update(str(file.relative_to(root)).encode() + b"\0")
-        _hash_file(h, file)
-    return h.hexdigest()
+    """The code key of this package's Python sources (:func:`spc3d.provenance.files_digest`: blind
+    to comments, docstrings and formatting): a change of code invalidates every checkpoint."""
+    return files_digest(sorted(ROOT.rglob("*.py")))
 
 
 def canonical(obj):

@@ -327,6 +327,21 @@ def check_file(path: str | None, key: str, what: str) -> None:
         raise ConfigError(f"{key}: {path} does not exist or is not a file ({what})")
 
 
+def workflow_config(*changes: str | os.PathLike | dict) -> dict:
+    """The configuration a run of this checkout reads, before its scenes are checked: config.yaml
+    (the one home of every default the Snakefile reads), each change (a ``--configfile`` path or a
+    dict) merged over it as Snakemake merges them (blocks key by key, anything else replaced), then
+    the schema's defaults of the keys config.yaml leaves unset. For benchmarks and tests that plan
+    from a preset (``benchmarks/paper_budget.py``) without running Snakemake."""
+    from snakemake.utils import update_config, validate
+
+    config = read_yaml(Path(SCHEMA).parents[2] / "config.yaml")
+    for change in changes:
+        update_config(config, change if isinstance(change, dict) else read_yaml(change))
+    validate(config, schema=str(SCHEMA))
+    return config
+
+
 # --- typed settings ---------------------------------------------------------------------------
 
 

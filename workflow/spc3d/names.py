@@ -316,6 +316,15 @@ def stage1_sources(combinations: list[str]) -> list[str]:
     return [m for base in STAGE1_METHODS for m in (base, f"{base}-pub") if m in used]
 
 
+def scored_before_3d(combinations: list[str]) -> list[str]:
+    """The sources scored before 3D (the rule ``score_images``): the stage-1 model folders in use
+    (:func:`stage1_sources`), then the training-free images the rows read (the binary frame always;
+    MLE and binary variants as the rows use them, without their stage-2 loss)."""
+    sources = [parse_source(parse_combination(c)[0]) for c in combinations]
+    plain = {s.images for s in sources if s.base in ("mle", "none")}
+    return stage1_sources(combinations) + sorted(plain | {"none"})
+
+
 def display_budgets(combinations: list[str], stage2_frames: int, stage1_frames: int = 1) -> list[str]:
     """The metered displays (``k{K}`` or ``capture``, :func:`display_budget`) the combinations need:
     mle / bernoulli / joint rows, and MLE images that pose a row."""

@@ -7,7 +7,13 @@ scripts import: a changed loss in ``spc3d.translate`` would reuse weights traine
 statically (``ast``: imports inside functions count too, and nothing is imported or executed, so it
 is cheap at parse time), and hashes every module reached, with its packages' ``__init__``.
 A rule passes the digest as a param, so it enters the cache key (and Snakemake's ``params`` rerun
-trigger). Code outside the closure (tables, figures) can change without retraining anything.
+trigger): the translator trainings and every stage-2 fit (``workflow/rules/common.smk``). Code
+outside the closure (tables, figures) can change without retraining anything.
+
+Each file counts by its code only (:func:`source_digest`): its syntax tree without docstrings,
+written back as text, so a comment, a docstring or a reformatting reruns nothing, while any change
+of what runs (a loss constant, an operator) does. The same digest keys the checkpoints
+(:func:`spc3d.checkpoints.code_digest`).
 """
 
 from __future__ import annotations
@@ -122,11 +128,52 @@ def closure(files: Iterable[str | Path]) -> list[Path]:
     return sorted(seen)
 
 
-def closure_digest(files: Iterable[str | Path]) -> str:
-    """sha256 over the names (relative to the package, or the file name for a script) and contents
-    of :func:`closure`'s files."""
+def without_docstrings(tree: ast.AST) -> ast.AST:
+    """``tree`` with every statement that is a bare string removed (module, class and function
+    docstrings, and the attribute docstrings under a field): they never change what the code
+    computes. A body left empty gets ``pass``. Changes ``tree`` in place."""
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if not isinstance(body, list):
+            continue
+        node.body = [stmt for stmt in body if not is_string_statement(stmt)] or [ast.Pass()]
+    return tree
+
+
+def is_string_statement(stmt: ast.stmt) -> bool:
+    """A statement that is a string literal alone (a docstring), which computes nothing."""
+    return isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) and isinstance(stmt.value.value, str)
+
+
+def normalised_source(path: Path) -> str:
+    """The code of a Python file without its comments, docstrings and formatting: its syntax tree,
+    docstrings removed, written back by :func:`ast.unparse` (text, so the key does not depend on
+    the ``ast.dump`` layout of the Python version)."""
+    return ast.unparse(without_docstrings(ast.parse(path.read_text(), filename=str(path))))
+
+
+def source_digest(path: str | Path) -> str:
+    """sha256 of :func:`normalised_source`; computed once per file version."""
+    path = Path(path).resolve()
+    stat = path.stat()
+    return _source_digest(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=4096)
+def _source_digest(path: Path, mtime_ns: int, size: int) -> str:
+    return hashlib.sha256(normalised_source(path).encode()).hexdigest()
+
+
+def files_digest(files: Iterable[Path]) -> str:
+    """sha256 over the names (relative to the package, or the file name for a script) and the
+    :func:`source_digest` of each file, in the order given."""
     h = hashlib.sha256()
-    for path in closure(files):
+    for path in files:
         name = module_name(path) or path.name
-        h.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+        h.update(name.encode() + b"\0" + source_digest(path).encode() + b"\0")
     return h.hexdigest()
+
+
+def closure_digest(files: Iterable[str | Path]) -> str:
+    """:func:`files_digest` of :func:`closure`'s files: the code key of a job that runs ``files``."""
+    return files_digest(closure(files))

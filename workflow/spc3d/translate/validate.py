@@ -42,8 +42,9 @@ from spc3d.translate.data import binary_input, chw, sensor_draws, sensor_pattern
 class ValidationSettings:
     """When a translator is validated and when it stops (the config's ``stage1.validation``)."""
 
-    every: int = 25  # steps between validations, plus one at the last step (0: none, the last model is kept)
-    patience: int = 2  # validations without a better PSNR before training stops (0: never stop early)
+    # every and patience: config.yaml's stage1.validation (their home; tests/test_defaults.py checks they agree)
+    every: int = 50  # steps between validations, plus one at the last step (0: none, the last model is kept)
+    patience: int = 4  # validations without a better PSNR before training stops (0: never stop early)
     hold_out: int = 0  # the last N training scenes: not trained on, every view validated (0: held-out views)
 
     def __post_init__(self):
