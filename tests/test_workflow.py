@@ -15,6 +15,7 @@ from spc3d.names import (
     ConfigError,
     display_budgets,
     parse_combination,
+    parse_source,
     resolve_combinations,
     scored_before_3d,
     stage1_sources,
@@ -70,7 +71,12 @@ def planned_jobs(config: dict) -> dict[str, int]:
     budgets = display_budgets(combos, config["stage2"]["frames"], config["stage1"]["frames"])
     pose_sources = {poses for c in combos if (poses := parse_combination(c)[2])}
     fits = len(combos) * len(evaluate) * seeds
+    choose = config["stage2"]["joint"].get("choose") or {}
+    chosen = [c for c in combos if parse_source(parse_combination(c)[0]).joint and parse_combination(c)[1] in choose]
     return {
+        "all": 1,
+        "lpips_weights": 1,
+        "choose_joint_weight": len(chosen) * len(folds) * seeds,  # per joint row, fold and seed
         "prepare_scene": len(every),
         "simulate_scene": len(every) * seeds,
         "augment_scene": len(train) * seeds if config["stage1"]["data"] == "fixed" else 0,
@@ -103,9 +109,11 @@ def test_dry_run_lists_the_dag(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     counts, expected = dry_run_counts(proc), planned_jobs(workflow_config())
     assert {rule: counts.get(rule, 0) for rule in expected} == expected
+    assert set(counts) - {"total"} <= set(expected), "a rule the plan above does not count: add it"
     assert "tables" not in counts  # `tables` is an explicit target only
     # The count is not trivially met: the default plans every kind of job, and rows posed by COLMAP.
-    assert min(expected.values()) >= 1 and expected["estimate_poses"] >= 1
+    assert min(v for rule, v in expected.items() if rule != "choose_joint_weight") >= 1  # (the findings presets')
+    assert expected["estimate_poses"] >= 1
 
 
 @pytest.mark.slow
@@ -216,3 +224,4 @@ def test_presets_validate_and_plan(tmp_path, preset):
     assert proc.returncode == 0, proc.stderr[-3000:]
     counts, expected = dry_run_counts(proc), planned_jobs(workflow_config(path))
     assert {rule: counts.get(rule, 0) for rule in expected} == expected, proc.stdout[-2000:]
+    assert set(counts) - {"total"} <= set(expected), "a rule the plan above does not count: add it"
