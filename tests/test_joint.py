@@ -44,7 +44,7 @@ def test_schedule_falls_linearly_then_holds():
     "settings, message",
     [
         ({"penalty": "huber"}, r"stage2.joint.penalty = 'huber': use one of \['own', 'l1'\]"),
-        ({"decay_until": 1.5}, r"decay_until = 1.5: a fraction of the run"),
+        ({"decay_until": 1.5}, r"stage2.joint.decay_until = 1.5: must be in \[0, 1\] \(a fraction of the run\)"),
         ({"weight": -1.0}, r"stage2.joint.weight = -1.0: must be >= 0"),
         ({"weigth": 1.0}, r"unknown setting\(s\) \['weigth'\]; did you mean 'weight'"),
     ],
