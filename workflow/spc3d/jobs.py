@@ -200,7 +200,7 @@ def real_scene_spec(name: str, path: Path, res: dict) -> dict:
         raise ConfigError(
             f"llff_scenes.{name}: the folder {path} does not exist (a relative path is taken from the "
             "repository root). Point it at an LLFF folder (images_<factor>/ and poses_bounds.npy) or a "
-            "COLMAP-format one; the real-scene presets read the four LLFF scenes of ../shared/data/llff "
+            "COLMAP-format one; the real-scene presets read the six real scenes of ../shared/data/llff "
             "beside the repository, and workflow/presets/findings.yaml needs no data"
         )
     try:
