@@ -599,7 +599,7 @@ def over_prior(
 
 def planned_rows(combinations: list[str], budgets: dict[str, tuple]) -> dict[str, Row]:
     """Rows as a run of ``combinations`` will record them, each with its budget (K, S) from ``budgets``
-    and one placeholder value, so that :func:`claims` and the equal-budget rule see them as run."""
+    and one nominal scored run, so that :func:`claims` and the equal-budget rule see them as run."""
     return {c: Row(tuple(budgets[c]), {("planned", 0): 0.0}) for c in combinations if "@" not in c}
 
 
