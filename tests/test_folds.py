@@ -22,7 +22,11 @@ def test_each_scene_is_evaluated_without_itself():
     assert folds[""] == list(LLFF)  # all of them: the sweeps' and the data summary's
     for scene in LLFF:
         assert scene_fold(scene, list(LLFF), True) == f"-without-{scene}"
-        assert folds[f"-without-{scene}"] == [s for s in LLFF if s != scene]
+        assert sorted(folds[f"-without-{scene}"]) == sorted(s for s in LLFF if s != scene)
+    # the fold's last scene (held out by stage1.validation.hold_out: 1) is the one before the left-out
+    # scene, cyclically: each scene is held out by exactly one fold
+    last = [folds[f"-without-{scene}"][-1] for scene in LLFF]
+    assert last == [LLFF[i - 1] for i in range(len(LLFF))] and sorted(last) == sorted(LLFF)
     # An evaluation scene outside scenes.train uses all of it; without leave_one_out there are no folds.
     assert scene_fold("courtyard", list(LLFF), True) == ""
     assert training_folds(["a", "b"], ["c"], False) == {"": ["a", "b"]}

@@ -177,13 +177,20 @@ def scene_fold(scene: str, train: list[str], leave_one_out: bool) -> str:
 def training_folds(train: list[str], evaluate: list[str], leave_one_out: bool) -> dict[str, list[str]]:
     """Fold tag -> its training scenes, for the folds the evaluation scenes use (:func:`scene_fold`);
     "" (all of ``train``) is always there, for the sweeps and the data summary. A fold left with no
-    training scene is refused (a translator needs data)."""
+    training scene is refused (a translator needs data).
+
+    A leave-one-out fold lists the scenes after its left-out one in ``train``'s order, then those
+    before it, so that its last scene — the one ``stage1.validation.hold_out: 1`` keeps out of the
+    training, to stop the translators and choose the joint weights on (spc3d.choices) — is the scene
+    just before the left-out one, cyclically: each scene is held out by exactly one fold, instead of
+    the last scene of ``train`` by all but one."""
     folds = {"": list(train)}
     for scene in evaluate:
         fold = scene_fold(scene, train, leave_one_out)
         if not fold:
             continue
-        folds[fold] = [s for s in train if s != scene]
+        at = train.index(scene)
+        folds[fold] = [s for s in train[at + 1 :] + train[:at] if s != scene]
         if not folds[fold]:
             raise ConfigError(
                 f"scenes.leave_one_out: evaluating {scene!r} leaves no training scene (scenes.train = {train}); "
