@@ -39,12 +39,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 from nerf_grid_quality import REPO, held_out, warm_up_kernels
 from plateau_rule import settings_of
-from snakemake.utils import update_config
 
 from spc3d import llff
+from spc3d.config import workflow_config
 from spc3d.inputs.exposure import calibrate_display, write_display
 from spc3d.reconstruct import RECONSTRUCTORS
 from spc3d.reconstruct.sources import Source, load_source
@@ -64,14 +63,6 @@ SCHEDULES = {
     "w 3 -> 0.3 by 0.5": {"weight": 3.0, "weight_final": 0.3, "decay_until": 0.5},
     "w 1 -> 0 by 0.8": {"weight": 1.0, "weight_final": 0.0, "decay_until": 0.8},
 }
-
-
-def merged_config(configfile: Path | None) -> dict:
-    """config.yaml overlaid by ``configfile`` as ``--configfile`` merges it (nested keys replaced one by one)."""
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    if configfile:
-        update_config(cfg, yaml.safe_load(Path(configfile).read_text()) or {})
-    return cfg
 
 
 def refused(scenes: list[str], cfg: dict, fold: str | None) -> str | None:
@@ -148,7 +139,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     settings = settings_of(args.model)
-    cfg = merged_config(args.configfile)
+    cfg = workflow_config(*([args.configfile] if args.configfile else []))  # as --configfile merges it
     settings |= cfg["stage2"].get(args.model) or {}
     fold = f"-without-{args.fold}" if args.fold else ""
     scenes = args.scenes or [s for s in cfg["scenes"]["train"] if s != args.fold]

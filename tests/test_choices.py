@@ -19,7 +19,7 @@ import yaml
 
 from spc3d import io
 from spc3d.choices import choose_joint_weight, chosen_joint
-from spc3d.config import ConfigError, check_joint_choice, check_one_rule
+from spc3d.config import ConfigError, check_joint_choice, check_one_rule, workflow_config
 
 from conftest import LLFF_ROOT, REPO, load_script
 
@@ -110,11 +110,10 @@ def test_the_real_preset_keeps_each_left_out_scene_out_of_its_choices(tmp_path):
     spec = yaml.safe_load(preset.read_text())
     rows = [c for c in spec["stage2"]["combinations"] if c.startswith("joint-")]
     rows = [r.replace("+nerf", "+nerf-grid") for r in rows]
-    local = tmp_path / "local.yaml"  # the preset's paths are relative to the repository
-    local.write_text(yaml.safe_dump({"llff_scenes": {s: str(LLFF_ROOT / s) for s in spec["llff_scenes"]}}))
+    local = {"llff_scenes": {s: str(LLFF_ROOT / s) for s in spec["llff_scenes"]}}  # the preset's paths: repo-relative
     held = {"fern": "canclip", "trex": "ollie"}  # the scene before the left-out one, cyclically
     config = tmp_path / "preset.yaml"
-    config.write_text(yaml.safe_dump(spec | yaml.safe_load(local.read_text())))
+    config.write_text(yaml.safe_dump(spec | local))
     for scene in ("fern", "trex"):
         jobs = dry_run_jobs(tmp_path, config, fold_targets(f"-without-{scene}", rows))
         assert_never_reads(jobs, scene, source=str(LLFF_ROOT / scene))
@@ -218,8 +217,8 @@ def test_the_exploratory_benchmarks_guard_reads_the_merged_configuration(monkeyp
     (it read config.yaml alone: with the real-scene preset it let every scored scene through)."""
     monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
     bench = load_script(REPO / "benchmarks" / "joint_weight.py")
-    preset = bench.merged_config(REPO / "workflow" / "presets" / "findings-llff.yaml")
-    default = bench.merged_config(None)
+    preset = workflow_config(REPO / "workflow" / "presets" / "findings-llff.yaml")  # what main() reads
+    default = workflow_config()
     assert set(preset["scenes"]["eval"]) == {"canclip", "fern", "flower", "fortress", "ollie", "trex"}
     assert preset["stage2"]["3dgs"] == default["stage2"]["3dgs"]  # nested keys merged, not replaced
     assert "evaluation scenes" in bench.refused(["fortress", "trex"], preset, None)

@@ -15,22 +15,18 @@ import re
 import sys
 from pathlib import Path
 
-import yaml
-from snakemake.utils import update_config
-
 REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "workflow"))
 
 from spc3d import io  # noqa: E402
+from spc3d.config import workflow_config  # noqa: E402
 from spc3d.evaluation.findings import claim_plan, plan_markdown, planned_budgets, planned_rows  # noqa: E402
 from spc3d.names import resolve_combinations  # noqa: E402
 
 
 def plan_of(configfile: str | Path | None) -> str:
     """The claims table of config.yaml overlaid by ``configfile`` (as ``--configfile`` merges it)."""
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    if configfile:
-        update_config(cfg, yaml.safe_load(Path(configfile).read_text()) or {})
+    cfg = workflow_config(*([configfile] if configfile else []))
     nerf = cfg["stage2"]["nerf_variant"]
     combos = resolve_combinations(cfg["stage2"]["combinations"], nerf)
     rivals = {k: resolve_combinations(v, nerf, f"findings.rivals.{k}") for k, v in cfg["findings"]["rivals"].items()}
