@@ -1,0 +1,51 @@
+"""Keep a run's tables in the repository, as the sources of the docs' generated blocks of that run.
+
+    python workflow/tools/archive_run.py RESULTS_DIR NAME [--with findings.json ...]
+
+Copies ``RESULTS_DIR/tables/*.md`` (and each ``--with`` file of ``RESULTS_DIR/tables``) into
+``docs/measurements/NAME/tables/``, replacing what was there. The blocks ``NAME:tables/...`` of the
+README and docs/ are then refreshed from it (``readme_results.py --run NAME=docs/measurements/NAME``),
+and ``tests/test_generated_blocks.py`` fails when a block of an archived run differs from its file:
+results/ is not kept in git, and a figure in the docs needs a file behind it that stays.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from pathlib import Path
+
+ARCHIVE = Path(__file__).resolve().parents[2] / "docs" / "measurements"
+
+
+def archive(results: Path, name: str, extra: list[str]) -> list[Path]:
+    tables = results / "tables"
+    files = sorted(tables.glob("*.md")) + [tables / e for e in extra]
+    missing = [str(f) for f in files if not f.is_file()]
+    if not files or missing:
+        what = "missing " + ", ".join(missing) if missing else "no tables"
+        raise SystemExit(f"{tables}: {what}: run the workflow first")
+    out = ARCHIVE / name / "tables"
+    tmp = out.with_name(".tables.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for f in files:
+        shutil.copy2(f, tmp / f.name)
+    shutil.rmtree(out, ignore_errors=True)
+    tmp.replace(out)
+    return [out / f.name for f in files]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("results", type=Path)
+    ap.add_argument("name")
+    ap.add_argument("--with", dest="extra", nargs="*", default=[], help="more files of RESULTS_DIR/tables to keep")
+    args = ap.parse_args(argv)
+    kept = archive(args.results, args.name, args.extra)
+    print(f"{ARCHIVE / args.name}: {len(kept)} files")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
