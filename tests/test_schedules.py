@@ -1,0 +1,88 @@
+"""The stage-2 fits' schedules: what each learning rate is at a step, that the trainers set it at
+every step, and the rule that raises 3DGS's SH degree (spc3d.reconstruct.splatting, nerf,
+nerf_grid, nerf_trainer)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from spc3d.inputs.scenes import render_scene
+from spc3d.reconstruct import RECONSTRUCTORS, nerf, nerf_grid
+from spc3d.reconstruct.gaussians import GaussianConfig
+from spc3d.reconstruct.splatting import log_linear, means_lr
+from spc3d.reconstruct.views import Views
+
+
+@pytest.fixture(scope="module")
+def views() -> Views:
+    s = render_scene("courtyard", height=12, width=16, views=6, supersample=1)
+    return Views(torch.as_tensor(s.images, dtype=torch.float32), s.cameras, list(s.names))
+
+
+def test_log_linear_falls_geometrically_between_its_ends_and_holds_outside():
+    assert log_linear(100, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-2)
+    assert log_linear(200, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-3)  # half way: the geometric mean
+    assert log_linear(300, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-4)
+    assert log_linear(0, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-2)
+    assert log_linear(999, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-4)
+    assert log_linear(5, 10, 10, 1e-2, 1e-4) == pytest.approx(1e-2)  # an empty window: no division by 0
+
+
+def test_means_lr_is_the_reference_schedule_times_the_scene_extent():
+    cfg = GaussianConfig(iterations=1000, lr_means=1.6e-4, lr_means_final=1.6e-6)
+    assert means_lr(0, cfg, 2.5) == pytest.approx(2.5 * 1.6e-4)
+    assert means_lr(500, cfg, 2.5) == pytest.approx(2.5 * 1.6e-5)
+    assert means_lr(1000, cfg, 2.5) == pytest.approx(2.5 * 1.6e-6)
+
+
+def test_the_3dgs_trainer_sets_the_means_lr_at_every_step_and_keeps_the_others(views):
+    settings = {"iterations": 40, "init_points": 60, "densify_from": 100, "densify_until": 0, "sh_interval": 1000}
+    trainer, iterations, cfg = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    for it in (1, 2, 20, 40):
+        trainer.step(it)
+        lrs = {g["name"]: g["lr"] for g in trainer.opt.param_groups}
+        assert lrs["means"] == pytest.approx(means_lr(it, cfg, trainer.extent))
+        assert lrs["sh_dc"] == cfg.lr_sh_dc and lrs["opacity_logits"] == cfg.lr_opacity
+
+
+def test_the_sh_degree_rises_only_while_the_loss_still_falls_by_half_a_percent(views):
+    settings = {"iterations": 40, "init_points": 60, "sh_interval": 4, "sh_degree": 2}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    trainer.losses, trainer.degree_loss = [1.0] * 4, math.inf
+    trainer.maybe_raise_degree()
+    assert trainer.model.active_degree == 1 and trainer.degree_loss == 1.0
+    trainer.losses = [0.996] * 4  # 0.4 % better: not enough
+    trainer.maybe_raise_degree()
+    assert trainer.model.active_degree == 1 and trainer.degree_loss == pytest.approx(0.996)
+    trainer.losses = [0.9] * 4
+    trainer.maybe_raise_degree()
+    assert trainer.model.active_degree == 2
+    trainer.losses = [0.5] * 4
+    trainer.maybe_raise_degree()
+    assert trainer.model.active_degree == 2  # never past sh_degree
+
+
+def test_nerf_learning_rates_decay_geometrically_per_group():
+    ncfg = nerf.NerfConfig(lr=5e-4, lr_final=5e-6, n_iters=1000)
+    assert nerf.lr_at(500, ncfg)["mlp"] == pytest.approx(5e-5)
+    gcfg = nerf_grid.GridConfig(lr_grid=0.1, lr_mlp=1e-3, lr_decay=0.01, n_iters=600)
+    half = nerf_grid.lr_at(300, gcfg)
+    assert half == pytest.approx({"density": 0.01, "features": 0.01, "mlp": 1e-4})
+
+
+@pytest.mark.parametrize("model", ["nerf-grid", "nerf"])
+def test_the_ray_trainers_set_their_learning_rates_at_every_step(views, model):
+    settings = {"n_iters": 10, "batch_rays": 32, "chunk": 512}
+    if model == "nerf-grid":
+        settings |= {"lr_decay": 0.1, "res_schedule": [[0, 16]], "occupancy_warmup": 100}
+    else:
+        settings |= {"preset": "cpu", "lr_final": 5e-5}
+    trainer, _, cfg = RECONSTRUCTORS[model](views, None, settings, 0)
+    lr_at = (nerf_grid if model == "nerf-grid" else nerf).lr_at
+    for it in (1, 5, 10):
+        trainer.step(it)
+        got = {g["name"]: g["lr"] for g in trainer.opt.param_groups}
+        assert got == pytest.approx(lr_at(it, cfg)), it
