@@ -13,7 +13,11 @@ from __future__ import annotations
 
 import argparse
 import shutil
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from spc3d import io  # noqa: E402
 
 ARCHIVE = Path(__file__).resolve().parents[2] / "docs" / "measurements"
 
@@ -26,13 +30,9 @@ def archive(results: Path, name: str, extra: list[str]) -> list[Path]:
         what = "missing " + ", ".join(missing) if missing else "no tables"
         raise SystemExit(f"{tables}: {what}: run the workflow first")
     out = ARCHIVE / name / "tables"
-    tmp = out.with_name(".tables.tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    for f in files:
-        shutil.copy2(f, tmp / f.name)
-    shutil.rmtree(out, ignore_errors=True)
-    tmp.replace(out)
+    with io.atomic_path(out, is_dir=True) as tmp:
+        for f in files:
+            shutil.copy2(f, tmp / f.name)
     return [out / f.name for f in files]
 
 

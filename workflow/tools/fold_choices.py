@@ -12,9 +12,12 @@ candidate's mean PSNR (``choices-without-*/*.json``). Nothing is typed: the tabl
 from __future__ import annotations
 
 import argparse
-import json
 import re
+import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from spc3d import io  # noqa: E402
 
 
 def folds(results: Path) -> list[str]:
@@ -22,18 +25,14 @@ def folds(results: Path) -> list[str]:
     return sorted({m.group(1) for p in results.glob("*-without-*") if (m := re.search(r"-without-(.+)$", p.name))})
 
 
-def read(path: Path) -> dict:
-    return json.loads(path.read_text())
-
-
 def summary_table(results: Path) -> str:
     lines = ["| left out | joint weights chosen on | classical denoiser | display level k (K) |", "|---|---|---|---|"]
     for scene in folds(results):
         choices = sorted((results / f"choices-without-{scene}").glob("*.json"))
-        held = sorted({s for c in choices for s in read(c)["scenes"]})
+        held = sorted({s for c in choices for s in io.read_json(c)["scenes"]})
         classical = results / f"models-without-{scene}" / "classical" / "train.json"
-        chosen = read(classical)["selection"]["chosen"] if classical.is_file() else "–"
-        levels = [read(p) for p in sorted((results / f"calibration-without-{scene}").glob("display-k*.json"))]
+        chosen = io.read_json(classical)["selection"]["chosen"] if classical.is_file() else "–"
+        levels = [io.read_json(p) for p in sorted((results / f"calibration-without-{scene}").glob("display-k*.json"))]
         shown = ", ".join(f"{c['level']:.3f} ({c['K']})" for c in levels) or "–"
         lines.append(f"| {scene} | {', '.join(held) or '–'} | {chosen} | {shown} |")
     return "\n".join(lines)
@@ -41,7 +40,7 @@ def summary_table(results: Path) -> str:
 
 def translator_table(results: Path) -> str:
     runs = {
-        (scene, p.parent.name): read(p)
+        (scene, p.parent.name): io.read_json(p)
         for scene in folds(results)
         for p in sorted((results / f"models-without-{scene}").glob("*/train.json"))
     }
@@ -61,7 +60,7 @@ def joint_table(results: Path) -> str:
     lines = ["| left out | row | weight chosen | mean PSNR of each candidate (dB) |", "|---|---|---|---|"]
     for scene in folds(results):
         for path in sorted((results / f"choices-without-{scene}").glob("*.json")):
-            c = read(path)
+            c = io.read_json(path)
             means = ", ".join(f"{w}: {v:.2f}" for w, v in c["mean_psnr"].items())
             lines.append(f"| {scene} | {c['row']} | {c['chosen']['weight']:g} | {means} |")
     return "\n".join(lines)
@@ -90,10 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     if not folds(args.results):
         raise SystemExit(f"{args.results}: no fold folders (*-without-SCENE): not a leave-one-out run's results/")
     out = args.out or args.results / "tables" / "fold_choices.md"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(fold_choices(args.results) + "\n")
-    tmp.replace(out)
+    io.write_text(out, fold_choices(args.results) + "\n")
     print(f"{out}: {len(folds(args.results))} folds")
     return 0
 

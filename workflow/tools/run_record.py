@@ -21,7 +21,10 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from default_run import job_cpu, job_cpu_by_rule, parse_rasterizer  # noqa: E402
+
+from spc3d import io  # noqa: E402
 
 TIME_V = {
     "wall": r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)",
@@ -98,9 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     out = args.out or args.clone / "results" / "tables" / "run.md"
     text = record(args.clone, args.log, args.raster_after, args.raster_before, args.command)
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(text + "\n")
-    tmp.replace(out)
+    io.write_text(out, text + "\n")
     print(text)
     return 0
 
