@@ -105,6 +105,7 @@ def smoke_args(script: str, run: Path, tmp: Path) -> list[str]:
         "translator_patience.py": [res / "models", "--patience", "1", "2"],
         "nerf_grid_quality.py": ["--smoke", "--cache", tmp / "scenes"],
         "plateau_rule.py": ["--smoke", "--cache", tmp / "scenes"],
+        "record.py": [tmp / "bench", "--", "spc_simulator.py", "--smoke"],
     }.get(script, ["--smoke"])
 
 
@@ -177,3 +178,32 @@ def test_joint_weight_table_and_sample_kind_from_records(tmp_path):
     assert sample_kind(tmp_path, "restormer", "orchard") == "out of sample"
     assert sample_kind(tmp_path, "restormer", "tabletop") == "in-sample"
     assert sample_kind(tmp_path, "prior", "tabletop") == "no network"
+
+
+def test_record_keeps_a_scripts_output_verbatim_and_nothing_when_it_fails(tmp_path):
+    """benchmarks/record.py writes the printed table with its command under OUT/tables, and a
+    failing script leaves no file behind (docs must not quote a half-written measurement)."""
+    env = os.environ | {"PYTHONPATH": str(REPO / "workflow")}
+    record = [sys.executable, str(BENCHMARKS / "record.py"), str(tmp_path)]
+    ok = subprocess.run(
+        [*record, "--name", "sim", "--", "spc_simulator.py", "--smoke"], env=env, capture_output=True, text=True
+    )
+    assert ok.returncode == 0, ok.stderr
+    direct = subprocess.run(
+        [sys.executable, str(BENCHMARKS / "spc_simulator.py"), "--smoke"],
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    text = (tmp_path / "tables" / "sim.md").read_text()
+    assert text.startswith("# sim\n") and "`python benchmarks/spc_simulator.py --smoke` at commit" in text
+    fenced = text.split("```text\n", 1)[1].rsplit("\n```", 1)[0].splitlines()
+    # same lines as a direct run, timings aside: the header rows match exactly
+    assert fenced[0] == direct.stdout.splitlines()[0] and len(fenced) == len(direct.stdout.splitlines())
+    bad = subprocess.run(
+        [*record, "--", "spc_simulator.py", "--no-such-option"], env=env, capture_output=True, text=True
+    )
+    assert bad.returncode != 0 and "nothing recorded" in bad.stderr
+    assert not (tmp_path / "tables" / "spc_simulator.md").exists()
+    assert not list((tmp_path / "tables").glob(".*"))  # no temporary file left
