@@ -2,11 +2,14 @@
 what each row reads and consumes, the published networks' settings, and the untrained prior as a
 stage-1 method of its own."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
 
 from spc3d import names
+from spc3d.config import read_yaml, workflow_config
 from spc3d.names import (
     ConfigError,
     SourceName,
@@ -24,6 +27,8 @@ from spc3d.names import (
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.apply import translate_scene
 from spc3d.translate.train import TranslatorJob, train_translator, training_data
+
+from conftest import REPO
 
 
 @pytest.mark.parametrize(
@@ -159,3 +164,61 @@ def test_a_capture_runs_single_frame_rows_as_their_working_resolution_variant(tm
     summary = tables.summarise(tables.collect(files))
     assert summary.loc["none+3dgs", "S"] == 4 and summary.loc["none-x1+3dgs", "S"] == 1
     assert summary.loc["none+3dgs", "psnr_mean"] == 18.0 and summary.loc["none-x1+3dgs", "runs"] == 1
+
+
+# --- the row grammar: one home (spc3d.names), read alike by the schema and the workflow --------------
+
+PRESETS = ["config.yaml", *sorted(p.name for p in (REPO / "workflow" / "presets").glob("*.yaml"))]
+
+
+def preset_rows(preset: str) -> tuple[set[str], set[str]]:
+    """(rows of stage 2 and the findings' rivals, rows of the sweeps) a preset configures."""
+    cfg = workflow_config() if preset == "config.yaml" else workflow_config(REPO / "workflow" / "presets" / preset)
+    rivals = (cfg.get("findings") or {}).get("rivals") or {}
+    rows = set(cfg["stage2"]["combinations"]).union(*rivals.values())
+    sweeps = set().union(*((cfg.get(s) or {}).get("combinations") or [] for s in ("tradeoff", "photon_level")))
+    return rows, sweeps
+
+
+def test_the_schema_copies_the_row_grammar_of_spc3d_names():
+    schema = read_yaml(REPO / "workflow" / "schemas" / "config.schema.yaml")["properties"]
+    assert schema["stage2"]["properties"]["combinations"]["items"]["pattern"] == names.COMBINATION_PATTERN
+    for sweep in ("tradeoff", "photon_level"):
+        assert schema[sweep]["properties"]["combinations"]["items"]["pattern"] == names.SWEEP_COMBINATION_PATTERN
+
+
+def test_the_workflow_constrains_its_wildcards_with_the_row_grammar():
+    common = (REPO / "workflow" / "rules" / "common.smk").read_text()
+    assert "source=SOURCE_PATTERN," in common and "poses=POSES_PATTERN," in common
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_every_row_of_every_preset_reads_alike_in_the_grammar_and_the_parser(preset):
+    rows, sweeps = preset_rows(preset)
+    assert rows, preset
+    for combo in rows | sweeps:
+        row = names.parse_row(combo)
+        assert str(row) == combo  # parsed and printed back, character for character
+        assert re.match(names.COMBINATION_PATTERN, combo), combo
+        source = combo.partition("+")[0]
+        assert re.fullmatch(names.SOURCE_PATTERN, source) and str(row.source) == source, combo
+        assert re.fullmatch(names.POSES_PATTERN, f"@{row.poses}" if row.poses else ""), combo
+        assert re.fullmatch(names.MODEL_PATTERN, row.model), combo
+    for combo in sweeps:
+        assert re.match(names.SWEEP_COMBINATION_PATTERN, combo), combo
+
+
+@pytest.mark.parametrize(
+    "combo",
+    ["joint-pix2pix-pub+nerf-grid", "bernoulli-k4+3dgs@mle-k16", "none-x1-mse+3dgs", "gt+nerf@gt", "mle-k16+nerf"],
+)
+def test_a_row_name_round_trips_and_matches(combo):
+    row = names.parse_row(combo)
+    assert str(row) == combo and re.match(names.COMBINATION_PATTERN, combo)
+    assert str(names.parse_row(str(row))) == combo
+
+
+@pytest.mark.parametrize("combo", ["none-mse-x1+3dgs", "gt", "gt+3dgs@", "Gt+3dgs", "gt+3dgs@mle-k"])
+def test_misspelt_rows_fail_the_grammar_or_the_round_trip(combo):
+    row = names.parse_row(combo)
+    assert not re.match(names.COMBINATION_PATTERN, combo) or str(row) != combo

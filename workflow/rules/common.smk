@@ -17,7 +17,7 @@ from spc3d.inputs.augment import split_count
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
-from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, SOURCE_IMAGES, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, scored_before_3d, source_frames, source_images, spc_settings, stage1_sources, stage2_row_settings, translator_settings, translator_validation, uses_display
+from spc3d.names import JOINT_SOURCES, PLAIN_SOURCES, POSES_PATTERN, SOURCE_IMAGES, SOURCE_PATTERN, STAGE1_METHODS, STAGE2_MODELS, display_budget, display_budgets, joint_settings, parse_combination, parse_source, reads_capture_frame, resolve_combinations, scored_before_3d, source_frames, source_images, spc_settings, stage1_sources, stage2_row_settings, translator_settings, translator_validation, uses_display
 from snakemake.io import apply_wildcards
 
 from spc3d.provenance import closure_digest, entry_file
@@ -67,8 +67,8 @@ POINTS = PointSettings(config, SWEEP_SPECS, SWEEP_SCENE, SWEEP_TRAIN, photon_bud
 wildcard_constraints:
     scene="|".join(ALL_SCENES + [s for s in SWEEP_SPECS if s not in ALL_SCENES]) or "(?!)",
     images="rgb|binary|average",
-    source="(joint-)?[a-z0-9]+(-k[0-9]+)?(-x1)?(-pub)?(-mse)?",  # spc3d.names.SourceName
-    poses="(@[a-z0-9]+(-k[0-9]+)?)?",  # "@mle-k16": poses COLMAP estimated from that source's images
+    source=SOURCE_PATTERN,  # the row grammar: spc3d.names
+    poses=POSES_PATTERN,  # "@mle-k16": poses COLMAP estimated from that source's images
     model="|".join(STAGE2_MODELS),
     method=f"({'|'.join(STAGE1_METHODS)})(-pub)?",  # "-pub": the published network (prior_sigma: 0)
     rep="(-seed[0-9]+)?",

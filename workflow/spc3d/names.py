@@ -101,6 +101,36 @@ class SourceName:
         return head + "-x1" * self.x1 + "-pub" * self.pub + "-mse" * self.mse
 
 
+# The row grammar, one home for it: ``[joint-]base[-k<K>][-x1][-pub][-mse]+model[@poses]``. The
+# workflow's wildcard constraints (``source``, ``poses``) are these strings, and the schema's
+# patterns of ``stage2.combinations`` and of the sweeps' combinations are copies of the two row
+# patterns (Snakemake's validate reads a schema file; tests/test_source_names.py checks the copies).
+PART = "[a-z0-9]+"
+SOURCE_PATTERN = f"({JOINT})?{PART}(-k[0-9]+)?" + "".join(f"({suffix})?" for suffix in SUFFIXES)
+MODEL_PATTERN = f"{PART}(-{PART})*"
+POSES_PATTERN = f"(@{PART}(-k[0-9]+)?)?"  # "" (the scene's cameras) or "@<image source>"
+COMBINATION_PATTERN = f"^{SOURCE_PATTERN}\\+{MODEL_PATTERN}{POSES_PATTERN}$"
+SWEEP_COMBINATION_PATTERN = f"^({JOINT})?{PART}\\+{MODEL_PATTERN}$"  # sweeps: no suffixes, no estimated poses
+
+
+@dataclass(frozen=True)
+class RowName:
+    """A row name taken apart: ``source+model[@poses]``; ``str()`` spells it back."""
+
+    source: SourceName
+    model: str
+    poses: SourceName | None = None
+
+    def __str__(self) -> str:
+        return f"{self.source}+{self.model}" + (f"@{self.poses}" if self.poses is not None else "")
+
+
+def parse_row(combo: str) -> RowName:
+    """``RowName`` of ``combo`` (its parts as :func:`parse_combination` and :func:`parse_source` read them)."""
+    source, model, poses = parse_combination(combo)
+    return RowName(parse_source(source), model, parse_source(poses) if poses else None)
+
+
 def parse_source(source: str) -> SourceName:
     """``SourceName`` of ``source`` (suffixes stripped from the end, in the order of :data:`SUFFIXES`);
     unknown parts stay in ``base``, which :func:`check_source` then rejects."""
