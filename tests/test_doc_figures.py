@@ -40,6 +40,26 @@ def test_figures_in_blocks_or_quoting_a_file_are_backed(tmp_path):
     assert TOOL.unbacked(tmp_path / "README.md") == ["docs/a.md:1: 30.25 dB"]
 
 
+def test_approximate_figures_ranges_and_degrees_are_figures_but_sweep_paths_are_not(tmp_path):
+    write_docs(
+        tmp_path,
+        "a fit takes ~25 s; rows lose 3–13 dB and 1.5-2.7°; 17 CPU-minutes; sweeps/iters~300 s; 21.47–22.5 dB\n",
+    )
+    rows = TOOL.unbacked(tmp_path / "README.md")
+    assert rows == [
+        "README.md:1: ~25 s",
+        "README.md:1: 3–13 dB",
+        "README.md:1: 1.5-2.7°",
+        "README.md:1: 17 CPU-minutes",
+        "README.md:1: 21.47–22.5 dB",  # a range is backed only when both ends are
+    ]
+
+
 def test_inline_code_across_lines_and_command_lines_are_not_prose(tmp_path):
     write_docs(tmp_path, "an error (`rule x: more memory\nthan any node has (24105 MB)`) and 2.0 dB\n")
     assert TOOL.unbacked(tmp_path / "README.md") == ["README.md:2: 2.0 dB"]
+
+
+def test_the_repositorys_readme_and_docs_type_no_measured_figure():
+    rows = TOOL.unbacked(REPO / "README.md")
+    assert not rows, "measured figures no file backs (quote a generated block or an archived file):\n" + "\n".join(rows)

@@ -2,11 +2,12 @@
 
     python workflow/tools/doc_figures.py [README.md]
 
-A measured figure is a number with a unit of measurement (dB, it/s, ms, s, min, h, GB, MB, a ×
-speed-up) or a signed decimal (a Δ such as +1.85). It is backed when it stands in a generated block
-(``<!-- generated: ... -->``, copied from a run's file by ``readme_results.py``), or when the same
-number appears in a generated block of the same document or in an archived file
-(``docs/measurements/``): prose that quotes a table's figure then names a figure the table holds.
+A measured figure is a number or a range (``~25 s``, ``3–13 dB``) with a unit of measurement (dB,
+it/s, ms, s, min, h, CPU seconds, GB, MB, degrees, a × speed-up) or a signed decimal (a Δ, +1.85).
+It is backed when it stands in a generated block (``<!-- generated: ... -->``, copied from a run's
+file by ``readme_results.py``), or when all its numbers appear in a generated block of the same
+document or in an archived file (``docs/measurements/``): prose that quotes a table's figure then
+names a figure the table holds.
 Everything else is listed as ``document:line: figure``, and the exit status is 1 when any is.
 Settings are not figures (``128×96``, ``every 10 %``, ``1,200 iterations``: no measured unit),
 and neither are the numbers of a command line or of inline code (``--steps 3000``, a message).
@@ -26,9 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from readme_results import BLOCK, documents  # noqa: E402
 
 NUMBER = r"[+\-−]?\d[\d,]*(?:\.\d+)?"
-UNIT = r"(?:\s(?:dB|it/s|ms|s|min|h|GB|MB|GiB|MiB)|\s?[×x])"  # a word unit after a space; × or x after a number
+UNIT = (  # a word unit after a space; ×, x or ° right after the number
+    r"(?:\s(?:dB|it/s|ms|s|min|h|GB|MB|GiB|MiB|CPU[- ](?:s|seconds|minutes|hours))|\s?[×x°])"
+)
 FIGURE = re.compile(
-    rf"(?<![\w.@/`~=-])(?P<num>{NUMBER})(?P<unit>{UNIT})(?![\w/]|×\s?\d|\s?×\s?\d)"  # 12.3 dB, 25 s, 1.9×
+    rf"(?<![\w.@/`~=-])~?(?P<num>{NUMBER})(?:\s?[–-]\s?(?P<upto>{NUMBER}))?(?P<unit>{UNIT})"  # ~25 s, 3–13 dB
+    rf"(?![\w/]|×\s?\d|\s?×\s?\d)"
     rf"|(?<![\w.@/`~=(\[-])(?P<delta>[+−]\d+\.\d+)(?![\w.])"  # +1.85, −0.62: a Δ
 )
 SIZE = re.compile(r"\d\s?[×x]\s?\d")  # 128×96, 4 x 4: a size, not a speed-up
@@ -93,7 +97,7 @@ def unbacked(readme: Path) -> list[str]:
         backed = archived | block_numbers(text)
         for n, line in prose_lines(text):
             for fig in figures(line):
-                if normal(re.match(NUMBER, fig).group(0)) not in backed:
+                if not {normal(n) for n in re.findall(NUMBER, fig.lstrip("~"))} <= backed:
                     rows.append(f"{doc.relative_to(readme.parent)}:{n}: {fig}")
     return rows
 

@@ -39,8 +39,9 @@ the cores. ``parallel=True`` / ``prange`` is avoided on purpose: numba's OpenMP 
 parallel region wait for torch's pool, and forcing numba's process-global threading layer would
 change other users.
 
-Speed: ``benchmarks/rasterizer.py`` times training steps against the PyTorch reference; the
-historical measurements (per region, per kernel generation) are in docs/benchmarks.md.
+Speed: ``benchmarks/rasterizer.py`` times training steps against the PyTorch reference
+(docs/benchmarks.md shows its recorded output and the choices earlier measurements made; their
+figures, per region and per kernel generation, are in that file's git history).
 
 Any input values (numba does not check bounds, so this is what keeps the kernels in bounds): the
 set-up draws a Gaussian only if its centre, conic, opacity, colour and depth are finite, its
