@@ -69,7 +69,7 @@ class BernoulliObjective:
     # The NLL's floor is the entropy of the unknown firing probabilities (at K = 1 the observed
     # fractions are 0 or 1 and tell nothing of it): most of the loss is photon noise no model
     # explains, so a relative gain of it says nothing about the fit, and a 1 % rule stopped
-    # bernoulli+3dgs 600 steps early at -1.1 dB on the training scenes (benchmarks/plateau_rule.py).
+    # bernoulli+3dgs early, at a loss of PSNR, on the training scenes (benchmarks/plateau_rule.py).
     # Its fits train to their budget.
     stops_on_plateau = False
 
@@ -101,8 +101,8 @@ class Scheduled(Protocol):
 class JointConfig:
     """The prior term's weight schedule (over the fraction t of the run done) and penalty."""
 
-    # A constant 0.1, chosen on the training scenes (benchmarks/joint_weight.py, docs/stage2.md#joint-rows):
-    # +0.93 dB over the likelihood alone there; 0.3 +0.81, 1 -0.60; every decaying schedule tried was worse.
+    # A constant 0.1, chosen on the training scenes (benchmarks/joint_weight.py prints the candidates' scores;
+    # docs/stage2.md#joint-rows): the best there, and every decaying schedule tried was worse.
     weight: float = 0.1  # w at t = 0
     weight_final: float = 0.1  # w from t = decay_until on
     decay_until: float = 0.5  # fraction of the run over which w falls linearly (0: weight_final throughout)
