@@ -42,6 +42,7 @@ def load_script(path: Path, name: str | None = None):
     """A script of the repository (a benchmark, a tool) imported as a module, for its functions."""
     spec = importlib.util.spec_from_file_location(name or Path(path).stem, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault(spec.name, module)  # a dataclass of the script looks its module up there
     spec.loader.exec_module(module)
     return module
 
