@@ -94,3 +94,18 @@ def test_archive_keeps_a_runs_tables_and_refuses_a_missing_one(tmp_path, monkeyp
     with pytest.raises(SystemExit, match="missing"):
         tool.archive(tmp_path / "results", "real", ["absent.json"])
     assert (tmp_path / "measurements" / "real" / "tables" / "findings.json").is_file()  # nothing lost
+
+
+def test_archiving_a_run_refreshes_its_blocks_and_leaves_the_others(tmp_path, monkeypatch):
+    tool = load_script(TOOLS / "archive_run.py")
+    monkeypatch.setattr(tool, "ARCHIVE", tmp_path / "docs" / "measurements")
+    (tmp_path / "docs").mkdir()
+    readme = tmp_path / "README.md"
+    other = "<!-- generated: real:tables/x.md -->\nkept as it is\n<!-- /generated -->\n"
+    readme.write_text("<!-- generated: default:tables/t.md -->\nold\n<!-- /generated -->\n" + other)
+    (tmp_path / "results" / "tables").mkdir(parents=True)
+    (tmp_path / "results" / "tables" / "t.md").write_text("# T\n\n| new |\n")
+    assert tool.main([str(tmp_path / "results"), "default"]) == 0
+    text = readme.read_text()
+    assert "| new |" in text and "old" not in text and other in text
+    assert "`docs/measurements/default/tables/t.md`" in text  # the provenance names the archived file

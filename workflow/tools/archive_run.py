@@ -3,10 +3,11 @@
     python workflow/tools/archive_run.py RESULTS_DIR NAME [--with findings.json ...]
 
 Copies ``RESULTS_DIR/tables/*.md`` (and each ``--with`` file of ``RESULTS_DIR/tables``) into
-``docs/measurements/NAME/tables/``, replacing what was there. The blocks ``NAME:tables/...`` of the
-README and docs/ are then refreshed from it (``readme_results.py --run NAME=docs/measurements/NAME``),
-and ``tests/test_generated_blocks.py`` fails when a block of an archived run differs from its file:
-results/ is not kept in git, and a figure in the docs needs a file behind it that stays.
+``docs/measurements/NAME/tables/``, replacing what was there, then refreshes the blocks
+``NAME:tables/...`` of the README and docs/ from it (``readme_results.refresh_run``), the other
+blocks left as they are. ``tests/test_generated_blocks.py`` fails when a block of an archived run
+differs from its file: results/ is not kept in git, and a figure in the docs needs a file behind
+it that stays.
 """
 
 from __future__ import annotations
@@ -17,6 +18,9 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme_results import refresh_run  # noqa: E402
+
 from spc3d import io  # noqa: E402
 
 ARCHIVE = Path(__file__).resolve().parents[2] / "docs" / "measurements"
@@ -44,6 +48,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     kept = archive(args.results, args.name, args.extra)
     print(f"{ARCHIVE / args.name}: {len(kept)} files")
+    for doc, count in refresh_run(ARCHIVE.parents[1] / "README.md", args.name, ARCHIVE / args.name).items():
+        if count:
+            print(f"{doc}: {count} block(s) of run {args.name} refreshed")
     return 0
 
 

@@ -31,8 +31,12 @@ BLOCK = re.compile(r"(<!-- generated: (?P<path>[^ ]+) -->\n)(?P<body>.*?)(<!-- /
 def provenance(results: Path, path: Path, run: str = "") -> str:
     when = datetime.datetime.fromtimestamp(path.stat().st_mtime).strftime("%Y-%m-%d %H:%M")
     where = f"the {run} run's " if run else ""
-    rel = path.relative_to(results)
-    return f"*Copied by `workflow/tools/readme_results.py` from {where}`results/{rel}` ({when}).*"
+    shown = f"results/{path.relative_to(results)}"
+    parts = path.resolve().parts
+    archived = [i for i in range(len(parts) - 1) if parts[i : i + 2] == ("docs", "measurements")]
+    if archived:  # a run kept in git (archive_run.py): name the file a reader can open
+        shown = "/".join(parts[archived[-1] :])
+    return f"*Copied by `workflow/tools/readme_results.py` from {where}`{shown}` ({when}).*"
 
 
 def body(runs: dict[str, Path], ref: str, doc: Path = Path("README.md"), kept: str | None = None) -> str:
