@@ -25,6 +25,7 @@ TARGET = torch.rand(2, 24, 20, 3, generator=G, dtype=torch.float64)
 def test_rgb_losses_are_mean_absolute_and_mean_squared_error():
     diff = (PRED - TARGET).numpy()
     assert float(RGBObjective("l1").loss(PRED, TARGET)) == pytest.approx(np.abs(diff).mean(), rel=1e-12)
+    assert float(RGBObjective().loss(PRED, TARGET)) == pytest.approx(np.abs(diff).mean(), rel=1e-12)  # L1 by default
     assert float(RGBObjective("mse").loss(PRED, TARGET)) == pytest.approx(np.square(diff).mean(), rel=1e-12)
 
 
@@ -94,3 +95,26 @@ def test_joint_loss_is_the_likelihood_plus_w_times_the_image_loss():
     off = JointObjective(bern, JointConfig(likelihood=False), image)
     assert float(off.loss(pred, target)) == pytest.approx(float(prior), rel=1e-6)
     assert isinstance(JointObjective(bern, JointConfig(penalty="l1")).image, RGBObjective)
+
+
+def test_objectives_are_immutable_values():
+    """A trainer, its checkpoint and a joint row share one objective: none may change it in place
+    (the joint row's schedule changes only its own weight, through ``at``)."""
+    import dataclasses
+
+    for objective in (RGBObjective("l1"), BernoulliObjective(100.0, 0.4, 1e-3, 10.0)):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            objective.name = "changed"
+
+
+def test_joint_config_accepts_its_closed_ranges_and_names_the_key_first_when_it_refuses():
+    JointConfig(decay_until=0.0)
+    JointConfig(decay_until=1.0)  # decay over the whole run: valid
+    JointConfig(weight=0.0, weight_final=0.0)  # no prior term: the likelihood row's objective
+    with pytest.raises(ValueError, match=r"^stage2\.joint\.decay_until = 1\.5: a fraction of the run, in \[0, 1\]$"):
+        JointConfig(decay_until=1.5)
+    with pytest.raises(ValueError, match=r"^stage2\.joint\.penalty = 'l2': use one of \['own', 'l1'\]$"):
+        JointConfig(penalty="l2")
+    for key in ("weight", "weight_final"):
+        with pytest.raises(ValueError, match=rf"^stage2\.joint\.{key} = -0\.1: the prior term's weight must be >= 0$"):
+            JointConfig(**{key: -0.1})

@@ -29,6 +29,7 @@ def test_log_linear_falls_geometrically_between_its_ends_and_holds_outside():
     assert log_linear(0, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-2)
     assert log_linear(999, 100, 300, 1e-2, 1e-4) == pytest.approx(1e-4)
     assert log_linear(5, 10, 10, 1e-2, 1e-4) == pytest.approx(1e-2)  # an empty window: no division by 0
+    assert log_linear(11, 10, 11, 1e-2, 1e-4) == pytest.approx(1e-4)  # a one-step window ends at its last value
 
 
 def test_means_lr_is_the_reference_schedule_times_the_scene_extent():
@@ -86,3 +87,19 @@ def test_the_ray_trainers_set_their_learning_rates_at_every_step(views, model):
         trainer.step(it)
         got = {g["name"]: g["lr"] for g in trainer.opt.param_groups}
         assert got == pytest.approx(lr_at(it, cfg)), it
+
+
+def test_3dgs_adam_has_the_reference_epsilon_so_a_vanishing_gradient_still_moves_a_gaussian(views):
+    """3DGS's Adam uses eps = 1e-15 (Kerbl et al.): Gaussians far from every view get gradients of
+    that order and must still move. A first Adam step moves a parameter by lr * g / (|g| + eps)."""
+    from spc3d.reconstruct.splatting import make_optimizer
+
+    settings = {"iterations": 40, "init_points": 60}
+    trainer, _, cfg = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    model = trainer.model
+    opt = make_optimizer(model, cfg, extent=1.0)
+    before = model.opacity_logits.detach().clone()
+    model.opacity_logits.grad = torch.full_like(model.opacity_logits, 1e-15)
+    opt.step()
+    moved = (before - model.opacity_logits.detach()).abs()
+    assert torch.allclose(moved, torch.full_like(moved, cfg.lr_opacity * 0.5), rtol=1e-3)

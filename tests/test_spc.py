@@ -99,6 +99,26 @@ def test_bernoulli_bit_rate_matches_detection_probability():
     assert p[0] < 0.02 and 0.005 < p[1] < 0.02 and 0.5 < p[4] < 0.7 and p[-1] > 0.98  # all regimes
 
 
+@pytest.mark.parametrize("mode", ["bernoulli", "paper"])
+def test_a_sensor_plane_of_any_shape_fires_at_its_detection_probability(mode):
+    """simulate_plane (a mosaic sensor's plane, spc3d.physics.sensors) draws K frames of a flux map
+    of any shape with the sampler of the mode, the same draws as simulate_frames of that flux."""
+    params, K = replace(_params(frames=2048), mode=mode), 2048
+    phi = spc.flux_from_srgb(np.broadcast_to(LEVELS[:, None], (7, 5)), 1e5)  # (7, 5): no channel axis
+    frames = spc.simulate_plane(phi, params, np.random.default_rng(3))
+    assert frames.shape == (K, 7, 5) and frames.dtype == bool
+    if mode == "bernoulli":
+        p = spc.detection_probability(phi[:, 0], params)
+        assert np.all(np.abs(frames.mean(axis=(0, 2)) - p) <= _binomial_tol(p, K * 5) + 2.0**-32)
+    srgb = np.broadcast_to(LEVELS[:, None, None], (7, 5, 1)).astype(np.float64)
+    same = spc.simulate_frames(srgb, 1e5, params, np.random.default_rng(3))[..., 0]
+    assert np.array_equal(frames, same)
+    with pytest.raises(TypeError, match="numpy.random.Generator"):
+        spc.simulate_plane(phi, params, 3)
+    with pytest.raises(ValueError, match="phi"):
+        spc.simulate_plane(-phi, params, np.random.default_rng(3))
+
+
 def test_bernoulli_is_deterministic_per_generator():
     params = _params(frames=3)
     a = spc.simulate_frames(_level_image(), 3e4, params, spc.view_rng(7, "fern", 2))
