@@ -118,3 +118,13 @@ def test_joint_config_accepts_its_closed_ranges_and_names_the_key_first_when_it_
     for key in ("weight", "weight_final"):
         with pytest.raises(ValueError, match=rf"^stage2\.joint\.{key} = -0\.1: the prior term's weight must be >= 0$"):
             JointConfig(**{key: -0.1})
+
+
+def test_the_l1_penalty_pulls_with_the_mean_absolute_error_whatever_the_model():
+    """``penalty: l1`` (for NeRF, whose own loss is MSE) makes the prior term L1 on the sRGB render."""
+    bern = BernoulliObjective(100.0, 0.4, 1e-3, 10.0)
+    joint = JointObjective(bern, JointConfig(weight=1.0, weight_final=1.0, likelihood=False, penalty="l1"))
+    pred = PRED.clamp(0.05, 0.95)
+    target = torch.cat([torch.zeros_like(pred), TARGET], dim=-1)
+    expected = (linear_to_srgb(pred) - TARGET).abs().mean()
+    assert float(joint.loss(pred, target)) == pytest.approx(float(expected), rel=1e-12)

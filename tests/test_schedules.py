@@ -103,3 +103,39 @@ def test_3dgs_adam_has_the_reference_epsilon_so_a_vanishing_gradient_still_moves
     opt.step()
     moved = (before - model.opacity_logits.detach()).abs()
     assert torch.allclose(moved, torch.full_like(moved, cfg.lr_opacity * 0.5), rtol=1e-3)
+
+
+def test_3dgs_density_control_of_a_step_runs_at_the_start_of_the_next(views):
+    """Step k's density-control pass runs at the start of step k + 1 (a training stopped at k ends
+    on a fitted model), so steps 1, 2, 3 run the passes of 1 and 2, never a pass 0 (which would
+    reset every opacity before the first update)."""
+    settings = {"iterations": 40, "init_points": 60}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    seen = []
+    trainer.control.step = lambda it, model, opt: seen.append(it)
+    for it in (1, 2, 3):
+        trainer.step(it)
+    assert seen == [1, 2]
+
+
+def test_3dgs_cameras_are_refined_from_pose_from_on(views):
+    """With camera refinement the corrections stay at zero before ``pose_from`` and move from it on."""
+    settings = {"iterations": 40, "init_points": 60, "pose_refine": True, "pose_from": 3, "pose_lr": 1e-2}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    moved = []
+    for it in (1, 2, 3, 4):
+        trainer.step(it)
+        moved.append(bool(trainer.poses.delta.detach().abs().sum() > 0))
+    assert moved == [False, False, True, True]
+
+
+def test_a_likelihood_fit_holds_no_view_out_even_with_plateau_views(views):
+    """The SPAD likelihood never stops on a plateau (its loss floor is photon noise): it fits every
+    training view whatever plateau_views says, and its record names no judging view."""
+    from spc3d.reconstruct.objectives import BernoulliObjective
+    from spc3d.reconstruct.splatting import SplatTrainer
+
+    cfg = GaussianConfig(iterations=40, init_points=60, plateau_views=2, plateau_patience=2)
+    trainer = SplatTrainer(views, BernoulliObjective(100.0, 0.4, 1e-3, 10.0), cfg, seed=0)
+    assert len(trainer.views.names) == len(views.names) and trainer.check is None
+    assert trainer.plateau.views == []
