@@ -139,3 +139,31 @@ def test_a_likelihood_fit_holds_no_view_out_even_with_plateau_views(views):
     trainer = SplatTrainer(views, BernoulliObjective(100.0, 0.4, 1e-3, 10.0), cfg, seed=0)
     assert len(trainer.views.names) == len(views.names) and trainer.check is None
     assert trainer.plateau.views == []
+
+
+def test_a_non_finite_loss_stops_3dgs_naming_the_step_view_and_what_is_finite(views):
+    """A NaN target makes the loss NaN: the fit stops at once, and the message counts the finite
+    rendered pixels, says whether the target is finite, and counts the finite Gaussians."""
+    settings = {"iterations": 40, "init_points": 60}
+    nan = Views(torch.full_like(views.targets, float("nan")), views.cameras, views.names)
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](nan, None, settings, 0)
+    h, w = views.targets.shape[1:3]
+    n = len(trainer.model)
+    pattern = (
+        rf"^3DGS training stopped at iteration 1: the loss on training view \d+ is nan \({h * w} of {h * w} "
+        rf"pixels rendered finite, target finite: False, {n} of {n} Gaussians finite\)$"
+    )
+    with pytest.raises(FloatingPointError, match=pattern):
+        trainer.step(1)
+
+
+def test_3dgs_stops_when_no_gaussian_is_finite_any_more_at_a_density_step(views):
+    """Gaussians that turned non-finite render nothing (opacity 0), so the loss stays finite: the
+    trainer checks at every density-control step that some Gaussian is still finite."""
+    settings = {"iterations": 40, "init_points": 60, "densify_every": 2, "densify_from": 100}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    trainer.step(1)
+    with torch.no_grad():
+        trainer.model.means.fill_(float("nan"))
+    with pytest.raises(FloatingPointError, match=r"^3DGS training stopped at iteration 2: none of the 60 Gaussians"):
+        trainer.step(2)
