@@ -650,3 +650,47 @@ def test_shift_names_a_folder_without_findings(tmp_path):
 
     with pytest.raises(FileNotFoundError, match=r"tables/findings.json: no findings table; pass the results/"):
         read_run(tmp_path)
+
+
+# --- the test's machinery, for its mutants -------------------------------------------------------
+
+
+def test_rows_pair_on_the_scenes_both_scored_only():
+    a = Row((1, 1), {("s1", 0): 20.0, ("s2", 0): 21.0, ("s3", 0): 22.0})
+    b = Row((1, 1), {("s2", 0): 20.0, ("s3", 0): 20.5, ("s4", 0): 19.0})
+    assert paired(a, b).tolist() == [1.0, 1.5]
+
+
+def test_the_exact_test_enumerates_up_to_sixteen_scenes():
+    """At n = 16, the largest exact n, p is a count over the 2^15 patterns with a first sign +,
+    computed here by brute force; at n = 17 the Monte-Carlo p is (1 + count) / (1 + N_RANDOM)."""
+    d = np.array([0.9, -0.3, 1.1, 0.4, -0.8, 0.6, 0.2, 1.3, -0.1, 0.7, 0.5, -0.4, 0.8, 0.3, -0.6, 1.0])
+    bits = (np.arange(2**15)[:, None] >> np.arange(15)) & 1
+    signs = np.hstack([np.ones((2**15, 1)), 1.0 - 2.0 * bits])
+    observed = abs(d.mean()) - 1e-9 * np.abs(d).mean()
+    expected = float((np.abs(signs @ d) / 16 >= observed).sum()) / 2**15
+    assert sign_flip_p(d) == expected
+    p17 = sign_flip_p(np.append(d, 0.5))
+    assert (p17 * (1 + N_RANDOM) - 1) == pytest.approx(round(p17 * (1 + N_RANDOM) - 1), abs=1e-6)
+
+
+def test_tests_take_any_batch_shape_and_refuse_empty_or_scalar_input_by_name():
+    rng = np.random.default_rng(0)
+    d = rng.normal(0.3, 1.0, (2, 3, 7))
+    p = sign_flip_p(d)
+    assert p.shape == (2, 3) and p[1, 2] == sign_flip_p(d[1, 2])
+    above, below = one_sided_p(d), one_sided_p(d, greater=False)
+    assert above.shape == below.shape == (2, 3) and above[0, 1] == one_sided_p(d[0, 1])
+    for bad, shape in ((np.array([]), r"\(0,\)"), (3.0, r"\(\)")):
+        message = rf"^sign_flip_p: need ≥ 1 finite paired difference per test, got shape {shape}$"
+        with pytest.raises(ValueError, match=message):
+            sign_flip_p(bad)
+        with pytest.raises(ValueError, match=r"^one-sided sign-flip p: need ≥ 1 finite paired difference"):
+            one_sided_p(bad)
+
+
+def test_the_cached_sign_patterns_cannot_be_changed_by_a_caller():
+    from spc3d.evaluation.findings import _patterns
+
+    with pytest.raises(ValueError, match="read-only"):
+        _patterns(5)[0, 0] = -1.0
