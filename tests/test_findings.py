@@ -694,3 +694,40 @@ def test_the_cached_sign_patterns_cannot_be_changed_by_a_caller():
 
     with pytest.raises(ValueError, match="read-only"):
         _patterns(5)[0, 0] = -1.0
+
+
+def test_the_smallest_p_is_one_pattern_of_all_exact_or_of_the_monte_carlo_draws():
+    assert smallest_p(16) == 2 / 2**16 and smallest_p(16, one_sided=True) == 1 / 2**16  # exact up to 16
+    assert smallest_p(17) == 1 / (1 + N_RANDOM) and smallest_p(17, one_sided=True) == 1 / (2 + 2 * N_RANDOM)
+
+
+def test_needed_scenes_is_the_fewest_that_can_reach_the_level():
+    assert needed_scenes(1, alpha=1.0) == 1  # one scene: one-sided p 1/2 <= 1/2
+    assert needed_scenes(1, alpha=2 / 64) == 6  # 1/2^6 reaches (alpha / 2) / m exactly: enough
+    assert needed_scenes(4) == 8 and needed_scenes(1) == MIN_SCENES
+
+
+@pytest.mark.parametrize("n", [16, 17])
+def test_one_sided_p_counts_patterns_and_mirrors_exactly_or_by_monte_carlo(n):
+    """Both one-sided p of a mixed-sign sample against a brute-force count over the test's own sign
+    patterns and their mirrors: a fraction at n = 16, (1 + count) / (2 + 2B) above it."""
+    from spc3d.evaluation.findings import _patterns
+
+    d = np.resize([0.9, -0.3, 1.1, 0.4, -0.8, 0.6, 0.2, 1.3, -0.1, 0.7, 0.5, -0.4, 0.8, 0.3, -0.6, 1.0, 0.45], n)
+    signs = _patterns(n)
+    means = signs @ d / n
+    obs, tol = d.mean(), 1e-9 * np.abs(d).mean()
+    above = (means >= obs - tol).sum() + (means <= -(obs - tol)).sum()
+    below = (means <= obs + tol).sum() + (means >= -(obs + tol)).sum()
+    total = 2 * len(signs)
+    if n <= 16:
+        expected = above / total, below / total
+    else:
+        expected = (1 + above) / (2 + total), (1 + below) / (2 + total)
+    assert (one_sided_p(d), one_sided_p(d, greater=False)) == pytest.approx(expected, rel=1e-12)
+
+
+def test_effect_p_refuses_a_negative_or_infinite_smallest_effect_by_name():
+    for bad in (-0.1, math.inf):
+        with pytest.raises(ValueError, match=r"^effect_p: the smallest effect of interest must be finite and ≥ 0"):
+            effect_p(np.ones(6), bad)
