@@ -167,3 +167,17 @@ def test_3dgs_stops_when_no_gaussian_is_finite_any_more_at_a_density_step(views)
         trainer.model.means.fill_(float("nan"))
     with pytest.raises(FloatingPointError, match=r"^3DGS training stopped at iteration 2: none of the 60 Gaussians"):
         trainer.step(2)
+
+
+def test_3dgs_keeps_one_interval_of_losses_and_judges_the_sh_degree_at_each_interval_end(views):
+    """The SH-degree rule reads the mean loss of the last ``sh_interval`` steps, decided at every
+    multiple of ``sh_interval``: the trainer keeps exactly that many losses and no more."""
+    settings = {"iterations": 40, "init_points": 60, "sh_interval": 3}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    decided, values = [], []
+    raise_degree = trainer.maybe_raise_degree
+    trainer.maybe_raise_degree = lambda: (decided.append(len(values) + 1), raise_degree())  # inside step len + 1
+    for it in range(1, 8):
+        values.append(trainer.step(it)["loss"])
+        assert trainer.losses == values[-3:]
+    assert decided == [3, 6]
