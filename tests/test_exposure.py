@@ -135,3 +135,13 @@ def test_fit_level_refuses_empty_or_mismatched_lists_by_name():
     one = [np.ones((2, 2, 3))]
     with pytest.raises(ValueError, match=r"^fit_level: need matching non-empty lists .*, got 1, 1 and 2$"):
         exposure.fit_level(one, one, [1.0, 2.0])
+
+
+def test_calibrating_refuses_no_training_scene_or_mixed_capture_factors(folders, tmp_path):
+    with pytest.raises(ValueError, match=r"^the display level .* none was given \(scenes\.train is empty\)$"):
+        exposure.calibrate_display([], [], 1, tmp_path / "d.json")
+    simulate_scene(folders / "scene", tmp_path / "spc3", spc.SPCParams(frames=1), seed=1, capture_factor=3)
+    spc_dirs = [folders / "spc", tmp_path / "spc3"]
+    with pytest.raises(ValueError, match=r"^training scenes \[.*\] have capture frames of different capture_factor"):
+        exposure.calibrate_display([folders / "scene"] * 2, spc_dirs, 1, tmp_path / "d.json", capture=True)
+    assert not (tmp_path / "d.json").exists()
