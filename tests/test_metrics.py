@@ -312,3 +312,25 @@ def test_ssim_and_lpips_take_two_hwc_images_of_one_shape_only():
             score(grey, grey)
         with pytest.raises(ValueError, match=r"^expected two \(H, W, C\) images of one shape"):
             score(np.zeros((16, 16, 3)), np.zeros((16, 12, 3)))
+
+
+def test_psnr_scores_a_torch_render_against_a_numpy_target_and_names_a_shape_mismatch():
+    from spc3d.evaluation import scores
+
+    rng = np.random.default_rng(1)
+    a, b = rng.random((6, 7, 3)), rng.random((6, 7, 3))
+    assert scores.psnr(torch.from_numpy(a), b) == scores.psnr(a, b)  # a mixed pair: the numpy path
+    with pytest.raises(ValueError, match=r"^expected two arrays of one shape, got \(6, 7, 3\) and \(6, 6, 3\)$"):
+        scores.psnr(a, b[:, :6])
+
+
+def test_valid_ssim_takes_images_of_exactly_the_window_and_refuses_smaller_by_name():
+    from spc3d.evaluation import scores
+
+    rng = np.random.default_rng(2)
+    w = scores.SSIM_WINDOW
+    x = rng.random((w, w, 3))
+    assert scores.ssim(x, x) == pytest.approx(1.0)
+    small = rng.random((w - 1, w + 3, 3))
+    with pytest.raises(ValueError, match=rf"^'valid' SSIM needs images of at least {w}x{w}, got \({w - 1}, {w + 3}\)$"):
+        scores.ssim(small, small)
