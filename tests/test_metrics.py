@@ -334,3 +334,15 @@ def test_valid_ssim_takes_images_of_exactly_the_window_and_refuses_smaller_by_na
     small = rng.random((w - 1, w + 3, 3))
     with pytest.raises(ValueError, match=rf"^'valid' SSIM needs images of at least {w}x{w}, got \({w - 1}, {w + 3}\)$"):
         scores.ssim(small, small)
+
+
+def test_ssim_map_refuses_other_ranks_paddings_and_small_valid_images_by_name():
+    x = torch.rand(3, 16, 12)  # one image without its batch axis
+    with pytest.raises(ValueError, match=r"^expected two \(B, C, H, W\) tensors of one shape, got \(3, 16, 12\) and"):
+        metrics.ssim_map(x, x)
+    y = torch.rand(1, 3, 8, 8)
+    with pytest.raises(ValueError, match=r"^padding must be 'valid' or 'same', got 'full'$"):
+        metrics.ssim_map(y, y, padding="full")
+    with pytest.raises(ValueError, match=r"^'valid' SSIM needs images of at least 11x11, got \(8, 8\)$"):
+        metrics.ssim_map(y, y, padding="valid")
+    assert metrics.ssim_map(y, y, padding="same").shape == (1, 3, 8, 8)  # zero padding: any size
