@@ -57,7 +57,7 @@ def test_counts_judgements_and_survivors(tmp_path, capsys):
     assert TOOL.main([*args, "--commit", "abc1234"]) == 0
     text = (tmp_path / "out" / "tables" / "mutation.md").read_text()
     # 5 mutants: 3 killed (one timed out, one suspicious), 1 equivalent, 1 survivor: 3 of 4 = 75 %
-    assert "| `m` | `test_m.py` | 5 | 3 | 1 | 1 | 75.0 % |" in text
+    assert "| `m` | `test_m.py` | 5 | 3 | 1 | 1 | 0 | 75.0 % |" in text
     assert "- `m.py:1` #0 `LN2 = 0.69`: both branches agree" in text and "abc1234" in text
     assert TOOL.main([*args, "--survivors"]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1] == "m.py:5 1: x = a + b"
@@ -71,5 +71,16 @@ def test_a_stale_judgement_or_an_unfinished_run_is_an_error(tmp_path):
         TOOL.main([str(tmp_path / "o"), *run, "--equivalent", str(tmp_path / "eq.tsv")])
     make_cache(tmp_path / "d", [*ROWS[:2], (9, "y = 1", 0, "untested")])
     with pytest.raises(SystemExit, match="untested"):
-        TOOL.main([str(tmp_path / "o"), "--run", f"m={tmp_path / 'd'}:t.py"])
+        TOOL.main([str(tmp_path / "o"), "--run", f"m={tmp_path / 'd'}:tests/t.py"])
     assert not (tmp_path / "o" / "tables" / "mutation.md").exists()
+    assert TOOL.main([str(tmp_path / "o"), "--run", f"m={tmp_path / 'd'}:tests/t.py", "--partial"]) == 0
+    assert "| `m` | `t.py` | 3 | 1 | 0 | 1 | 1 | 50.0 % |" in (tmp_path / "o" / "tables" / "mutation.md").read_text()
+
+
+def test_a_module_run_in_parts_joins_its_caches(tmp_path):
+    make_cache(tmp_path / "a", ROWS[:2])
+    make_cache(tmp_path / "b", ROWS[2:])
+    parts = [f"m={tmp_path / 'a'}:tests/test_m.py", f"m={tmp_path / 'b'}:tests/test_m.py"]
+    assert TOOL.main([str(tmp_path / "o"), "--run", parts[0], "--run", parts[1]]) == 0
+    text = (tmp_path / "o" / "tables" / "mutation.md").read_text()
+    assert "| `m` | `test_m.py` | 5 | 3 | 0 | 2 | 0 | 60.0 % |" in text

@@ -10,8 +10,9 @@ are judged by hand in a TSV (``file``, ``line``, ``index``, ``source``, ``why``:
 of source line ``line``, whose text must still read ``source``), kept beside the table, so the
 judgement is a file a reader can check rather than a count. Writes ``OUT/tables/mutation.md``:
 per module the mutants, the killed (a timed-out mutant counts as killed: its tests ran ten times
-their baseline and failed to finish), the equivalent, the survivors and the share of
-non-equivalent mutants killed; then each equivalent mutant with its reason. ``--survivors``
+their baseline and failed to finish), the equivalent, the survivors, those not run yet (a run
+stopped before its end: only with ``--partial``, else an error) and the share killed of the
+non-equivalent mutants run; then each equivalent mutant with its reason. ``--survivors``
 prints the surviving, non-equivalent mutants (``file:line index: source``), the list to examine.
 ``workflow/tools/archive_run.py OUT mutation`` then keeps the table for docs/testing.md's block.
 """
@@ -84,24 +85,26 @@ def counts(mutants: list[Mutant], equivalent: dict) -> dict[str, int]:
     return {"mutants": len(mutants), "killed": killed, "equivalent": equiv, "survived": survived, "untested": untested}
 
 
-def table(runs: dict[str, tuple[list[Mutant], str]], equivalent: dict, commit: str) -> str:
+def table(runs: dict[str, tuple[list[Mutant], str]], equivalent: dict, commit: str, partial: bool = False) -> str:
     lines = [
         "# Mutation testing",
         "",
         f"mutmut 2.4.5 at commit `{commit}`, one run per module with the tests its runner names (`-x`).",
         "",
-        "| module | tests run per mutant | mutants | killed | equivalent | survivors | killed / non-equivalent |",
-        "|---|---|---|---|---|---|---|",
+        "| module | tests run per mutant | mutants | killed | equivalent | survivors | not run yet | "
+        "killed / non-equivalent run |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for name, (mutants, runner) in runs.items():
         c = counts(mutants, equivalent)
-        if c["untested"]:
-            raise SystemExit(f"{name}: {c['untested']} mutants untested: the run did not finish")
-        live = c["mutants"] - c["equivalent"]
+        if c["untested"] and not partial:
+            raise SystemExit(f"{name}: {c['untested']} mutants untested: the run did not finish (--partial shows it)")
+        live = c["killed"] + c["survived"]
         share = f"{100 * c['killed'] / live:.1f} %" if live else "–"
-        files = ", ".join(f"`{Path(t).name}`" for t in runner.split(","))
+        files = ", ".join(f"`{Path(t).name}`" for t in runner.split(",") if t.startswith("tests/"))
         lines.append(
-            f"| `{name}` | {files} | {c['mutants']} | {c['killed']} | {c['equivalent']} | {c['survived']} | {share} |"
+            f"| `{name}` | {files} | {c['mutants']} | {c['killed']} | {c['equivalent']} | {c['survived']} | "
+            f"{c['untested']} | {share} |"
         )
     judged = [(m, equivalent[m.key]) for mutants, _ in runs.values() for m in mutants if m.key in equivalent]
     if judged:
@@ -125,8 +128,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--equivalent", type=Path, help="TSV of the mutants judged equivalent")
     ap.add_argument("--commit", default="unknown", help="the commit the runs tested")
     ap.add_argument("--survivors", action="store_true", help="print the surviving non-equivalent mutants")
+    ap.add_argument("--partial", action="store_true", help="a run not finished: count its untested mutants")
     args = ap.parse_args(argv)
-    runs = {name: (read_cache(cache), runner) for name, cache, runner in map(parse_run, args.run)}
+    runs: dict[str, tuple[list[Mutant], str]] = {}
+    for name, cache, runner in map(parse_run, args.run):  # one module may be run in parts: its caches join
+        runs.setdefault(name, ([], runner))[0].extend(read_cache(cache))
     everything = [m for mutants, _ in runs.values() for m in mutants]
     equivalent = read_equivalent(args.equivalent, everything)
     if args.survivors:
@@ -134,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
             if m.status == SURVIVED and m.key not in equivalent:
                 print(f"{m.file}:{m.line} {m.index}: {m.source}")
         return 0
-    io.write_text(args.out / "tables" / "mutation.md", table(runs, equivalent, args.commit))
+    io.write_text(args.out / "tables" / "mutation.md", table(runs, equivalent, args.commit, args.partial))
     print(f"{args.out / 'tables' / 'mutation.md'}: {len(runs)} modules, {len(everything)} mutants")
     return 0
 
