@@ -84,3 +84,9 @@ def test_a_module_run_in_parts_joins_its_caches(tmp_path):
     assert TOOL.main([str(tmp_path / "o"), "--run", parts[0], "--run", parts[1]]) == 0
     text = (tmp_path / "o" / "tables" / "mutation.md").read_text()
     assert "| `m` | `test_m.py` | 5 | 3 | 0 | 2 | 0 | 60.0 % |" in text
+
+
+def test_a_runner_names_its_files_and_what_it_deselects():
+    runner = ",".join(["tests/test_f.py", "--deselect", "tests/test_f.py::a", "--deselect", "tests/test_f.py::b"])
+    runner += ",tests/test_g.py"
+    assert TOOL.runner_files(runner) == "`test_f.py`, `test_g.py` (less 2 deselected)"

@@ -85,6 +85,14 @@ def counts(mutants: list[Mutant], equivalent: dict) -> dict[str, int]:
     return {"mutants": len(mutants), "killed": killed, "equivalent": equiv, "survived": survived, "untested": untested}
 
 
+def runner_files(runner: str) -> str:
+    """The test files of a runner (comma-separated pytest arguments), and how many tests it deselects."""
+    args = runner.split(",")
+    files = ", ".join(f"`{Path(a).name}`" for a in args if a.startswith("tests/") and "::" not in a)
+    left_out = args.count("--deselect")
+    return files + (f" (less {left_out} deselected)" if left_out else "")
+
+
 def table(runs: dict[str, tuple[list[Mutant], str]], equivalent: dict, commit: str, partial: bool = False) -> str:
     lines = [
         "# Mutation testing",
@@ -101,7 +109,7 @@ def table(runs: dict[str, tuple[list[Mutant], str]], equivalent: dict, commit: s
             raise SystemExit(f"{name}: {c['untested']} mutants untested: the run did not finish (--partial shows it)")
         live = c["killed"] + c["survived"]
         share = f"{100 * c['killed'] / live:.1f} %" if live else "–"
-        files = ", ".join(f"`{Path(t).name}`" for t in runner.split(",") if t.startswith("tests/"))
+        files = runner_files(runner)
         lines.append(
             f"| `{name}` | {files} | {c['mutants']} | {c['killed']} | {c['equivalent']} | {c['survived']} | "
             f"{c['untested']} | {share} |"
