@@ -4,6 +4,7 @@ table of docs/testing.md: counts per module, timeouts as killed, judged survivor
 from __future__ import annotations
 
 import sqlite3
+from pathlib import Path
 
 import pytest
 
@@ -90,3 +91,9 @@ def test_a_runner_names_its_files_and_what_it_deselects():
     runner = ",".join(["tests/test_f.py", "--deselect", "tests/test_f.py::a", "--deselect", "tests/test_f.py::b"])
     runner += ",tests/test_g.py"
     assert TOOL.runner_files(runner) == "`test_f.py`, `test_g.py` (less 2 deselected)"
+
+
+def test_a_cache_shared_by_two_modules_is_read_for_one_file(tmp_path):
+    make_cache(tmp_path / "c", ROWS)
+    assert len(TOOL.read_cache(tmp_path / "c", "m.py")) == 5 and TOOL.read_cache(tmp_path / "c", "other.py") == []
+    assert TOOL.parse_run("m=c#w/m.py:tests/t.py") == ("m", Path("c"), "w/m.py", "tests/t.py")

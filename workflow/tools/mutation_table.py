@@ -1,10 +1,11 @@
 """The mutation-testing table of docs/testing.md, from mutmut's own result caches.
 
-    python workflow/tools/mutation_table.py OUT --run NAME=CACHE:RUNNER ... [--equivalent TSV]
+    python workflow/tools/mutation_table.py OUT --run NAME=CACHE[#FILE]:RUNNER ... [--equivalent TSV]
         [--commit REV] [--survivors]
 
 Each ``--run`` names a module's mutmut 2 run: its ``.mutmut-cache`` (an SQLite file: one row per
-mutant with its status) and the test files its runner ran (``RUNNER``, comma-separated). The
+mutant with its status; ``#FILE``: only that source file's rows) and the test files its runner ran
+(``RUNNER``, comma-separated). The
 equivalent mutants (a change no behaviour can tell, e.g. a constant's value never read as such)
 are judged by hand in a TSV (``file``, ``line``, ``index``, ``source``, ``why``: mutant ``index``
 of source line ``line``, whose text must still read ``source``), kept beside the table, so the
@@ -46,8 +47,9 @@ class Mutant:
         return self.file, self.line, self.index
 
 
-def read_cache(path: Path) -> list[Mutant]:
-    """Every mutant of a mutmut 2 cache (its SQLite tables SourceFile, Line, Mutant)."""
+def read_cache(path: Path, only: str | None = None) -> list[Mutant]:
+    """Every mutant of a mutmut 2 cache (its SQLite tables SourceFile, Line, Mutant); ``only``: those
+    of that source file (a cache reused across modules holds the other module's rows too)."""
     if not path.is_file():
         raise SystemExit(f"{path}: no mutmut cache there (mutmut run writes .mutmut-cache)")
     query = (
@@ -57,7 +59,7 @@ def read_cache(path: Path) -> list[Mutant]:
     with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
         rows = db.execute(query).fetchall()
     # mutmut numbers lines from 0 in its cache; editors and tracebacks from 1
-    return [Mutant(f, n + 1, i, (src or "").strip(), s) for f, n, i, src, s in rows]
+    return [Mutant(f, n + 1, i, (src or "").strip(), s) for f, n, i, src, s in rows if only in (None, f)]
 
 
 def read_equivalent(path: Path | None, mutants: list[Mutant]) -> dict[tuple[str, int, int], str]:
@@ -121,12 +123,14 @@ def table(runs: dict[str, tuple[list[Mutant], str]], equivalent: dict, commit: s
     return "\n".join(lines) + "\n"
 
 
-def parse_run(spec: str) -> tuple[str, Path, str]:
+def parse_run(spec: str) -> tuple[str, Path, str | None, str]:
+    """(name, cache, its source file or None for all, runner) of ``NAME=CACHE[#FILE]:TESTS``."""
     name, eq, rest = spec.partition("=")
     cache, colon, runner = rest.partition(":")
     if not (name and eq and colon and runner):
-        raise SystemExit(f"--run {spec!r}: give NAME=CACHE:TESTS (e.g. objectives=.mutmut-cache:tests/test_x.py)")
-    return name, Path(cache), runner
+        raise SystemExit(f"--run {spec!r}: give NAME=CACHE[#FILE]:TESTS (e.g. o=.mutmut-cache:tests/test_x.py)")
+    cache, _, only = cache.partition("#")
+    return name, Path(cache), only or None, runner
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,8 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--partial", action="store_true", help="a run not finished: count its untested mutants")
     args = ap.parse_args(argv)
     runs: dict[str, tuple[list[Mutant], str]] = {}
-    for name, cache, runner in map(parse_run, args.run):  # one module may be run in parts: its caches join
-        runs.setdefault(name, ([], runner))[0].extend(read_cache(cache))
+    for name, cache, only, runner in map(parse_run, args.run):  # a module run in parts: its caches join
+        runs.setdefault(name, ([], runner))[0].extend(read_cache(cache, only))
     everything = [m for mutants, _ in runs.values() for m in mutants]
     equivalent = read_equivalent(args.equivalent, everything)
     if args.survivors:
