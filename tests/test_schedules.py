@@ -181,3 +181,33 @@ def test_3dgs_keeps_one_interval_of_losses_and_judges_the_sh_degree_at_each_inte
         values.append(trainer.step(it)["loss"])
         assert trainer.losses == values[-3:]
     assert decided == [3, 6]
+
+
+def test_3dgs_reports_training_psnr_for_image_targets_only(views):
+    from spc3d.reconstruct.objectives import BernoulliObjective
+    from spc3d.reconstruct.splatting import SplatTrainer
+
+    trainer, _, cfg = RECONSTRUCTORS["3dgs"](views, None, {"iterations": 40, "init_points": 60}, 0)
+    psnr = trainer.step(1)["psnr"]
+    assert math.isfinite(psnr) and 3.0 < psnr < 60.0  # an sRGB render against its image
+    bits = SplatTrainer(views, BernoulliObjective(100.0, 0.4, 1e-3, 10.0), cfg, seed=0)
+    assert math.isnan(bits.step(1)["psnr"])  # not against bit fractions
+
+
+def test_3dgs_check_loss_is_the_objective_on_the_held_out_views(views):
+    settings = {"iterations": 40, "init_points": 60, "plateau_views": 1, "plateau_patience": 2}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    trainer.step(1)
+    cams, targets = trainer.check.cameras, trainer.check.targets
+    with torch.no_grad():
+        expected = [trainer.objective.loss(trainer.render(cams, j), targets[j]).item() for j in range(len(cams))]
+    assert trainer.check_loss() == pytest.approx(float(sum(expected) / len(expected)), rel=1e-6)
+
+
+def test_the_sh_degree_stays_when_the_loss_falls_by_exactly_half_a_percent(views):
+    settings = {"iterations": 40, "init_points": 60, "sh_interval": 4, "sh_degree": 2}
+    trainer, _, _ = RECONSTRUCTORS["3dgs"](views, None, settings, 0)
+    trainer.model.active_degree, trainer.degree_loss = 1, 2.0
+    trainer.losses = [0.995 * 2.0] * 4  # exactly 0.5 % better: not more
+    trainer.maybe_raise_degree()
+    assert trainer.model.active_degree == 1
