@@ -211,3 +211,23 @@ def test_the_sh_degree_stays_when_the_loss_falls_by_exactly_half_a_percent(views
     trainer.losses = [0.995 * 2.0] * 4  # exactly 0.5 % better: not more
     trainer.maybe_raise_degree()
     assert trainer.model.active_degree == 1
+
+
+def test_grid_config_takes_resolution_two_and_refuses_an_empty_or_smaller_schedule():
+    assert nerf_grid.GridConfig(res_schedule=[[0, 2]]).res_schedule == [[0, 2]]
+    for bad in ([], [[0, 1]]):
+        with pytest.raises(ValueError, match=r"^res_schedule = .*: needs \(iteration, resolution >= 2\) pairs$"):
+            nerf_grid.GridConfig(res_schedule=bad)
+
+
+def test_the_grid_switches_resolution_at_the_scheduled_step_and_reports_its_capacity():
+    cfg = nerf_grid.GridConfig(res_schedule=[[0, 8], [5, 12]])
+    model = nerf_grid.GridNeRF(cfg)
+    assert [model.res_for_step(s) for s in (0, 4, 5, 6)] == [8, 8, 12, 12]
+    cap = model.capacity()
+    assert cap["cells"] == (model.res - 1) ** 3 and cap["parameters"] == sum(p.numel() for p in model.parameters())
+
+
+def test_a_one_iteration_grid_decays_its_lr_over_that_iteration():
+    cfg = nerf_grid.GridConfig(n_iters=1, lr_decay=0.1)
+    assert nerf_grid.lr_at(1, cfg)["density"] == pytest.approx(cfg.lr_grid * 0.1)
