@@ -346,3 +346,22 @@ def test_ssim_map_refuses_other_ranks_paddings_and_small_valid_images_by_name():
     with pytest.raises(ValueError, match=r"^'valid' SSIM needs images of at least 11x11, got \(8, 8\)$"):
         metrics.ssim_map(y, y, padding="valid")
     assert metrics.ssim_map(y, y, padding="same").shape == (1, 3, 8, 8)  # zero padding: any size
+
+
+def test_lpips_refuses_other_channel_counts_and_small_images_by_name():
+    from spc3d.evaluation import scores
+
+    with pytest.raises(ValueError, match=r"^LPIPS needs RGB images \(H, W, 3\), got 4 channels$"):
+        scores.lpips(np.zeros((40, 40, 4)), np.zeros((40, 40, 4)))
+    with pytest.raises(ValueError, match=r"^LPIPS needs images of at least 32x32 pixels .* got \(16, 40\)$"):
+        scores.lpips(np.zeros((16, 40, 3)), np.zeros((16, 40, 3)))
+
+
+def test_lpips_uses_alexnet_by_default(lpips_cache):
+    from spc3d.evaluation import scores
+
+    rng = np.random.default_rng(3)
+    a, b = rng.random((40, 48, 3)), rng.random((40, 48, 3))
+    alex = scores.lpips(a, b, "alex", cache_dir=lpips_cache)
+    assert scores.lpips(a, b, cache_dir=lpips_cache) == alex
+    assert scores.get_lpips(cache_dir=lpips_cache) is scores.get_lpips("alex", cache_dir=lpips_cache)
