@@ -11,9 +11,15 @@ from spc3d.captures.importing import import_capture_frames, import_capture_scene
 from spc3d.inputs import exposure
 from spc3d.inputs.build import capture_frame, capture_rng, simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
-from spc3d.physics import spc
+from spc3d.physics import sensors, spc
 from spc3d.physics.flux_scale import frame_probability
-from spc3d.physics.record import MAX_CAPTURE_FACTOR, check_capture_factor
+from spc3d.physics.record import (
+    MAX_CAPTURE_FACTOR,
+    check_capture_factor,
+    params_from_record,
+    read_spc_record,
+    spc_sensor,
+)
 
 H, W, VIEWS = 12, 16, 3
 
@@ -157,5 +163,11 @@ def test_a_captured_scene_has_its_frame_zero_as_capture_frame(scene, tmp_path):
     for name in ("image000", "image001"):
         capture = io.read_rgb(tmp_path / "cap_spc" / "capture" / f"{name}.png")
         np.testing.assert_allclose(capture, io.read_rgb(tmp_path / "cap_spc" / "binary" / f"{name}.png"), atol=1 / 255)
-    _, phi = exposure.mle_views(tmp_path / "cap_spc", 1, capture=True)
+    names, phi = exposure.mle_views(tmp_path / "cap_spc", 1, capture=True)
     np.testing.assert_array_equal(phi, exposure.mle_views(tmp_path / "cap_spc", 1)[1])  # S = 1: frame 0's MLE
+    pattern, valid = spc_sensor(tmp_path / "cap_spc")  # a Bayer mosaic: demosaiced, not read as RGB bits
+    params = params_from_record(read_spc_record(tmp_path / "cap_spc"))
+    for name, view in zip(names, phi):
+        counts = frames_of(tmp_path / "cap_spc", name)[:1].sum(0, dtype=np.int64)
+        np.testing.assert_array_equal(view, sensors.mle_rgb(counts, 1, params, pattern, ~valid).astype(np.float32))
+        assert counts.shape == (H, W) and view.shape == (H, W, 3)  # one bit per pixel; R, G and B shown

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import time
 
 import numpy as np
 import pytest
@@ -108,13 +109,65 @@ def test_scene_error_takes_any_positive_flux_and_names_itself_when_it_refuses():
 
 
 def test_a_display_records_its_rule_level_and_gains(folders, tmp_path):
+    start = time.perf_counter()
     cal = exposure.calibrate_display([folders / "scene"], [folders / "spc"], 2, tmp_path / "display-k2.json")
-    assert cal["rule"] == exposure.RULE and isinstance(cal["rule"], str) and cal["rule"]
+    took = time.perf_counter() - start
+    assert cal == io.read_json(tmp_path / "display-k2.json") and cal["rule"] == exposure.RULE
+    assert (cal["K"], cal["capture_factor"], cal["level_likelihood"]) == (2, 1, 1.0)
+    assert cal["training_scenes"] == ["scene"] and cal["per_scene_level"] == {"scene": cal["level"]}
+    assert 0.0 <= cal["wall_s"] <= took + 1e-3
+    start = time.perf_counter()
     record = exposure.write_display(folders / "spc", tmp_path / "display-k2.json", 2, tmp_path / "mle")
+    took = time.perf_counter() - start
+    assert record == io.read_json(tmp_path / "mle" / "display.json")
     flux = exposure.flux_per_linear(folders / "spc")
     assert record["rule"] == exposure.RULE and record["gain"] == pytest.approx(cal["level"] * flux)
+    assert (record["scene"], record["K"], record["capture_factor"], record["views"]) == ("spc", 2, 1, VIEWS)
+    assert record["level"] == cal["level"] and record["level_likelihood"] == 1.0
+    assert record["exposure"] == read_spc_record(folders / "spc")["exposure"] and record["exposure"]
+    assert record["calibration"] == str(tmp_path / "display-k2.json") and record["flux_per_linear"] == flux
+    assert 0.0 <= record["wall_s"] <= took + 1e-3
     assert exposure.read_gain(tmp_path / "mle") == pytest.approx(cal["level"] * flux)
     assert exposure.read_gain(tmp_path / "mle", likelihood=True) == pytest.approx(flux)  # the likelihood: k = 1
+    shown = sorted(p.stem for p in (tmp_path / "mle" / "images").glob("*.png"))
+    assert shown == exposure.mle_views(folders / "spc", 2)[0]
+
+
+def test_the_rule_a_display_records_states_the_gain_it_applies():
+    """g = k F with F = exposure / (q T), k fitted on the training scenes, and k = 1 for the
+    likelihood's flux: what write_display computes (test_a_display_records_its_rule_level_and_gains)."""
+    assert re.fullmatch(
+        r"display gain g = k F, F = .* \(spc\.json exposure / \(q T\)\); k fitted on the training scenes "
+        r"\(same K\) .*; the SPAD likelihood's flux is shown at k = 1",
+        exposure.RULE,
+    )
+
+
+def test_a_display_is_written_again_over_its_last_one(folders, tmp_path):
+    exposure.calibrate_display([folders / "scene"], [folders / "spc"], 1, tmp_path / "cal.json")
+    first = exposure.write_display(folders / "spc", tmp_path / "cal.json", 1, tmp_path / "mle")
+    again = exposure.write_display(folders / "spc", tmp_path / "cal.json", 1, tmp_path / "mle")
+    assert {k: v for k, v in again.items() if k != "wall_s"} == {k: v for k, v in first.items() if k != "wall_s"}
+    assert len(list((tmp_path / "mle" / "images").glob("*.png"))) == VIEWS
+
+
+def test_a_calibration_without_the_newer_keys_reads_as_capture_factor_one_and_likelihood_level_one(folders, tmp_path):
+    cal = exposure.calibrate_display([folders / "scene"], [folders / "spc"], 1, tmp_path / "cal.json")
+    old = {k: v for k, v in cal.items() if k not in ("capture_factor", "level_likelihood")}
+    io.write_json(tmp_path / "old.json", old)
+    flux = exposure.flux_per_linear(folders / "spc")
+    record = exposure.write_display(folders / "spc", tmp_path / "old.json", 1, tmp_path / "mle")
+    assert record["level_likelihood"] == 1.0 and record["gain_likelihood"] == pytest.approx(flux, rel=1e-12)
+    io.write_json(tmp_path / "twice.json", cal | {"level_likelihood": 2.0})
+    record = exposure.write_display(folders / "spc", tmp_path / "twice.json", 1, tmp_path / "mle2")
+    assert record["level_likelihood"] == 2.0 and record["gain_likelihood"] == pytest.approx(2.0 * flux, rel=1e-12)
+    message = (
+        f"{tmp_path / 'old.json'} was fitted for K = 1, capture_factor = 1; this display of {folders / 'spc'} "
+        "is K = 2, capture_factor = 1 (capture=False): calibrate_display with the same K and capture"
+    )
+    with pytest.raises(ValueError, match=f"^{re.escape(message)}$"):
+        exposure.write_display(folders / "spc", tmp_path / "old.json", 2, tmp_path / "bad")
+    assert not (tmp_path / "bad").exists()
 
 
 @pytest.mark.parametrize("factor,bound", [(30.0, 20.0), (1 / 30.0, 0.05)])
