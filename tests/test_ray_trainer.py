@@ -126,13 +126,15 @@ def test_the_grid_refreshes_its_occupancy_every_so_often_from_its_warmup_on(view
 
 @pytest.mark.parametrize("kind", ["nerf-grid", "nerf"])
 def test_a_step_reports_its_loss_and_for_image_targets_the_training_psnr(views, kind):
+    """The PSNR of the render clipped to [0, 1] as a viewer sees it (scaled 100× here to overshoot)."""
     trainer = trainer_of(views, kind)
-    seen = record_forward(trainer.model)
+    seen, forward = record_forward(trainer.model), trainer.model.forward
+    trainer.model.forward = lambda *a, **k: {n: 100.0 * v if n == "rgb" else v for n, v in forward(*a, **k).items()}
     got = trainer.step(1)
     rng = np.random.default_rng(0)  # the trainer's generator, seeded with the fit's seed
     sel = torch.as_tensor(rng.integers(trainer.targets.shape[0], size=trainer.cfg.batch_rays))
-    rgb = seen[0][2]["rgb"]
-    assert got["psnr"] == pytest.approx(psnr(rgb.clamp(0, 1), trainer.targets[sel]), rel=1e-6)
+    rgb = 100.0 * seen[0][2]["rgb"]
+    assert rgb.max() > 1.0 and got["psnr"] == pytest.approx(psnr(rgb.clamp(0, 1), trainer.targets[sel]), rel=1e-6)
     assert got["loss"] > 0.0
     bits = trainer_of(views, kind, BernoulliObjective(100.0, 0.4, 1e-3, 10.0))
     assert math.isnan(bits.step(1)["psnr"])  # not against bit fractions

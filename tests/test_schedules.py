@@ -9,6 +9,7 @@ import math
 import pytest
 import torch
 
+from spc3d.evaluation.metrics import psnr
 from spc3d.inputs.scenes import render_scene
 from spc3d.reconstruct import RECONSTRUCTORS, nerf, nerf_grid
 from spc3d.reconstruct.gaussians import GaussianConfig
@@ -184,12 +185,24 @@ def test_3dgs_keeps_one_interval_of_losses_and_judges_the_sh_degree_at_each_inte
 
 
 def test_3dgs_reports_training_psnr_for_image_targets_only(views):
+    """The training PSNR of the step's view, its render clipped to [0, 1] as a viewer sees it (a
+    sum of Gaussians can overshoot 1: here every render is tripled to make it)."""
     from spc3d.reconstruct.objectives import BernoulliObjective
     from spc3d.reconstruct.splatting import SplatTrainer
 
     trainer, _, cfg = RECONSTRUCTORS["3dgs"](views, None, {"iterations": 40, "init_points": 60}, 0)
-    psnr = trainer.step(1)["psnr"]
-    assert math.isfinite(psnr) and 3.0 < psnr < 60.0  # an sRGB render against its image
+    seen, render = [], trainer._render
+
+    def overshooting(cams, i, motion=None):
+        out = render(cams, i, motion)
+        out["image"] = out["image"] * 3.0
+        seen.append((i, out["image"].detach().clone()))
+        return out
+
+    trainer._render = overshooting
+    psnr_db = trainer.step(1)["psnr"]
+    ((i, image),) = seen
+    assert image.max() > 1.0 and psnr_db == pytest.approx(psnr(image.clamp(0, 1), views.targets[i]), rel=1e-6)
     bits = SplatTrainer(views, BernoulliObjective(100.0, 0.4, 1e-3, 10.0), cfg, seed=0)
     assert math.isnan(bits.step(1)["psnr"])  # not against bit fractions
 
@@ -231,3 +244,23 @@ def test_the_grid_switches_resolution_at_the_scheduled_step_and_reports_its_capa
 def test_a_one_iteration_grid_decays_its_lr_over_that_iteration():
     cfg = nerf_grid.GridConfig(n_iters=1, lr_decay=0.1)
     assert nerf_grid.lr_at(1, cfg)["density"] == pytest.approx(cfg.lr_grid * 0.1)
+
+
+def test_a_one_iteration_nerf_reaches_its_final_lr_and_its_optimiser_starts_at_lr():
+    cfg = nerf.nerf_preset("cpu")
+    one = type(cfg)(**{**cfg.__dict__, "n_iters": 1})
+    assert nerf.lr_at(1, one)["mlp"] == pytest.approx(cfg.lr_final, rel=1e-12)
+    (group,) = nerf.make_optimizer(nerf.NeRF(cfg), cfg).param_groups
+    assert group["name"] == "mlp" and group["lr"] == cfg.lr == nerf.lr_at(0, cfg)["mlp"]
+
+
+@pytest.mark.parametrize("samples", [16, 48])
+def test_a_fresh_grid_gives_each_sample_of_the_axial_ray_its_initial_alpha(samples):
+    """step_ref is the NDC spacing of the samples on the ray along the z axis (z spans 2): a fresh
+    grid's α there is alpha_init per sample, so the ray's opacity is 1 − (1 − alpha_init)^n."""
+    cfg = nerf_grid.GridConfig(n_samples=samples, res_schedule=[[0, 8]])
+    model = nerf_grid.GridNeRF(cfg)
+    axial = torch.tensor([[0.0, 0.0, -1.0]]), torch.tensor([[0.0, 0.0, 2.0]])
+    with torch.no_grad():
+        acc = model(*axial, train=False, viewdirs=torch.tensor([[0.0, 0.0, 1.0]]))["acc"].item()
+    assert acc == pytest.approx(1.0 - (1.0 - cfg.alpha_init) ** samples, rel=1e-5)
