@@ -5,6 +5,7 @@ import io
 import json
 import os
 import pickle
+import re
 import subprocess
 import sys
 import tarfile
@@ -161,7 +162,7 @@ def test_ssim_loss_constant_images_finite():
         (torch.full((1, 3, 16, 16), 0.3), torch.full((1, 3, 16, 16), 0.7)),
     ]:
         pred = pred.clone().requires_grad_(True)
-        loss = metrics.gs_photometric_loss(pred, target)
+        loss = metrics.ssim_loss(pred, target)
         loss.backward()
         assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
     same = torch.rand(1, 3, 16, 16)
@@ -365,3 +366,33 @@ def test_lpips_uses_alexnet_by_default(lpips_cache):
     alex = scores.lpips(a, b, "alex", cache_dir=lpips_cache)
     assert scores.lpips(a, b, cache_dir=lpips_cache) == alex
     assert scores.get_lpips(cache_dir=lpips_cache) is scores.get_lpips("alex", cache_dir=lpips_cache)
+
+
+def test_ssim_loss_fast_refuses_what_ssim_loss_refuses_naming_both_shapes():
+    for a, b in [(torch.rand(1, 3, 16, 16), torch.rand(1, 3, 16, 17)), (torch.rand(3, 16, 16), torch.rand(3, 16, 16))]:
+        message = rf"^expected two \(B, C, H, W\) tensors of one shape, got {re.escape(str(tuple(a.shape)))} and "
+        with pytest.raises(ValueError, match=message):
+            metrics.ssim_loss_fast(a, b)
+
+
+def test_ssim_loss_fast_takes_the_torch_form_for_half_precision():
+    """The CPU kernel is compiled for float32/64; a float16 tensor takes the banded-matrix form."""
+    a, b = torch.rand(2, 1, 3, 16, 16).unbind(0)
+    half = metrics.ssim_loss_fast(a.half(), b.half())
+    assert half.dtype == torch.float16 and half.item() == pytest.approx(metrics.ssim_loss(a, b).item(), abs=2e-3)
+
+
+def test_valid_ssim_takes_images_of_exactly_the_window_size():
+    a, b = torch.rand(2, 1, 3, 11, 11, dtype=torch.float64).unbind(0)
+    assert metrics.ssim_map(a, b, padding="valid").shape == (1, 3, 1, 1)
+    with pytest.raises(ValueError, match=r"^'valid' SSIM needs images of at least 11x11, got \(10, 11\)$"):
+        metrics.ssim_map(a[..., :10, :], b[..., :10, :], padding="valid")
+
+
+def test_lpips_batch_uses_alexnet_by_default_and_refuses_small_images(lpips_cache):
+    a, b = torch.rand(2, 1, 3, 32, 40).unbind(0)
+    alex = metrics.lpips_batch(a, b, net="alex", cache_dir=lpips_cache)
+    assert torch.equal(metrics.lpips_batch(a, b, cache_dir=lpips_cache), alex)
+    message = r"^LPIPS needs images of at least 32x32 pixels \(AlexNet's strided layers and pools leave nothing of "
+    with pytest.raises(ValueError, match=message + r"smaller ones\), got \(31, 40\)$"):
+        metrics.lpips_batch(a[..., :31, :], b[..., :31, :], cache_dir=lpips_cache)

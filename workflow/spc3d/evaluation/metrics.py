@@ -5,7 +5,7 @@ Layouts
 - Reported metrics ``psnr``, ``ssim``, ``lpips`` take ONE image pair: sRGB (H, W, 3) float arrays
   in [0, 1], numpy or torch (any (H, W, C) works for PSNR/SSIM), and return Python floats. They are
   numpy code (:mod:`.scores`, re-exported here), so that a scoring job never imports torch.
-- Batched torch functions (``ssim_map``, ``ssim_loss``, ``gs_photometric_loss``, ``lpips_batch``)
+- Batched torch functions (``ssim_map``, ``ssim_loss``, ``ssim_loss_fast``, ``lpips_batch``)
   take (B, C, H, W) tensors in [0, 1] and keep gradients.
 
 Conventions (pinned)
@@ -18,7 +18,8 @@ Conventions (pinned)
   mean over the map and the channels, float64. This equals scikit-image's
   ``structural_similarity(a, b, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
   data_range=1, channel_axis=-1)``. Images must be at least 11x11.
-- SSIM training loss (``ssim_loss``, ``gs_photometric_loss``): the 3D Gaussian Splatting
+- SSIM training loss (``ssim_loss``, ``ssim_loss_fast``; 3DGS's L1 + SSIM is
+  :class:`spc3d.reconstruct.objectives.RGBObjective`): the 3D Gaussian Splatting
   convention — the same window and constants, but zero 'same' padding (map the size of the
   image, borders included), in the input dtype. Do not report it as the metric.
 - LPIPS: v0.1 net-lin with AlexNet (``net="alex"``) or VGG16 (``net="vgg"``) as in the official
@@ -206,12 +207,6 @@ class _SSIMLossNative(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad):
         return grad * ctx.grad, None
-
-
-def gs_photometric_loss(pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2) -> torch.Tensor:
-    """3DGS loss ``(1 - lambda) * L1 + lambda * (1 - SSIM)`` of (B, C, H, W) tensors; scalar."""
-    l1 = torch.mean(torch.abs(pred - target))
-    return (1.0 - lambda_dssim) * l1 + lambda_dssim * ssim_loss(pred, target)
 
 
 # ---------------------------------------------------------------------------------------------
