@@ -52,7 +52,7 @@ include: "workflow/rules/tradeoff.smk"
 
 rule all:
     input:
-        get_final_output(),
+        TARGETS.final(),
     default_target: True
 
 

@@ -73,6 +73,7 @@ LAYERS = (
     ("evaluation",),
     ("translate", "reconstruct"),  # side by side, never importing each other (test above)
     ("jobs", "choices", "checks"),  # job glue: logging, scene specs; a fold's choices; checks of settings and targets
+    ("settings",),  # what each job runs with, and the results layout
     ("sweeps",),
     ("config",),
 )

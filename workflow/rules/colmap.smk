@@ -22,14 +22,14 @@ rule estimate_poses:
     """COLMAP on a source's images of the training views: the cameras a row '...@{source}' trains on."""
     input:
         scene="results/scenes/{scene}",
-        images=get_stage1_images,
+        images=setting("source_images"),
     output:
         directory("results/poses/{scene}/{source}{rep}"),
     params:
-        subdir=get_stage1_subdir,
-        frames=get_source_frames,
+        subdir=setting("source_subdir"),
+        frames=setting("frames"),
         max_features=config["colmap"]["max_features"],
-        seed=get_seed,
+        seed=setting("seed"),
     log:
         "logs/estimate_poses/{scene}/{source}{rep}.log",
     threads: 1

@@ -5,11 +5,11 @@
 rule prepare_scene:
     """Render a built-in scene or import a real LLFF folder into the canonical LLFF layout."""
     input:
-        get_scene_source,
+        setting("scene_files"),
     output:
         directory("results/{overlay}scenes/{scene}"),
     params:
-        spec=get_scene_spec,
+        spec=setting("scene_spec"),
     log:
         "logs/prepare_scene/{overlay}{scene}.log",
     threads: 1
@@ -27,7 +27,7 @@ rule simulate_scene:
     output:
         directory("results/{overlay}spc/{scene}{rep}"),
     params:
-        settings=get_spc_settings,
+        settings=setting("spc"),
     log:
         "logs/simulate_scene/{overlay}{scene}{rep}.log",
     threads: 1
@@ -42,7 +42,7 @@ rule calibrate_display:
     """The display level k of the MLE (g = k x the reported exposure's flux), fitted on a fold's training
     scenes at one budget: their first K frames ("k{K}") or their capture-resolution frame ("capture")."""
     input:
-        unpack(get_display_training),
+        unpack(setting("display_training")),
     output:
         "results/{overlay}calibration{fold}/display-{budget}{rep}.json",
     params:
@@ -63,7 +63,7 @@ rule write_display:
     gain of its reported exposure and its fold's level (no ground truth: spc3d.inputs.exposure)."""
     input:
         spc="results/{overlay}spc/{scene}{rep}",
-        calibration=get_display_calibration,
+        calibration=setting("display_calibration"),
     output:
         directory("results/{overlay}mle/{scene}/{budget}{rep}"),
     params:
@@ -87,9 +87,9 @@ rule augment_scene:
     output:
         directory("results/{overlay}augment/{scene}{rep}"),
     params:
-        n_pairs=get_augment_count,
+        n_pairs=setting("augment_count"),
         settings=config["augment"],
-        seed=get_seed,
+        seed=setting("seed"),
     log:
         "logs/augment_scene/{overlay}{scene}{rep}.log",
     threads: 1

@@ -6,9 +6,9 @@ rule train_translator:
     """Train one stage-1 method on the training scenes (fixed pairs or online samples), validated
     on their held-out views; "-<sensor>": with the inputs as a captured scene's sensor records them."""
     input:
-        unpack(get_translator_data),
+        unpack(setting("translator_inputs")),
         vgg=LPIPS_WEIGHTS["vgg"],
-        pretrained=get_translator_pretrained,
+        pretrained=setting("translator_pretrained"),
     output:
         report(
             directory("results/{overlay}models{sensor}{fold}/{method}{rep}"),
@@ -19,15 +19,15 @@ rule train_translator:
         ),
     params:
         method=get_translator_base,
-        settings=get_translator_settings,
-        train=get_translator_train,
-        frames=get_translator_frames,
-        data=get_translator_data_kind,
+        settings=setting("translator_settings"),
+        train=setting("translator_train"),
+        frames=setting("translator_frames"),
+        data=setting("translator_data"),
         augment=get_augment_ranges,
         sensor=get_translator_sensor,
-        validation=get_translator_validation,
-        seed=get_seed,
-        code=get_translator_code,  # the library code the weights depend on (spc3d/provenance.py)
+        validation=setting("translator_validation"),
+        seed=setting("seed"),
+        code=setting("translator_code"),  # the library code the weights depend on (spc3d/provenance.py)
     log:
         "logs/train_translator/{overlay}{method}{sensor}{fold}{rep}.log",
     # `snakemake --cache` (SNAKEMAKE_OUTPUT_CACHE, else ~/.cache/spc3d/outputs): trained once per
@@ -46,13 +46,13 @@ rule train_translator:
 rule translate_scene:
     """Every view of a scene through a trained stage-1 method (stage 2 reads these as a source)."""
     input:
-        model=get_translator_model,
+        model=setting("translator_model"),
         spc="results/{overlay}spc/{scene}{rep}",
         scene="results/{overlay}scenes/{scene}",
     output:
         directory("results/{overlay}translate/{scene}/{method}{rep}"),
     params:
-        frames=get_translator_frames,
+        frames=setting("translator_frames"),
         ensemble=config["stage1"]["ensemble"],
     log:
         "logs/translate_scene/{overlay}{scene}/{method}{rep}.log",
@@ -67,16 +67,16 @@ rule translate_scene:
 rule score_images:
     """PSNR / SSIM / LPIPS of a source's held-out views before 3D (stage-1 error alone)."""
     input:
-        images=get_stage1_images,
+        images=setting("source_images"),
         scene="results/{overlay}scenes/{scene}",
         lpips=list(LPIPS_WEIGHTS.values()),
     output:
         "results/{overlay}stage1/{scene}/{source}{rep}.json",
     params:
-        subdir=get_stage1_subdir,
-        frames=get_source_frames,
-        capture_factor=get_capture_factor,
-        seed=get_seed,
+        subdir=setting("source_subdir"),
+        frames=setting("frames"),
+        capture_factor=setting("capture_factor"),
+        seed=setting("seed"),
     log:
         "logs/score_images/{overlay}{scene}/{source}{rep}.log",
     threads: 1

@@ -17,19 +17,19 @@ rule lpips_weights:
 rule reconstruct:
     """Stage 2: train one model on one image source of a scene; render its held-out views."""
     input:
-        unpack(get_reconstruct_inputs),
+        unpack(setting("reconstruct_inputs")),
     output:
         directory("results/{overlay}recon/{scene}/{source}+{model}{poses}{rep}"),
     params:
-        settings=get_model_settings,
-        seed=get_seed,
-        frames=get_source_frames,
-        init=get_stage2_init,
+        settings=setting("model_settings"),
+        seed=setting("seed"),
+        frames=setting("frames"),
+        init=setting("init"),
         observe=config["stage2"]["observe_plateau"],
-        checkpoint=get_checkpoint_path,
+        checkpoint=setting("checkpoint"),
         policy=config["checkpoints"],
-        joint=get_joint_settings,
-        code=get_reconstruct_code,  # the library code the fit runs: a change reruns it (spc3d/provenance.py)
+        joint=setting("joint"),
+        code=setting("reconstruct_code"),  # the library code the fit runs: a change reruns it (spc3d/provenance.py)
     log:
         "logs/reconstruct/{overlay}{scene}/{source}+{model}{poses}{rep}.log",
     threads: 1
@@ -45,17 +45,17 @@ rule choose_joint_weight:
     """A fold's prior weight of one joint row, among stage2.joint.choose's candidates: each fitted as the
     row is, on the fold's held-out training scenes, scored on their held-out views (spc3d.choices)."""
     input:
-        unpack(get_choice_inputs),
+        unpack(setting("choice_inputs")),
         lpips=rules.lpips_weights.output,
     output:
         "results/choices{fold}/joint-{method}+{model}{rep}.json",
     params:
-        settings=lambda w: stage2_row_settings(config["stage2"], w.model, None),
-        joint=lambda w: joint_settings(config["stage2"]["joint"], w.model),
-        candidates=lambda w: JOINT_CHOOSE[w.model],
-        seed=get_seed,
-        frames=lambda w: source_frames(f"joint-{w.method}", config["stage1"]["frames"], config["stage2"]["frames"]),
-        display=get_choice_display,
+        settings=setting("choice_settings"),
+        joint=setting("choice_joint"),
+        candidates=setting("choice_candidates"),
+        seed=setting("seed"),
+        frames=setting("choice_frames"),
+        display=setting("choice_display"),
     log:
         "logs/choose_joint_weight{fold}/joint-{method}+{model}{rep}.log",
     threads: 1
@@ -72,7 +72,7 @@ rule evaluate:
         recon="results/{overlay}recon/{scene}/{source}+{model}{poses}{rep}",
         scene="results/{overlay}scenes/{scene}",
         lpips=rules.lpips_weights.output,
-        spc=get_eval_frames,
+        spc=setting("held_out_frames"),
     output:
         "results/{overlay}eval/{scene}/{source}+{model}{poses}{rep}/metrics.json",
     log:
@@ -87,9 +87,9 @@ rule evaluate:
 rule write_all_tables:
     """The paper-layout tables (Table 1: two_stage, Table 2: single_stage) and the stage-1 table."""
     input:
-        metrics=get_eval_outputs(),
-        stage1=get_stage1_outputs(),
-        spc=get_eval_spc(),  # their spc.json warnings (frames without an image) join the captions
+        metrics=TARGETS.metrics(),
+        stage1=TARGETS.stage1(),
+        spc=TARGETS.eval_spc(),  # their spc.json warnings (frames without an image) join the captions
     output:
         report(
             "results/tables/two_stage.html",
@@ -154,9 +154,9 @@ rule tables:
         nerf_variant=config["stage2"]["nerf_variant"],
         smallest_effect=config["findings"]["smallest_effect_db"],
         rivals=FINDINGS_RIVALS,
-        metrics=get_eval_outputs(),
-        stage1=get_stage1_outputs(),
-        spc=get_eval_spc(),
+        metrics=TARGETS.metrics(),
+        stage1=TARGETS.stage1(),
+        spc=TARGETS.eval_spc(),
         folder="results/tables",
     log:
         "logs/tables/tables.log",
@@ -170,7 +170,7 @@ rule tables:
 rule qualitative_figure:
     """The paper's Figure 2 for one scene: binary input | every combination's render | ground truth."""
     input:
-        unpack(get_qualitative_inputs),
+        unpack(lambda wildcards: TARGETS.qualitative(wildcards)),
     output:
         report(
             "results/figures/qualitative_{scene}.png",

@@ -1,9 +1,9 @@
 rule write_summary:
     """Table and figure: per scene RGB | binary frame | K-frame average | MLE, exposure, COLMAP."""
     input:
-        scenes=expand("results/scenes/{scene}", scene=ALL_SCENES),
-        spc=expand("results/spc/{scene}", scene=ALL_SCENES),
-        colmap=get_summary_colmap(),
+        scenes=[GRID.paths.scene(s) for s in ALL_SCENES],
+        spc=[GRID.paths.spc(s) for s in ALL_SCENES],
+        colmap=TARGETS.colmap(config["colmap"]["inputs"]),
     output:
         csv="results/summary/data_summary.csv",
         md="results/summary/data_summary.md",
@@ -14,7 +14,7 @@ rule write_summary:
             labels={"figure": "data summary"},
         ),
     params:
-        roles=get_summary_roles(),
+        roles=TARGETS.roles(),
     log:
         "logs/write_summary/data_summary.log",
     conda:

@@ -22,7 +22,8 @@ captures/     real SPAD captures: photon cubes, capture folders, their import
 evaluation/   metrics, LPIPS, held-out evaluation, tables, findings (and their shift between runs), figures
 translate/    stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
 reconstruct/  stage 2: image sources, 3DGS / NeRF / grid NeRF (``RECONSTRUCTORS``), fit and render
-sweeps/       the speed-accuracy trade-off and photon-level sweeps
+settings/     what each job runs with (the grid's answers per job), the results layout, the run's targets
+sweeps/       the speed-accuracy trade-off and photon-level sweeps (a sweep point's settings)
 config        the workflow config checked before anything runs (schema, paths, typed settings)
 jobs          job glue for the rule scripts: logging, per-job benchmarks, scene specs
 """

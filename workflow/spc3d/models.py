@@ -4,7 +4,7 @@
 From these specs come the registries (:data:`spc3d.translate.TRANSLATORS`,
 :data:`spc3d.reconstruct.RECONSTRUCTORS`), the workflow's method and model names and labels
 (:mod:`spc3d.names`), the config's accepted model blocks (:mod:`spc3d.config`), the rules'
-branches (COLMAP points, pose refinement, GPU requests: ``workflow/rules/common.smk``) and the
+branches (COLMAP points, pose refinement, GPU requests: :mod:`spc3d.settings`, ``common.smk``) and the
 sweeps' knobs (:mod:`spc3d.sweeps.budget`). Adding a model is: its file, its spec here, its settings
 block in ``config.yaml`` (``workflow/rules/README.md``).
 

@@ -7,7 +7,7 @@ scripts import: a changed loss in ``spc3d.translate`` would reuse weights traine
 statically (``ast``: imports inside functions count too, and nothing is imported or executed, so it
 is cheap at parse time), and hashes every module reached, with its packages' ``__init__``.
 A rule passes the digest as a param, so it enters the cache key (and Snakemake's ``params`` rerun
-trigger): the translator trainings and every stage-2 fit (``workflow/rules/common.smk``). Code
+trigger): the translator trainings and every stage-2 fit (:func:`spc3d.settings.grid.job_code`). Code
 outside the closure (tables, figures) can change without retraining anything.
 
 Each file counts by its code only (:func:`source_digest`): its syntax tree without docstrings,

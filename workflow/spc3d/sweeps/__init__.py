@@ -12,7 +12,7 @@ front (best quality for the least time); ``report`` draws the figures and writes
 Modules
 -------
 knobs    the knobs, which knobs a combination uses, sweep tables, combinations (no torch)
-plan     the overlay: its paths, a point's settings per rule, its jobs and files (no torch)
+plan     the overlay, a point's settings object (Point), its jobs and files (no torch)
 budget   one stage's settings with the knobs applied (scene width, translator, stage-2 model)
 pareto   a point's record from its files, Pareto fronts, the tables of both sweeps (no torch)
 report   figures and report files (CSV + PNG) of the trade-off and photon-level sweeps (no torch)

@@ -1,7 +1,7 @@
 """A sweep point's settings of one stage: the config's values with the point's knobs applied.
 
-Called by :class:`spc3d.sweeps.plan.PointSettings` for the rule a job runs (each rule's ``get_*``
-helper in ``common.smk``): a scene's spec at the point's width (:func:`scale_spec`), the
+Called by :class:`spc3d.sweeps.plan.PointSettings` for the job a point's settings object answers
+(:class:`spc3d.sweeps.plan.Point`): a scene's spec at the point's width (:func:`scale_spec`), the
 translator's width, steps and training crop (:func:`translator_settings`), the stage-2 model's
 iterations, Gaussian cap and grid resolution (:func:`stage2_settings`).
 

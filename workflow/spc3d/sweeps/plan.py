@@ -10,9 +10,10 @@ after ``results/`` (and after ``logs/{rule}/``, ``benchmarks/{rule}/``)::
     results/sweeps/photon_level/detection~0.02/K~1/eval/courtyard/mle+3dgs/metrics.json
 
 The overlay names the sweep and one setting (its Paramspace path: ``knob~value`` segments), so a
-rule's ``get_*`` helper resolves the point's settings from the wildcard alone
-(:class:`PointSettings`, with :mod:`.budget`); the empty overlay leaves every path and param of the
-grid unchanged. A setting's jobs are shared by every combination swept at it (one scene, one SPC
+job's settings object is found from the wildcard alone (:meth:`Settings.at`): the grid's
+(:class:`spc3d.settings.Grid`) for the empty overlay, which leaves every path and param of the grid
+unchanged, else a :class:`Point`, the grid's answers with the knobs applied (:class:`PointSettings`,
+:mod:`.budget`). A setting's jobs are shared by every combination swept at it (one scene, one SPC
 folder, one translator of a method at that setting), as the grid shares them between its rows.
 :func:`sweep_points` lists each point's files and jobs for the report rules.
 """
@@ -30,8 +31,10 @@ from spc3d.names import (
     parse_source,
     source_frames,
     spc_settings,
+    translator_settings,
     uses_display,
 )
+from spc3d.settings import Grid, Paths
 from spc3d.sweeps.knobs import KNOBS, check_setting, distinct_rows, split_combination, used_knobs
 
 SWEEPS = ("tradeoff", "photon_level")
@@ -117,6 +120,85 @@ class PointSettings:
         return stage2_settings(settings, model, self.setting(value))
 
 
+class Point(Grid):
+    """What a job of one sweep point (``overlay``) runs with: the grid's answers (:class:`Grid`)
+    with the point's knobs applied (``points``: :class:`PointSettings`). A point has its own
+    scenes and training scenes (no folds, no captures, no COLMAP init, no chosen joint weight),
+    simulates no finer capture frame (S = 1) and trains its translators on fixed pairs, unvalidated."""
+
+    def __init__(self, grid: Grid, points: PointSettings, overlay: str):
+        vars(self).update(vars(grid))  # the grid's configuration, code location, ...
+        self.specs, self.folds, self.train = points.specs, {"": points.train}, points.train
+        self.eval = [points.scene_name]
+        self.paths, self.no_reference, self.joint_choose = Paths(overlay), [], {}
+        self.points, self.overlay = points, overlay
+
+    def frames(self, w) -> int | None:
+        return self.points.frames(self.overlay, w.source)
+
+    def fold(self, w) -> str:
+        return ""
+
+    def scene_spec(self, w) -> dict:
+        """The scene's spec at the point's width (knob ``res``)."""
+        return self.points.scene(self.overlay, w.scene)
+
+    def spc(self, w) -> dict:
+        return self.points.spc(self.overlay)
+
+    def capture_factor(self, w) -> int:
+        return 1
+
+    def sensor(self, w) -> str:
+        return ""
+
+    def display(self, w) -> str:
+        """The metered MLE images of the point's K."""
+        return self.paths.display(w.scene, f"k{self.frames(w)}")
+
+    def translator(self, w) -> tuple[dict, dict]:
+        """The method's settings with the point's ``width`` and ``steps`` and a crop that fits."""
+        settings, train = translator_settings(self.config["stage1"], w.method)
+        return self.points.translator(self.overlay, w.method, settings, train)
+
+    def translator_frames(self, w) -> int:
+        return self.points.frames(self.overlay, w.method)
+
+    def translator_data(self, w) -> str:
+        return "fixed"
+
+    def translator_validation(self, w) -> dict:
+        return {"every": 0}
+
+    def source_kind(self, w) -> tuple[str, str]:
+        """A point's binary frame is frame 0 (S = 1)."""
+        return SOURCE_IMAGES[parse_source(w.source).base]
+
+    def model_settings(self, w) -> dict:
+        """The row's stage-2 settings at the point's budget (``iters``, ``cap``, ``grid``)."""
+        return self.points.stage2(self.overlay, w.model, super().model_settings(w))
+
+    def init(self, w) -> None:
+        """A point starts from random points, as every source alike (None: recorded so)."""
+        return None
+
+
+class Settings:
+    """Each job's settings object by its overlay: ``grid`` for "" (the grid's jobs), a
+    :class:`Point` of ``points`` for a sweep point's (made once per overlay)."""
+
+    def __init__(self, grid: Grid, points: PointSettings):
+        self.grid, self.points = grid, points
+        self._made: dict[str, Point] = {}
+
+    def at(self, overlay: str) -> Grid:
+        if not overlay:
+            return self.grid
+        if overlay not in self._made:
+            self._made[overlay] = Point(self.grid, self.points, overlay)
+        return self._made[overlay]
+
+
 def sweep_scenes(
     scene: str | None, train: list[str] | None, eval_scenes: list[str], train_scenes: list[str], known: list[str]
 ) -> tuple[str, list[str]]:
@@ -198,18 +280,18 @@ def sweep_points(
             if not keep:
                 continue
             value = overlay(sweep, pattern)
-            root = f"results/{value}"
+            paths = Paths(value)
             out.append(
                 {
                     "combination": combo,
                     "setting": points.setting(value),
                     "used_knobs": [k for k in used_knobs(combo) if k in points.setting(value)],
                     "overlay": value,
-                    "metrics": f"{root}eval/{scene}/{combo}/metrics.json",
-                    "stage1": f"{root}stage1/{scene}/{source}.json" if source_scored(source) else None,
-                    "recon": f"{root}recon/{scene}/{combo}",
-                    "model": f"{root}models/{parse_source(source).method}" if source not in PLAIN_SOURCES else None,
-                    "spc": f"{root}spc/{scene}" if source != "gt" else None,
+                    "metrics": paths.metrics(scene, combo),
+                    "stage1": paths.stage1(scene, source) if source_scored(source) else None,
+                    "recon": paths.recon(scene, combo),
+                    "model": paths.model(parse_source(source).method) if source not in PLAIN_SOURCES else None,
+                    "spc": paths.spc(scene) if source != "gt" else None,
                     **planned_jobs(combo, value, scene, points.train, points.frames(value, source), points),
                 }
             )
