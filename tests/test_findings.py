@@ -731,3 +731,132 @@ def test_effect_p_refuses_a_negative_or_infinite_smallest_effect_by_name():
     for bad in (-0.1, math.inf):
         with pytest.raises(ValueError, match=r"^effect_p: the smallest effect of interest must be finite and ≥ 0"):
             effect_p(np.ones(6), bad)
+
+
+# --- boundaries, precision and the decisive comparison ------------------------------------------------
+
+
+def test_interval_ends_lie_at_the_inverted_test_boundary_to_the_bisection_tolerance_at_any_scale():
+    """An end is accepted (p > alpha) and a shift beyond it by twice the stated resolution
+    (BISECT_RTOL x the range) is rejected; the ends scale with the differences."""
+    from spc3d.evaluation.findings import ALPHA, BISECT_RTOL
+
+    d = np.array([0.9, -0.2, 1.4, 0.3, 0.8, -0.5, 1.1, 0.6, 0.2])
+    base = np.array(interval(d))
+    for scale in (1e-3, 1.0, 1e3):
+        x = d * scale
+        lo, hi = interval(x)
+        step = 2 * BISECT_RTOL * (x.max() - x.min())
+        assert sign_flip_p(x - lo) > ALPHA and sign_flip_p(x - (lo - step)) <= ALPHA
+        assert sign_flip_p(x - hi) > ALPHA and sign_flip_p(x - (hi + step)) <= ALPHA
+        np.testing.assert_allclose((lo, hi), base * scale, atol=step)
+
+
+def test_at_an_alpha_the_test_can_reach_exactly_an_end_is_still_found():
+    """alpha = 1/32, the smallest two-sided p of six scenes: the interval is bounded and its ends
+    are the inverted test's (p exactly alpha rejects)."""
+    alpha = 2 / 2**6
+    six = np.array([0.4, 1.9, 0.7, 2.5, 1.1, 0.2])
+    lo, hi = interval(six, alpha=alpha)
+    assert math.isfinite(lo) and math.isfinite(hi)
+    assert sign_flip_p(six - lo) > alpha and sign_flip_p(six - hi) > alpha
+    mixed = np.array([0.4, 1.9, -0.7, 2.5, 1.1, 0.2])
+    lo, hi = interval(mixed, alpha=alpha)
+    assert sign_flip_p(mixed - lo) > alpha and sign_flip_p(mixed - hi) > alpha
+
+
+def test_holm_never_exceeds_one_and_a_verdict_at_exactly_the_level_rejects():
+    assert holm([0.7, 0.9]).tolist() == [1.0, 1.0]
+    assert verdict([0.025], [1.0], [1.0], 6) == "HOLDS"  # p ≤ alpha / 2 rejects
+    assert verdict([1.0], [0.025], [0.3], 6) == "DOES NOT HOLD"
+    assert verdict([1.0], [0.025], [0.025], 6) == "EQUIVALENT"
+    assert (
+        verdict([[0.005], [1.0], [0.5]], [[1.0]] * 3, [[1.0]] * 3, MIN_SCENES - 1).tolist() == ["DESCRIPTIVE ONLY"] * 3
+    )
+
+
+def test_a_comparison_without_paired_scenes_is_empty_and_one_below_six_shows_its_range():
+    from dataclasses import asdict
+
+    from spc3d.evaluation.findings import compare
+
+    rows = {"a": Row((1, 1), {("s1", 0): 21.0}), "b": Row((1, 1), {("s2", 0): 20.0})}
+    ones = dict.fromkeys(("p", "p_holds", "p_short", "p_low", "adj_holds", "adj_short", "adj_equivalent"), 1.0)
+    assert asdict(compare(rows, "a", "b")) == {
+        "better": "a", "worse": "b", "n": 0, "mean": None, "low": None, "high": None, "bounds": "range"
+    } | ones  # fmt: skip
+    rows = {
+        "a": Row((1, 1), {(s, 0): 21.0 + i for i, s in enumerate("xyz")}),
+        "b": Row((1, 1), {(s, 0): 20.0 for s in "xyz"}),
+    }
+    three = compare(rows, "a", "b")
+    assert (three.n, three.low, three.high, three.bounds) == (3, 1.0, 3.0, "range")
+
+
+def _comparison(name: str, mean, adj_holds=1.0, adj_short=1.0, adj_equivalent=1.0):
+    from spc3d.evaluation.findings import Comparison
+
+    n = 0 if mean is None else 6
+    return Comparison(name, "base", n, mean, adj_holds=adj_holds, adj_short=adj_short, adj_equivalent=adj_equivalent)
+
+
+def test_the_decisive_comparison_of_a_failure_is_the_strongest_failing_one():
+    from spc3d.evaluation.findings import decisive
+
+    not_equal = _comparison("not-equal", 0.1, adj_short=0.02, adj_equivalent=0.5)
+    equal = _comparison("equal", 0.0, adj_short=0.005, adj_equivalent=0.025)  # within ±δ at exactly the level
+    edge = _comparison("edge", 0.05, adj_short=0.025, adj_equivalent=0.9)  # fails at exactly the level
+    passing = _comparison("passing", -1.0, adj_short=0.03)
+    unscored = _comparison("unscored", None, adj_short=0.0)
+    comps = [passing, not_equal, unscored, equal, edge]
+    assert decisive(comps, "EQUIVALENT").better == "equal"  # smallest adjusted p_short
+    assert decisive(comps, "DOES NOT HOLD").better == "not-equal"  # among those not equivalent
+    tied = [_comparison("later", 0.3, adj_short=0.01), _comparison("closer", 0.1, adj_short=0.01)]
+    assert decisive(tied, "EQUIVALENT").better == "closer"  # a tie: the smaller mean
+
+
+def test_the_decisive_comparison_of_a_descriptive_or_undecided_claim():
+    from spc3d.evaluation.findings import DESCRIPTIVE, decisive
+
+    comps = [_comparison("far", 0.5), _comparison("zero", 0.0), _comparison("unscored", None)]
+    assert decisive(comps, DESCRIPTIVE).better == "zero"  # the closest of the scored
+    assert decisive([_comparison("none", None), _comparison("also", None)], DESCRIPTIVE).better == "none"
+    held = [_comparison("clear", 2.0, adj_holds=0.001), _comparison("weakest", 0.4, adj_holds=0.02)]
+    assert decisive(held, "HOLDS").better == "weakest"  # the largest adjusted p_holds
+    tied = [_comparison("larger", 0.9, adj_holds=0.2), _comparison("smaller", 0.3, adj_holds=0.2)]
+    assert decisive(tied, "INCONCLUSIVE").better == "smaller"  # a tie: the smaller mean
+
+
+def _claim_rows(scenes: int, offsets: dict[str, list[float]]) -> dict:
+    names = [f"s{i}" for i in range(scenes)]
+    rows = {"base": Row((1, 1), {(s, 0): 20.0 for s in names})}
+    for name, values in offsets.items():
+        rows[name] = Row((1, 1), {(s, 0): 20.0 + v for s, v in zip(names, values)})
+    return rows
+
+
+def test_a_claim_with_a_row_not_run_is_recorded_as_such():
+    from spc3d.evaluation.findings import NOT_RUN, Claim, evaluate
+
+    claim = Claim("c", "ours", "a beats base", (("a", "base"), ("missing", "base")))
+    out = evaluate(claim, _claim_rows(6, {"a": [1.0] * 6}))
+    assert (out["verdict"], out["n"], out["family"], out["decisive"], out["comparisons"]) == (
+        NOT_RUN,
+        0,
+        None,
+        None,
+        [],
+    )
+    assert out["note"] == "not run: missing" and out["not_run"] == ["missing"]
+
+
+def test_an_undecided_claim_names_the_scenes_a_failure_would_need_only_below_them():
+    """Two comparisons: a failure needs n ≥ 7 (Holm at 0.025 / 2); at n = 7 nothing is missing."""
+    from spc3d.evaluation.findings import Claim, evaluate
+
+    noisy = [0.9, -0.6, 0.4, 1.2, -0.3, 0.5, 0.1]
+    claim = Claim("c", "ours", "a and b beat base", (("a", "base"), ("b", "base")))
+    six = evaluate(claim, _claim_rows(6, {"a": noisy[:6], "b": noisy[:6]}))
+    assert six["verdict"] == "INCONCLUSIVE" and six["note"] == "a failure among 2 comparisons needs n ≥ 7 scenes"
+    seven = evaluate(claim, _claim_rows(7, {"a": noisy, "b": noisy}))
+    assert seven["verdict"] == "INCONCLUSIVE" and seven["note"] == ""
