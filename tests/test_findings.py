@@ -860,3 +860,23 @@ def test_an_undecided_claim_names_the_scenes_a_failure_would_need_only_below_the
     assert six["verdict"] == "INCONCLUSIVE" and six["note"] == "a failure among 2 comparisons needs n ≥ 7 scenes"
     seven = evaluate(claim, _claim_rows(7, {"a": noisy, "b": noisy}))
     assert seven["verdict"] == "INCONCLUSIVE" and seven["note"] == ""
+
+
+def test_a_shift_whose_p_is_exactly_alpha_is_rejected_at_an_interval_end():
+    """alpha = 1/16: at the minimum of six positive differences p is exactly 2 of 32 patterns, so
+    the minimum is rejected and the end lies inside it, where p > alpha."""
+    alpha = 4 / 2**6
+    six = np.array([0.4, 1.9, 0.7, 2.5, 1.1, 0.2])
+    assert sign_flip_p(six - six.min()) == alpha
+    lo, hi = interval(six, alpha=alpha)
+    assert six.min() < lo and sign_flip_p(six - lo) > alpha
+    assert hi < six.max() and sign_flip_p(six - hi) > alpha
+
+
+def test_the_decisive_failure_may_fail_at_exactly_the_level_or_be_far_from_equivalent():
+    from spc3d.evaluation.findings import decisive
+
+    edge = _comparison("edge", 0.05, adj_short=0.025, adj_equivalent=0.9)
+    assert decisive([edge, _comparison("passing", -1.0, adj_short=0.3)], "DOES NOT HOLD").better == "edge"
+    unequal = _comparison("unequal", 0.1, adj_short=0.01, adj_equivalent=0.05)
+    assert decisive([unequal], "DOES NOT HOLD").better == "unequal"
