@@ -64,7 +64,7 @@ def test_workflow_vocabulary_does_not_import_torch():
 
 # Bottom to top: a module of a layer imports only modules of its own layer or of a lower one.
 LAYERS = (
-    ("models", "names", "io", "cameras", "llff", "colour", "plotting", "runtime", "provenance"),
+    ("models", "names", "io", "cameras", "llff", "pixels", "plotting", "runtime", "provenance"),
     ("checkpoints", "training"),
     ("physics",),
     ("poses",),

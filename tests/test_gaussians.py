@@ -10,9 +10,9 @@ import torch
 
 from spc3d.cameras import split_views
 from spc3d.checkpoints import Checkpoint, CheckpointPolicy, fingerprint
-from spc3d.colour import linear_to_srgb, srgb_to_linear
 from spc3d.inputs.scenes import render_scene
 from spc3d.physics import spc
+from spc3d.pixels import linear_to_srgb, srgb_to_linear
 from spc3d.reconstruct import densify
 from spc3d.reconstruct.gaussians import GaussianConfig, GaussianModel, knn_rms_distance, random_points
 from spc3d.reconstruct.objectives import BernoulliObjective, RGBObjective

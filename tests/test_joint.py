@@ -5,7 +5,6 @@ import pytest
 import torch
 
 from spc3d import io
-from spc3d.colour import linear_to_srgb
 from spc3d.names import (
     ConfigError,
     check_source,
@@ -15,6 +14,7 @@ from spc3d.names import (
     source_frames,
     source_label,
 )
+from spc3d.pixels import linear_to_srgb
 from spc3d.reconstruct import check_joint, config_joint, own_objective
 from spc3d.reconstruct.objectives import BernoulliObjective, JointConfig, JointObjective, RGBObjective
 from spc3d.reconstruct.sources import load_source

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import torch
 
-from spc3d.colour import linear_to_srgb
 from spc3d.evaluation.metrics import ssim_loss
+from spc3d.pixels import linear_to_srgb
 from spc3d.reconstruct.objectives import LN2, BernoulliObjective, JointConfig, JointObjective, RGBObjective
 
 G = torch.Generator().manual_seed(0)

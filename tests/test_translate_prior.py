@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from spc3d.colour import linear_to_srgb
 from spc3d.physics import spc
+from spc3d.pixels import linear_to_srgb
 from spc3d.translate import TRANSLATORS
 from spc3d.translate.prior import P_MAX, PhysicsPrior, gaussian_kernel
 

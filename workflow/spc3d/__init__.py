@@ -10,7 +10,7 @@ names         the vocabulary: sources and their grammar, combinations, labels, s
 io            image and binary-frame files (OpenImageIO, packed ``.npz``), JSON records; atomic writes
 cameras       the one internal camera convention and conversions to/from LLFF and COLMAP
 llff          the canonical scene folder (LLFF layout): read, write, import LLFF folders
-colour        sRGB transfer functions on torch tensors (both stages)
+pixels        the sRGB transfer and PSNR, on numpy arrays and torch tensors alike (every stage)
 plotting      matplotlib on the Agg back-end and atomic PNG writes
 runtime       process settings of a workflow job (freed memory kept for reuse)
 checkpoints   fingerprinted checkpoints of both stages: digests, policy, safe resume, lock, watch

@@ -16,7 +16,6 @@ importing torch).
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 from pathlib import Path
@@ -25,21 +24,14 @@ import numpy as np
 
 from spc3d.evaluation.lpips_specs import SCALE, SHIFT, SPECS, canonical_net
 from spc3d.evaluation.lpips_weights import check_weights, lpips_weights
+from spc3d.pixels import DATA_RANGE, as_array, psnr  # noqa: F401  (PSNR's one home, re-exported here)
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
-DATA_RANGE = 1.0
 LPIPS_MIN_SIZE = 32  # AlexNet: stride-4 conv + two 3x3/2 pools before conv3 need >= 32 px per side
 NORM_EPS = 1e-10  # LPIPS's unit normalisation over channels: x / (||x|| + eps)
-
-
-def as_array(img, dtype) -> np.ndarray:
-    """numpy array or torch tensor (any device, gradient or not) -> numpy array of ``dtype``."""
-    if hasattr(img, "detach"):
-        img = img.detach().cpu().numpy()
-    return np.asarray(img, dtype=dtype)
 
 
 def _pair_hwc(pred, target, dtype) -> tuple[np.ndarray, np.ndarray]:
@@ -47,22 +39,6 @@ def _pair_hwc(pred, target, dtype) -> tuple[np.ndarray, np.ndarray]:
     if a.shape != b.shape or a.ndim != 3:
         raise ValueError(f"expected two (H, W, C) images of one shape, got {a.shape} and {b.shape}")
     return a, b
-
-
-def psnr(pred, target) -> float:
-    """PSNR in dB (data range 1) between two arrays of one shape (images (H, W, C), ray batches
-    (R, 3), ...); ``inf`` when they are identical. Two torch tensors (a training step's render and
-    target) are compared on their own device in float64: only the scalar leaves it."""
-    if hasattr(pred, "detach") and hasattr(target, "detach"):
-        a, b = pred.detach().double(), target.detach().to(pred.device).double()
-    else:
-        a, b = as_array(pred, np.float64), as_array(target, np.float64)
-    if a.shape != b.shape:
-        raise ValueError(f"expected two arrays of one shape, got {tuple(a.shape)} and {tuple(b.shape)}")
-    mse = float(((a - b) ** 2).mean())
-    if mse == 0.0:
-        return float("inf")
-    return 10.0 * math.log10(DATA_RANGE**2 / mse)
 
 
 def gaussian_taps(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import os
 import time
 from pathlib import Path
@@ -58,6 +57,7 @@ from spc3d.cameras import split_views
 from spc3d.physics import spc
 from spc3d.physics.flux_scale import calibrate_flux_scale, dark_floor
 from spc3d.physics.record import check_capture_factor, exposure_record, frame_warnings
+from spc3d.pixels import psnr
 
 log = logging.getLogger(__name__)
 
@@ -319,15 +319,8 @@ def view_stats(gt_srgb: np.ndarray, products: dict[str, np.ndarray], flux_scale:
     return {
         "detection_rate": float(products["binary"].mean()),
         "saturated_fraction": float((products["average"] >= 1.0).mean()),
-        "mle_psnr_exact_gain_db": psnr_db(exact, gt_srgb),
+        "mle_psnr_exact_gain_db": psnr(exact, gt_srgb),
     }
-
-
-def psnr_db(pred: np.ndarray, target: np.ndarray) -> float:
-    """PSNR in dB (data range 1) in numpy: the scene jobs import no torch (spc3d.evaluation.metrics
-    is the scoring one, with the same definition)."""
-    mse = float(np.mean((pred.astype(np.float64) - target.astype(np.float64)) ** 2))
-    return float("inf") if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
 
 
 def summarise(stats: list[dict[str, float]]) -> dict[str, float]:

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spc3d.pixels import linear_to_srgb, srgb_to_linear  # noqa: F401  (the simulator's colour, as spc.*)
+
 MODES = ("bernoulli", "paper")
 _TWO32 = 2.0**32
 
@@ -97,28 +99,7 @@ class SPCParams:
 
 
 # --------------------------------------------------------------------------------------------
-# colour and flux
-
-
-def _as_float(x: object) -> np.ndarray:
-    x = np.asarray(x)
-    return x if np.issubdtype(x.dtype, np.floating) else x.astype(np.float64)
-
-
-def srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB decoding; input (any shape) clipped to [0, 1], output same shape."""
-    x = np.clip(_as_float(x), 0.0, 1.0)
-    lin = np.add(x, 0.055, out=np.empty_like(x))  # an array even for scalar input (out= below)
-    lin /= 1.055
-    np.power(lin, 2.4, out=lin)
-    np.divide(x, 12.92, out=lin, where=x <= 0.04045)  # linear toe
-    return lin
-
-
-def linear_to_srgb(x: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB encoding; input (any shape) clipped to [0, 1], output same shape."""
-    x = np.clip(_as_float(x), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1.0 / 2.4) - 0.055)
+# colour (the sRGB transfer: spc3d.pixels, imported above) and flux
 
 
 def _check_flux_scale(flux_scale: float) -> float:

@@ -30,7 +30,7 @@ from typing import Protocol, runtime_checkable
 import torch
 from torch import Tensor
 
-from spc3d.colour import linear_to_srgb
+from spc3d.pixels import linear_to_srgb
 
 LN2 = 0.6931471805599453
 

@@ -23,7 +23,7 @@ import math
 
 from torch import Tensor
 
-from spc3d.colour import linear_to_srgb, srgb_to_linear
+from spc3d.pixels import linear_to_srgb, srgb_to_linear
 from spc3d.translate.prior import P_MAX
 
 CAMERA_WHITE = -math.log1p(-P_MAX)  # 6.91 photons per frame: P(bit = 1) = 0.999

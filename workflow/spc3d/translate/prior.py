@@ -33,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from spc3d.colour import linear_to_srgb, srgb_to_linear
+from spc3d.pixels import linear_to_srgb, srgb_to_linear
 
 # The MLE diverges at p = 1 (every bit in the window set); 1 - 1e-3 caps λ at 6.9 photons per frame,
 # which any gain fitted on scenes calibrated to a mean detection of 0.5 (λ ~ 0.7) displays as white.
