@@ -52,10 +52,13 @@ def test_stage1_and_stage2_do_not_import_each_other(side, other):
 
 
 def test_workflow_vocabulary_does_not_import_torch():
-    """Parsing the Snakefile imports spc3d.names and spc3d.config: they must stay torch-free."""
+    """Parsing the Snakefile imports spc3d.names, spc3d.config and each job's settings objects; the
+    scene jobs import the simulator and the scoring jobs the scores, with their sRGB and PSNR
+    (spc3d.pixels): all must stay torch-free."""
     code = (
         "import sys; sys.path.insert(0, 'workflow'); "
-        "import spc3d.models, spc3d.names, spc3d.config, spc3d.inputs.scenes; "
+        "import spc3d.models, spc3d.names, spc3d.config, spc3d.inputs.scenes, spc3d.settings, spc3d.sweeps.plan; "
+        "import spc3d.pixels, spc3d.physics.spc, spc3d.inputs.build, spc3d.evaluation.scores; "
         "print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
