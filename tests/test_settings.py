@@ -117,9 +117,12 @@ def test_a_sweep_point_answers_with_its_knobs_and_its_own_scenes(grid, settings)
     assert point.display(w) == f"results/{POINT}mle/courtyard/k4"
     assert point.model_settings(w)["iterations"] == 300 != grid.model_settings(w).get("iterations")
     assert point.translator_frames(w) == 4 and point.seed(w) == grid.seed(w)
+    assert point.augment_count(wildcards(scene="tabletop")) == grid.config["augment"]["count"]  # its one training scene
     assert point.translator_model(w) == f"results/{POINT}models/pix2pixhd"
     assert not point.chooses_joint_weight(wildcards(source="joint-pix2pixhd"))
     assert point.reconstruct_code(w) == grid.reconstruct_code(w)  # the same code runs
+    knobs = settings.at("sweeps/tradeoff/iters~300/K~4/width~12/steps~3/")
+    assert knobs.translator_settings(w)["ngf"] == 12 and knobs.translator_train(w)["iterations"] == 3
 
 
 def test_the_targets_are_every_row_on_every_evaluation_scene_for_every_seed():

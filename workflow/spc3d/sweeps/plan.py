@@ -31,7 +31,6 @@ from spc3d.names import (
     parse_source,
     source_frames,
     spc_settings,
-    translator_settings,
     uses_display,
 )
 from spc3d.settings import Grid, Paths
@@ -101,11 +100,6 @@ class PointSettings:
             return knobs["K"]
         return source_frames(source, config["stage1"]["frames"], config["stage2"]["frames"])
 
-    def augment_count(self, scene: str) -> int:
-        from spc3d.inputs.augment import split_count
-
-        return split_count(self.config["augment"]["count"], len(self.train), self.train.index(scene))
-
     def translator(self, value: str, method: str, settings: dict, train: dict) -> tuple[dict, dict]:
         """(model overrides, training settings) of ``method`` with ``width`` and ``steps`` applied
         and a training crop that fits the point's evaluation images."""
@@ -158,8 +152,7 @@ class Point(Grid):
 
     def translator(self, w) -> tuple[dict, dict]:
         """The method's settings with the point's ``width`` and ``steps`` and a crop that fits."""
-        settings, train = translator_settings(self.config["stage1"], w.method)
-        return self.points.translator(self.overlay, w.method, settings, train)
+        return self.points.translator(self.overlay, w.method, *super().translator(w))
 
     def translator_frames(self, w) -> int:
         return self.points.frames(self.overlay, w.method)
