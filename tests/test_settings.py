@@ -4,6 +4,7 @@ of which is one a rule makes."""
 
 from __future__ import annotations
 
+import json
 import re
 from types import SimpleNamespace
 
@@ -13,6 +14,7 @@ from test_parse_checks import parse
 from spc3d.inputs.scenes import LAYOUTS
 from spc3d.jobs import scene_specs, training_folds, training_scene_names
 from spc3d.settings import Grid, Paths, Targets
+from spc3d.settings.params import PARAMS, SweepReportParams
 from spc3d.sweeps import plan
 
 from conftest import REPO
@@ -136,3 +138,59 @@ def test_the_targets_are_every_row_on_every_evaluation_scene_for_every_seed():
     assert targets.roles() == [
         " + ".join(r for r, names in (("train", grid.train), ("eval", grid.eval)) if s in names) for s in targets.scenes
     ]
+
+
+def every_params_object(grid, settings) -> list:
+    """One object of each rule's params type, as the grid's and a sweep point's jobs get them."""
+    w, point = wildcards(images="binary", sensor=""), settings.at(POINT)
+    joint = {"stage2": grid.config["stage2"] | {"joint": grid.config["stage2"]["joint"] | {"choose": {"3dgs": [0.1]}}}}
+    chooser = Grid(grid.config | joint, grid.specs, grid.folds, REPO)
+    made = [grid.colmap_params(w), grid.tables_params(), chooser.choice_params(wildcards(method="pix2pixhd"))]
+    for job in (grid, point):
+        made += [job.poses_params(w), job.display_params(w), job.augment_params(wildcards(scene="tabletop"))]
+        made += [job.translator_params(w), job.translate_params(w), job.score_params(w), job.reconstruct_params(w)]
+    return made + [SweepReportParams([{"combination": "gt+3dgs"}], ["gt+3dgs"], "wall")]
+
+
+def test_every_rule_gets_one_params_object_that_snakemake_compares(grid, settings):
+    """A changed setting reruns its job only if Snakemake can compare the params (builtin types: a
+    dataclass would be dropped from the comparison, silently) and --cache can hash them (JSON)."""
+    from snakemake.persistence import UNREPRESENTABLE
+    from snakemake.persistence import PersistenceBase as Persistence
+
+    made = every_params_object(grid, settings)
+    assert {type(p) for p in made} == set(PARAMS)
+    for params in made:
+        assert Persistence._serialize_param_builtin(None, params) is not UNREPRESENTABLE, type(params).__name__
+        json.dumps(params)
+        changed = params._replace(**{params._fields[0]: "changed"})
+        assert Persistence._serialize_param_builtin(None, changed) != Persistence._serialize_param_builtin(None, params)
+    rules = "\n".join(p.read_text() for p in (REPO / "workflow" / "rules").glob("*.smk"))
+    for block in re.findall(r"\n    params:\n((?:        .*\n)+)", rules):
+        names = re.findall(r"^        (\w+)=", block, re.M)
+        assert names == ["job"] or len(names) == 1 or names[0] == "job", names  # one object (the tables rule: + files)
+
+
+def test_a_jobs_params_object_holds_the_answers_it_is_built_from(grid, settings):
+    w, point = wildcards(source="joint-pix2pixhd", rep="-seed3", sensor=""), settings.at(POINT)
+    fit = grid.reconstruct_params(w)
+    assert fit.settings == grid.model_settings(w) and fit.seed == 3 and fit.frames == grid.frames(w)
+    assert fit.joint == grid.joint(w) is not None and fit.code == grid.reconstruct_code(w)
+    assert fit.checkpoint == grid.checkpoint(w) and fit.observe == grid.config["stage2"]["observe_plateau"]
+    assert fit.init == grid.config["stage2"]["init"] and point.reconstruct_params(w).init is None
+    assert point.reconstruct_params(w).settings["iterations"] == 300
+    trained = grid.translator_params(wildcards(method="pix2pixhd-pub", sensor=""))
+    assert trained.method == "pix2pixhd" and trained.sensor is None and "count" not in trained.augment
+    assert trained.settings == grid.translator_settings(wildcards(method="pix2pixhd-pub"))
+    assert point.translator_params(w).data == "fixed" and point.translator_params(w).frames == 4
+    assert grid.display_params(wildcards(budget="k16")) == (16, False)
+    assert grid.display_params(wildcards(budget="capture")) == (1, True)
+    assert grid.colmap_params(wildcards(images="rgb")).subdir == "images"
+    assert grid.poses_params(wildcards(source="mle-k16")).frames == 16
+    assert grid.score_params(w).seed == 3 and point.score_params(w).capture_factor == 1
+    assert grid.tables_params().smallest_effect == grid.config["findings"]["smallest_effect_db"]
+    rivals, nerf = grid.tables_params().rivals, grid.config["stage2"]["nerf_variant"]
+    assert rivals["mle"] == ["mle-x1+3dgs", "mle-x1-mse+3dgs"] and rivals["two_stage"][0] == f"pix2pixhd+{nerf}"
+    capture = {"kind": "capture", "reference": True, "sensor_tag": "rggb", "sensor": "cfa"}
+    captured = Grid(grid.config, grid.specs | {"cap": capture}, grid.folds, REPO)
+    assert captured.translator_params(wildcards(sensor="-rggb")).sensor == "cfa"

@@ -54,8 +54,8 @@ def test_a_sweep_that_cannot_run_stops_only_when_its_report_is_asked_for():
     points = plan.PointSettings(CONFIG, specs, "courtyard", [], {})
     table = pd.DataFrame({"iters": [10]})
     planned = plan.sweep_points("tradeoff", table, ["iters~10"], ["gt+3dgs", "pix2pix+3dgs"], points, "courtyard")
-    assert planned[0]["jobs"] and "error" not in planned[0]
-    assert planned[1]["jobs"] == [] and "needs training scenes" in planned[1]["error"]
+    assert planned[0]["outputs"] and "error" not in planned[0]
+    assert planned[1]["outputs"] == [] and "needs training scenes" in planned[1]["error"]
     assert plan.point_inputs(planned[:1])  # the gt point alone is fine
     with pytest.raises(ValueError, match=r"sweeps/tradeoff/iters~10/: pix2pix\+3dgs: source 'pix2pix' needs training"):
         plan.point_inputs(planned)
@@ -189,25 +189,33 @@ def test_knobs_reach_every_rule():
         points.translator(plan.overlay("tradeoff", "res~12"), "pix2pix", {}, {})
 
 
-def test_a_point_lists_its_jobs():
+def test_a_point_lists_what_its_jobs_make():
     value = plan.overlay("tradeoff", "iters~10")
-    rules = lambda combo: [r for r, _ in plan.point_jobs(combo, value, "courtyard", ["tabletop"], 4)]  # noqa: E731
-    assert rules("gt+3dgs") == ["prepare_scene", "reconstruct", "evaluate"]
-    assert rules("pix2pix+3dgs") == [
-        *["prepare_scene"] * 2,
-        *["simulate_scene"] * 2,
-        "augment_scene",
-        "train_translator",
-        "translate_scene",
-        "score_images",
-        "reconstruct",
-        "evaluate",
+    root = f"results/{value}"
+    outputs = lambda combo: plan.point_outputs(combo, value, "courtyard", ["tabletop"], 4)  # noqa: E731
+    assert outputs("gt+3dgs") == [
+        f"{root}scenes/courtyard",
+        f"{root}recon/courtyard/gt+3dgs",
+        f"{root}eval/courtyard/gt+3dgs/metrics.json",
     ]
-    jobs = dict(plan.point_jobs("mle+3dgs", value, "courtyard", ["tabletop"], 4)[4:6])
-    assert jobs["calibrate_display"]["budget"] == "k4" and jobs["write_display"]["overlay"] == value
-    assert "score_images" not in rules("bernoulli+3dgs")
+    made = [path.removeprefix(root) for path in outputs("pix2pix+3dgs")]
+    assert made == [
+        "scenes/courtyard",
+        "scenes/tabletop",
+        "spc/courtyard",
+        "spc/tabletop",
+        "augment/tabletop",
+        "models/pix2pix",
+        "translate/courtyard/pix2pix",
+        "stage1/courtyard/pix2pix.json",
+        "recon/courtyard/pix2pix+3dgs",
+        "eval/courtyard/pix2pix+3dgs/metrics.json",
+    ]
+    assert outputs("mle+3dgs")[4:6] == [f"{root}calibration/display-k4.json", f"{root}mle/courtyard/k4"]
+    assert not any("stage1/" in path for path in outputs("bernoulli+3dgs"))
+    assert f"{root}models/pix2pixhd" in outputs("joint-pix2pixhd+3dgs")  # the prior term's translator
     with pytest.raises(ValueError, match="needs training scenes"):
-        plan.point_jobs("mle+3dgs", value, "courtyard", [], 1)
+        plan.point_outputs("mle+3dgs", value, "courtyard", [], 1)
 
 
 def test_rule_side_modules_import_without_torch():

@@ -2,13 +2,11 @@ rule colmap_poses:
     """COLMAP (pycolmap, CPU) on one image set of a scene, with the pose error against its poses."""
     input:
         scene="results/scenes/{scene}",
-        images=get_colmap_images,
+        images=setting("colmap_images"),
     output:
         directory("results/colmap/{scene}/{images}"),
     params:
-        subdir=get_colmap_subdir,
-        max_features=config["colmap"]["max_features"],
-        seed=config["seed"],
+        job=setting("colmap_params"),
     log:
         "logs/colmap_poses/{scene}_{images}.log",
     threads: 1
@@ -26,10 +24,7 @@ rule estimate_poses:
     output:
         directory("results/poses/{scene}/{source}{rep}"),
     params:
-        subdir=setting("source_subdir"),
-        frames=setting("frames"),
-        max_features=config["colmap"]["max_features"],
-        seed=setting("seed"),
+        job=setting("poses_params"),
     log:
         "logs/estimate_poses/{scene}/{source}{rep}.log",
     threads: 1

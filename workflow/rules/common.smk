@@ -16,11 +16,13 @@ from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
 from spc3d.names import (JOINT_SOURCES, PLAIN_SOURCES, POSES_PATTERN, SOURCE_PATTERN, STAGE1_METHODS, STAGE2_MODELS,
-    parse_combination, parse_source, resolve_combinations, stage1_sources)
+    parse_combination, parse_source, stage1_sources)
+from snakemake.exceptions import WorkflowError
 from snakemake.io import apply_wildcards
 
 from spc3d.jobs import benchmark_path, training_scene_names, scene_specs, training_folds
 from spc3d.settings import Grid, Targets
+from spc3d.settings.params import SweepReportParams
 from spc3d.sweeps.plan import OVERLAY_PATTERN, PointSettings, Settings, photon_budget, sweep_scenes
 
 # Deployment, not an experiment setting: the SLURM profile sets conda_env=gpu (see its README).
@@ -35,15 +37,12 @@ FOLDS = training_folds(TRAIN_SCENES, EVAL_SCENES, config["scenes"]["leave_one_ou
 GRID = Grid(config, scene_specs(config, sorted(LAYOUTS)), FOLDS, workflow.basedir)
 TARGETS = Targets(GRID)  # the files the run makes: every row on every evaluation scene, for every seed
 ALL_SCENES, COMBINATIONS = TARGETS.scenes, TARGETS.combinations
-# Captured SPAD scenes (config `captures`): their translators are trained for their sensor (one
-# model folder per sensor: results/models-rggb/...), and one without reference views is not scored.
-SENSORS = {f"-{s['sensor_tag']}": s["sensor"] for s in GRID.specs.values() if s["kind"] == "capture"}
-# The rivals the claims over "every" row compare with, listed (findings.rivals; the library's default for
-# a list not given): a listed rival that did not run makes its claim NOT RUN (spc3d.evaluation.findings).
-FINDINGS_RIVALS = {k: resolve_combinations(v, config["stage2"]["nerf_variant"], f"findings.rivals.{k}")
-                   for k, v in config["findings"]["rivals"].items()}
-check_settings(config, stage1_sources(COMBINATIONS), sorted({parse_combination(c)[1] for c in COMBINATIONS}), COMBINATIONS)
-check_capture_frames({s: GRID.specs[s] for s in EVAL_SCENES}, COMBINATIONS, config)  # captures hold K frames
+# Checked once, by the main process: each job's own process reads this file again, and would import
+# the torch model modules (their settings dataclasses) for nothing.
+if workflow.is_main_process:
+    check_settings(config, stage1_sources(COMBINATIONS), sorted({parse_combination(c)[1] for c in COMBINATIONS}),
+                   COMBINATIONS)
+    check_capture_frames({s: GRID.specs[s] for s in EVAL_SCENES}, COMBINATIONS, config)  # captures hold K frames
 # Sweep points (tradeoff.smk) are these rules' jobs under a settings overlay: the {overlay} wildcard
 # after results/ ("" for the grid, "sweeps/tradeoff/iters~300/res~64/" for a point: spc3d.sweeps.plan).
 SWEEP_SCENE, SWEEP_TRAIN = sweep_scenes(config["tradeoff"]["scene"], config["tradeoff"]["train_scenes"], EVAL_SCENES,
@@ -63,7 +62,7 @@ wildcard_constraints:
     rep="(-seed[0-9]+)?",
     fold=f"({'|'.join(FOLDS)})",  # "" or "-without-{scene}": the training scenes of a model folder / display level
     budget="k[0-9]+|capture",  # a metered display: the first K frames, or the capture-resolution frame
-    sensor=f"({'|'.join(SENSORS)})?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
+    sensor=f"({'|'.join(GRID.sensors)})?",  # "" (the simulator's RGB) or a capture's "-rggb", ...
     overlay=OVERLAY_PATTERN,  # "" (the grid) or a sweep point's settings, "sweeps/tradeoff/iters~300/.../"
 
 
@@ -78,46 +77,23 @@ def setting(name):
     return lambda wildcards: getattr(settings_of(wildcards), name)(wildcards)
 
 
-def get_display_frames(wildcards):
-    """K of a metered display ("k16": 16; "capture": the one capture-resolution frame)."""
-    return 1 if get_display_capture(wildcards) else int(wildcards.budget[1:])
-
-
-def get_display_capture(wildcards):
-    """Whether a metered display is of the capture-resolution frame (spc.capture_factor)."""
-    return wildcards.budget == "capture"
-
-
-def get_colmap_images(wildcards):
-    """The folder holding the image set a COLMAP run reads."""
-    return GRID.paths.scene(wildcards.scene) if wildcards.images == "rgb" else GRID.paths.spc(wildcards.scene)
-
-
-def get_colmap_subdir(wildcards):
-    return {"rgb": "images", "binary": "binary", "average": "average"}[wildcards.images]
-
-
-def get_translator_base(wildcards):
-    """The method a model folder trains ("pix2pixhd" for "pix2pixhd-pub", whose settings say prior_sigma: 0)."""
-    return parse_source(wildcards.method).base
-
-
-def get_augment_ranges(wildcards):
-    """The augmentation ranges online samples draw from (the augment block without its count)."""
-    return {k: v for k, v in config["augment"].items() if k != "count"}
-
-
-def get_translator_sensor(wildcards):
-    """The sensor a translator's inputs are recorded by ({"cfa", "white"}); None: the simulator's RGB."""
-    return SENSORS.get(wildcards.sensor)
-
-
 def point_benchmarks(points):
     """Each point with the benchmark files of its jobs (spc3d.jobs.logged writes one beside each log)."""
-    return [{k: v for k, v in p.items() if k != "jobs"}
-            | {"benchmarks": [str(benchmark_path(apply_wildcards(workflow.get_rule(rule).log[0], wildcards)))
-                              for rule, wildcards in p["jobs"]]}
+    return [{k: v for k, v in p.items() if k != "outputs"} | {"benchmarks": [job_benchmark(o) for o in p["outputs"]]}
             for p in points]
+
+
+def job_benchmark(path):
+    """The benchmark file of the job that makes ``path``: its rule found by output pattern, its log's wildcards."""
+    rules = [rule for rule in workflow.rules if rule.is_producer(path)]
+    if len(rules) != 1:
+        raise WorkflowError(f"{path}: made by {len(rules)} rules ({', '.join(r.name for r in rules)}); expected one")
+    return str(benchmark_path(apply_wildcards(rules[0].log[0], rules[0].get_wildcards(path))))
+
+
+def sweep_report(points, combos, clock=None):
+    """A sweep report's params: its points with their benchmark files, its combinations and clock."""
+    return SweepReportParams(point_benchmarks(points), combos, clock)
 
 
 def get_translator_gpus(wildcards):
@@ -133,7 +109,6 @@ def get_stage2_gpus(wildcards):
 # SLURM: every distinct request is tried with `sbatch --test-only` before anything is submitted.
 onstart:
     if getattr(workflow.executor_plugin, "name", None) == "slurm":
-        from snakemake.exceptions import WorkflowError
         from spc3d.checks.slurm import slurm_problems
 
         if problems := slurm_problems(workflow.dag.needrun_jobs()):

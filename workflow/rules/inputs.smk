@@ -46,8 +46,7 @@ rule calibrate_display:
     output:
         "results/{overlay}calibration{fold}/display-{budget}{rep}.json",
     params:
-        frames=get_display_frames,
-        capture=get_display_capture,
+        job=setting("display_params"),
     log:
         "logs/calibrate_display/{overlay}{budget}{fold}{rep}.log",
     threads: 1
@@ -67,8 +66,7 @@ rule write_display:
     output:
         directory("results/{overlay}mle/{scene}/{budget}{rep}"),
     params:
-        frames=get_display_frames,
-        capture=get_display_capture,
+        job=setting("display_params"),
     log:
         "logs/write_display/{overlay}{scene}/{budget}{rep}.log",
     threads: 1
@@ -87,9 +85,7 @@ rule augment_scene:
     output:
         directory("results/{overlay}augment/{scene}{rep}"),
     params:
-        n_pairs=setting("augment_count"),
-        settings=config["augment"],
-        seed=setting("seed"),
+        job=setting("augment_params"),
     log:
         "logs/augment_scene/{overlay}{scene}{rep}.log",
     threads: 1

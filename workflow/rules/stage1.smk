@@ -18,16 +18,7 @@ rule train_translator:
             labels={"translator": "{method}{sensor}{fold}", "figure": "training curve"},
         ),
     params:
-        method=get_translator_base,
-        settings=setting("translator_settings"),
-        train=setting("translator_train"),
-        frames=setting("translator_frames"),
-        data=setting("translator_data"),
-        augment=get_augment_ranges,
-        sensor=get_translator_sensor,
-        validation=setting("translator_validation"),
-        seed=setting("seed"),
-        code=setting("translator_code"),  # the library code the weights depend on (spc3d/provenance.py)
+        job=setting("translator_params"),  # with the code key: a change of the library code retrains
     log:
         "logs/train_translator/{overlay}{method}{sensor}{fold}{rep}.log",
     # `snakemake --cache` (SNAKEMAKE_OUTPUT_CACHE, else ~/.cache/spc3d/outputs): trained once per
@@ -52,8 +43,7 @@ rule translate_scene:
     output:
         directory("results/{overlay}translate/{scene}/{method}{rep}"),
     params:
-        frames=setting("translator_frames"),
-        ensemble=config["stage1"]["ensemble"],
+        job=setting("translate_params"),
     log:
         "logs/translate_scene/{overlay}{scene}/{method}{rep}.log",
     threads: 1
@@ -73,10 +63,7 @@ rule score_images:
     output:
         "results/{overlay}stage1/{scene}/{source}{rep}.json",
     params:
-        subdir=setting("source_subdir"),
-        frames=setting("frames"),
-        capture_factor=setting("capture_factor"),
-        seed=setting("seed"),
+        job=setting("score_params"),
     log:
         "logs/score_images/{overlay}{scene}/{source}{rep}.log",
     threads: 1

@@ -21,15 +21,7 @@ rule reconstruct:
     output:
         directory("results/{overlay}recon/{scene}/{source}+{model}{poses}{rep}"),
     params:
-        settings=setting("model_settings"),
-        seed=setting("seed"),
-        frames=setting("frames"),
-        init=setting("init"),
-        observe=config["stage2"]["observe_plateau"],
-        checkpoint=setting("checkpoint"),
-        policy=config["checkpoints"],
-        joint=setting("joint"),
-        code=setting("reconstruct_code"),  # the library code the fit runs: a change reruns it (spc3d/provenance.py)
+        job=setting("reconstruct_params"),  # with the code key: a change of the library code refits
     log:
         "logs/reconstruct/{overlay}{scene}/{source}+{model}{poses}{rep}.log",
     threads: 1
@@ -50,12 +42,7 @@ rule choose_joint_weight:
     output:
         "results/choices{fold}/joint-{method}+{model}{rep}.json",
     params:
-        settings=setting("choice_settings"),
-        joint=setting("choice_joint"),
-        candidates=setting("choice_candidates"),
-        seed=setting("seed"),
-        frames=setting("choice_frames"),
-        display=setting("choice_display"),
+        job=setting("choice_params"),
     log:
         "logs/choose_joint_weight{fold}/joint-{method}+{model}{rep}.log",
     threads: 1
@@ -137,9 +124,7 @@ rule write_all_tables:
                ext=["csv", "md", "tex"]),
         expand("results/tables/findings.{ext}", ext=["md", "json"]),
     params:
-        nerf_variant=config["stage2"]["nerf_variant"],
-        smallest_effect=config["findings"]["smallest_effect_db"],
-        rivals=FINDINGS_RIVALS,
+        job=GRID.tables_params(),
     log:
         "logs/tables/write_all_tables.log",
     conda:
@@ -151,9 +136,7 @@ rule write_all_tables:
 rule tables:
     """Regenerate the tables from the metrics already on disk; never trains or evaluates anything."""
     params:
-        nerf_variant=config["stage2"]["nerf_variant"],
-        smallest_effect=config["findings"]["smallest_effect_db"],
-        rivals=FINDINGS_RIVALS,
+        job=GRID.tables_params(),
         metrics=TARGETS.metrics(),
         stage1=TARGETS.stage1(),
         spc=TARGETS.eval_spc(),

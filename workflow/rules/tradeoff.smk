@@ -31,9 +31,7 @@ rule tradeoff_report:
         png=report("results/figures/tradeoff.png", caption="../report/tradeoff.rst", category="5. Trade-off",
                    labels={"figure": "speed–accuracy trade-off"}),
     params:
-        points=lambda wildcards: point_benchmarks(TRADEOFF_POINTS),
-        combos=TRADEOFF_COMBOS,
-        clock=config["tradeoff"]["clock"],
+        job=lambda wildcards: sweep_report(TRADEOFF_POINTS, TRADEOFF_COMBOS, config["tradeoff"]["clock"]),
     log:
         "logs/tradeoff/tradeoff_report.log",
     conda:
@@ -58,8 +56,7 @@ rule photon_level_report:
         png=report("results/figures/photon_level.png", caption="../report/photon_level.rst", category="5. Trade-off",
                    labels={"figure": "quality against photon level"}),
     params:
-        points=lambda wildcards: point_benchmarks(PHOTON_POINTS),
-        combos=PHOTON_COMBOS,
+        job=lambda wildcards: sweep_report(PHOTON_POINTS, PHOTON_COMBOS),
     log:
         "logs/photon_level/photon_level_report.log",
     conda:

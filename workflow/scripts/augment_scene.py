@@ -4,7 +4,7 @@ from spc3d.inputs.augment import AugmentSettings, augment_scene
 from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
-    s = dict(snakemake.params.settings)
+    s = dict(snakemake.params.job.settings)
     settings = AugmentSettings(
         zoom=tuple(s["zoom"]), rotation_deg=s["rotation_deg"], shear_deg=s["shear_deg"], flip_prob=s["flip_prob"]
     )
@@ -12,7 +12,7 @@ with logged(snakemake.log[0]):
         snakemake.input.scene,
         snakemake.input.spc,
         snakemake.output[0],
-        snakemake.params.n_pairs,
+        snakemake.params.job.n_pairs,
         settings,
-        snakemake.params.seed,
+        snakemake.params.job.seed,
     )

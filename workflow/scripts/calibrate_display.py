@@ -7,7 +7,7 @@ with logged(snakemake.log[0]):
     calibrate_display(
         list(snakemake.input.scenes),
         list(snakemake.input.spc),
-        int(snakemake.params.frames),
+        int(snakemake.params.job.frames),
         snakemake.output[0],
-        capture=bool(snakemake.params.capture),
+        capture=bool(snakemake.params.job.capture),
     )

@@ -6,7 +6,7 @@ from spc3d.choices import choose_joint_weight
 from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
-    w, p, inp = snakemake.wildcards, snakemake.params, snakemake.input
+    w, p, inp = snakemake.wildcards, snakemake.params.job, snakemake.input
     choose_joint_weight(
         inp.model,
         list(zip(inp.scenes, inp.spc)),

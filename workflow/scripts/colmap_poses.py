@@ -7,9 +7,9 @@ from spc3d.poses.colmap import colmap_poses
 
 with logged(snakemake.log[0]):
     colmap_poses(
-        Path(snakemake.input.images) / snakemake.params.subdir,
+        Path(snakemake.input.images) / snakemake.params.job.subdir,
         snakemake.input.scene,
         snakemake.output[0],
-        max_features=snakemake.params.max_features,
-        seed=snakemake.params.seed,
+        max_features=snakemake.params.job.max_features,
+        seed=snakemake.params.job.seed,
     )

@@ -6,7 +6,7 @@ from spc3d.jobs import logged
 from spc3d.poses.estimate import estimate_poses
 
 with logged(snakemake.log[0]):
-    p = snakemake.params
+    p = snakemake.params.job
     estimate_poses(
         Path(snakemake.input.images) / p.subdir,
         snakemake.input.scene,

@@ -5,5 +5,5 @@ from spc3d.names import LABELS
 from spc3d.sweeps.report import photon_level_report
 
 with logged(snakemake.log[0]):
-    out = snakemake.output
-    photon_level_report(snakemake.params.points, snakemake.params.combos, out.csv, out.png, labels=LABELS)
+    out, job = snakemake.output, snakemake.params.job
+    photon_level_report(job.points, job.combos, out.csv, out.png, labels=LABELS)

@@ -9,7 +9,7 @@ from spc3d.jobs import logged
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 
 with logged(snakemake.log[0]):
-    w, p, inp = snakemake.wildcards, snakemake.params, snakemake.input
+    w, p, inp = snakemake.wildcards, snakemake.params.job, snakemake.input
     translated = inp.get("translated")
     job = ReconstructJob(
         inp.scene,

@@ -6,7 +6,7 @@ from spc3d.evaluation.stage1 import score_images
 from spc3d.jobs import logged
 
 with logged(snakemake.log[0]):
-    p = snakemake.params
+    p = snakemake.params.job
     score_images(
         Path(snakemake.input.images) / p.subdir,
         snakemake.input.scene,

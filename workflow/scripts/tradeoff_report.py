@@ -5,7 +5,5 @@ from spc3d.names import LABELS
 from spc3d.sweeps.report import tradeoff_report
 
 with logged(snakemake.log[0]):
-    out = snakemake.output
-    tradeoff_report(
-        snakemake.params.points, snakemake.params.combos, out.csv, out.png, labels=LABELS, clock=snakemake.params.clock
-    )
+    out, job = snakemake.output, snakemake.params.job
+    tradeoff_report(job.points, job.combos, out.csv, out.png, labels=LABELS, clock=job.clock)

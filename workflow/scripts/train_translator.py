@@ -11,7 +11,7 @@ from spc3d.jobs import logged, translator_checkpoint
 from spc3d.translate.train import TranslatorJob, train_translator, training_data
 
 with logged(snakemake.log[0]):
-    p, inputs = snakemake.params, snakemake.input
+    p, inputs = snakemake.params.job, snakemake.input
     job = TranslatorJob(
         p.method,
         training_data(

@@ -9,7 +9,7 @@ with logged(snakemake.log[0]):
         snakemake.input.spc,
         snakemake.input.scene,
         snakemake.output[0],
-        frames=snakemake.params.frames,
+        frames=snakemake.params.job.frames,
         threads=snakemake.threads,
-        ensemble=snakemake.params.ensemble,
+        ensemble=snakemake.params.job.ensemble,
     )

@@ -33,10 +33,10 @@ with logged(snakemake.log[0]):
         metrics,
         stage1,
         folder,
-        p.nerf_variant,
+        p.job.nerf_variant,
         LABELS,
-        smallest_effect=p.smallest_effect,
+        smallest_effect=p.job.smallest_effect,
         spc_dirs=spc_dirs,
-        rivals=p.rivals,
+        rivals=p.job.rivals,
     )
     stopping_table(metrics, Path(folder) / "stopping")

@@ -7,7 +7,7 @@ with logged(snakemake.log[0]):
     write_display(
         snakemake.input.spc,
         snakemake.input.calibration,
-        int(snakemake.params.frames),
+        int(snakemake.params.job.frames),
         snakemake.output[0],
-        capture=bool(snakemake.params.capture),
+        capture=bool(snakemake.params.job.capture),
     )

@@ -17,6 +17,7 @@ from spc3d.names import (
     joint_settings,
     parse_source,
     reads_capture_frame,
+    resolve_combinations,
     source_frames,
     source_images,
     spc_settings,
@@ -26,6 +27,18 @@ from spc3d.names import (
     uses_display,
 )
 from spc3d.provenance import closure_digest, entry_file
+from spc3d.settings.params import (
+    AugmentParams,
+    ChoiceParams,
+    ColmapParams,
+    DisplayParams,
+    PosesParams,
+    ReconstructParams,
+    ScoreParams,
+    TablesParams,
+    TranslateParams,
+    TranslatorParams,
+)
 from spc3d.settings.paths import Paths
 
 # The scripts a translator's weights depend on: its own job's and those upstream of it.
@@ -46,6 +59,9 @@ class Grid:
         self.train, self.eval = list(config["scenes"]["train"]), list(config["scenes"]["eval"])
         self.no_reference = [n for n, s in specs.items() if s["kind"] == "capture" and not s["reference"]]
         self.joint_choose = config["stage2"]["joint"].get("choose") or {}
+        # Captured SPAD scenes' sensors: their translators train on inputs as that sensor records them
+        # (one model folder per sensor, results/models-rggb/...).
+        self.sensors = {f"-{s['sensor_tag']}": s["sensor"] for s in specs.values() if s["kind"] == "capture"}
 
     # --- the run --------------------------------------------------------------------------------
     def seed(self, w) -> int:
@@ -121,6 +137,10 @@ class Grid:
         """A scene without reference views is scored on its held-out frames (spc3d.evaluation.heldout)."""
         return self.paths.spc(w.scene) if w.scene in self.no_reference else []
 
+    def colmap_images(self, w) -> str:
+        """The folder holding the image set a COLMAP run reads ({images}: rgb, binary or average)."""
+        return self.paths.scene(w.scene) if w.images == "rgb" else self.paths.spc(w.scene)
+
     # --- the metered MLE display -----------------------------------------------------------------
     def display(self, w) -> str:
         """The metered MLE images of the row's frame budget (mle / bernoulli rows); a capture has no
@@ -170,6 +190,10 @@ class Grid:
             inputs["scenes"] = [self.paths.scene(s) for s in scenes]
             inputs["spc"] = [self.paths.spc(s, w.rep) for s in scenes]
         return inputs
+
+    def translator_base(self, w) -> str:
+        """The method a model folder trains ("pix2pixhd" for "pix2pixhd-pub", whose settings say prior_sigma: 0)."""
+        return parse_source(w.method).base
 
     def translator_model(self, w) -> str:
         """The model trained for the scene's sensor on the scene's fold of training scenes."""
@@ -279,6 +303,73 @@ class Grid:
     def reconstruct_code(self, w) -> str:
         """The same key for a stage-2 fit: its script, its model's factory module and what they import."""
         return job_code(self.basedir, ("reconstruct",), RECONSTRUCTORS[w.model].factory.rpartition(":")[0])
+
+    # --- each rule's params object (spc3d.settings.params), handed to its script whole -------------------
+    def colmap_params(self, w) -> ColmapParams:
+        subdir = {"rgb": "images", "binary": "binary", "average": "average"}[w.images]
+        return ColmapParams(subdir, self.config["colmap"]["max_features"], self.config["seed"])
+
+    def poses_params(self, w) -> PosesParams:
+        return PosesParams(self.source_subdir(w), self.frames(w), self.config["colmap"]["max_features"], self.seed(w))
+
+    def display_params(self, w) -> DisplayParams:
+        """K of a metered display ("k16": 16; "capture": the one capture-resolution frame)."""
+        capture = w.budget == "capture"
+        return DisplayParams(1 if capture else int(w.budget[1:]), capture)
+
+    def augment_params(self, w) -> AugmentParams:
+        return AugmentParams(self.augment_count(w), self.config["augment"], self.seed(w))
+
+    def translator_params(self, w) -> TranslatorParams:
+        ranges = {k: v for k, v in self.config["augment"].items() if k != "count"}  # what online samples draw
+        return TranslatorParams(
+            self.translator_base(w),
+            self.translator_settings(w),
+            self.translator_train(w),
+            self.translator_frames(w),
+            self.translator_data(w),
+            ranges,
+            self.sensors.get(w.sensor),
+            self.translator_validation(w),
+            self.seed(w),
+            self.translator_code(w),
+        )
+
+    def translate_params(self, w) -> TranslateParams:
+        return TranslateParams(self.translator_frames(w), self.config["stage1"]["ensemble"])
+
+    def score_params(self, w) -> ScoreParams:
+        return ScoreParams(self.source_subdir(w), self.frames(w), self.capture_factor(w), self.seed(w))
+
+    def reconstruct_params(self, w) -> ReconstructParams:
+        return ReconstructParams(
+            self.model_settings(w),
+            self.seed(w),
+            self.frames(w),
+            self.init(w),
+            self.config["stage2"]["observe_plateau"],
+            self.checkpoint(w),
+            self.config["checkpoints"],
+            self.joint(w),
+            self.reconstruct_code(w),
+        )
+
+    def choice_params(self, w) -> ChoiceParams:
+        return ChoiceParams(
+            self.choice_settings(w),
+            self.choice_joint(w),
+            self.choice_candidates(w),
+            self.seed(w),
+            self.choice_frames(w),
+            self.choice_display(w),
+        )
+
+    def tables_params(self) -> TablesParams:
+        """The findings' rivals: the rows each claim over "every" row compares with (findings.rivals;
+        a listed rival that did not run makes its claim NOT RUN, spc3d.evaluation.findings)."""
+        nerf, findings = self.config["stage2"]["nerf_variant"], self.config["findings"]
+        rivals = {k: resolve_combinations(v, nerf, f"findings.rivals.{k}") for k, v in findings["rivals"].items()}
+        return TablesParams(nerf, findings["smallest_effect_db"], rivals)
 
 
 @functools.cache

@@ -1,8 +1,7 @@
 """The sweeps' config, checked, turned into what the rules pass on (imports neither torch nor Snakemake).
 
-A sweep point is an ordinary set of DAG jobs: the grid's own rules (prepare_scene, simulate_scene,
-calibrate_display, write_display, augment_scene, train_translator, translate_scene, score_images,
-reconstruct, evaluate) with a *settings overlay* in their paths, the ``{overlay}`` wildcard right
+A sweep point is an ordinary set of DAG jobs: the grid's own rules, from the scene to its metrics,
+with a *settings overlay* in their paths, the ``{overlay}`` wildcard right
 after ``results/`` (and after ``logs/{rule}/``, ``benchmarks/{rule}/``)::
 
     results/eval/courtyard/gt+3dgs/metrics.json                                   (the grid: overlay "")
@@ -226,30 +225,28 @@ def photon_budget(budget: dict) -> dict:
     return budget
 
 
-def point_jobs(combo: str, value: str, scene: str, train: list[str], frames: int | None) -> list[tuple[str, dict]]:
-    """(rule, wildcards) of every job a point needs under overlay ``value`` (not the shared LPIPS
-    weights): the evaluation scene's, the training scenes' for a translator or a metered display
-    (``frames``: the source's K), the translator's, the source's scores before 3D, stage 2."""
+def point_outputs(combo: str, value: str, scene: str, train: list[str], frames: int | None) -> list[str]:
+    """What each job a point needs makes, under overlay ``value`` (not the shared LPIPS weights): the
+    evaluation scene's and, for a translator or a metered display (``frames``: the source's K), the
+    training scenes' folders; the translator; the source's scores before 3D; the fit and its metrics.
+    One output per job, in the order they run: the workflow finds each job's rule by its output
+    pattern (workflow/rules/common.smk), so the library names no rule."""
     source, model = split_combination(combo)
     stage1, trained = source not in PLAIN_SOURCES, source not in PLAIN_SOURCES or source in BUDGET_SOURCES
     if trained and not train:
         raise ValueError(f"{combo}: source {source!r} needs training scenes (tradeoff.train_scenes is empty)")
-    scenes = [scene, *train] if trained else [scene]
-    common = {"overlay": value, "rep": "", "sensor": "", "fold": "", "poses": ""}  # a point: its own training scenes
-    jobs = [("prepare_scene", {"scene": s}) for s in scenes]
+    paths, scenes = Paths(value), [scene, *train] if trained else [scene]  # a point: its own training scenes
+    outputs = [paths.scene(s) for s in scenes]
     if source != "gt":
-        jobs += [("simulate_scene", {"scene": s}) for s in scenes]
+        outputs += [paths.spc(s) for s in scenes]
     if uses_display(source):
-        display = {"scene": scene, "budget": f"k{frames}"}  # the metered MLE of the point's K
-        jobs += [("calibrate_display", display), ("write_display", display)]
+        outputs += [paths.calibration("", f"k{frames}"), paths.display(scene, f"k{frames}")]  # the MLE of the point's K
     if stage1:
-        jobs += [("augment_scene", {"scene": s}) for s in train]
         method = parse_source(source).method  # a joint row's prior term: that method's translation
-        jobs += [("train_translator", {"method": method}), ("translate_scene", {"scene": scene, "method": method})]
+        outputs += [paths.augment(s) for s in train] + [paths.model(method), paths.translated(scene, method)]
     if source_scored(source):
-        jobs.append(("score_images", {"scene": scene, "source": source}))
-    row = {"scene": scene, "source": source, "model": model}
-    return [(rule, common | wildcards) for rule, wildcards in jobs + [("reconstruct", row), ("evaluate", row)]]
+        outputs.append(paths.stage1(scene, source))
+    return outputs + [paths.recon(scene, combo), paths.metrics(scene, combo)]
 
 
 def source_scored(source: str) -> bool:
@@ -262,9 +259,9 @@ def sweep_points(
 ) -> list[dict]:
     """Every point of a sweep (combination x table row, skipping rows that repeat a point of that
     combination): its combination, setting, overlay, the files the report reads (``metrics``,
-    ``stage1``, ``recon``, ``model``, ``spc``: paths, or None where the point has none) and its jobs
-    (:func:`point_jobs`). A point that cannot run (e.g. a translator without training scenes)
-    carries its ``error`` instead of jobs: the sweep is planned whenever the Snakefile is parsed,
+    ``stage1``, ``recon``, ``model``, ``spc``: paths, or None where the point has none) and its jobs'
+    ``outputs`` (:func:`point_outputs`). A point that cannot run (e.g. a translator without training
+    scenes) carries its ``error`` instead: the sweep is planned whenever the Snakefile is parsed,
     but the error is raised only when its report is asked for (:func:`point_inputs`)."""
     out = []
     for combo in combos:
@@ -285,27 +282,27 @@ def sweep_points(
                     "recon": paths.recon(scene, combo),
                     "model": paths.model(parse_source(source).method) if source not in PLAIN_SOURCES else None,
                     "spc": paths.spc(scene) if source != "gt" else None,
-                    **planned_jobs(combo, value, scene, points.train, points.frames(value, source), points),
+                    **planned_outputs(combo, value, scene, points.train, points.frames(value, source), points),
                 }
             )
     return out
 
 
-def planned_jobs(
+def planned_outputs(
     combo: str, value: str, scene: str, train: list[str], frames: int | None, points: PointSettings | None = None
 ) -> dict:
-    """``{"jobs": ...}`` of a point, or ``{"jobs": [], "error": why}`` when it cannot run: its jobs
+    """``{"outputs": ...}`` of a point, or ``{"outputs": [], "error": why}`` when it cannot run: its jobs
     cannot be planned, or its settings contradict each other (:func:`spc3d.checks.crosscheck.check_point`,
     the main configuration's cross-checks with the point's knobs applied)."""
     from spc3d.checks.crosscheck import check_point
 
     try:
-        jobs = point_jobs(combo, value, scene, train, frames)
+        outputs = point_outputs(combo, value, scene, train, frames)
         if points is not None:
             check_point(points, combo, value)
-        return {"jobs": jobs}
+        return {"outputs": outputs}
     except ValueError as e:
-        return {"jobs": [], "error": str(e)}
+        return {"outputs": [], "error": str(e)}
 
 
 def point_inputs(points: list[dict]) -> list[str]:
