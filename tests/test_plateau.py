@@ -152,6 +152,7 @@ def test_observe_mode_trains_to_the_budget_and_keeps_the_stop(gallery, tmp_path)
 
 def fake_run(tmp_path, combo, seed, psnr, at_stop=None, reason="plateau", views=(), step=600):
     rec = {
+        "scene": "courtyard",
         "combination": combo,
         "mean": {"psnr": psnr, "ssim": 0.9},
         "train_s": 10.0,
@@ -170,7 +171,7 @@ def test_stopping_table_pairs_each_fit_and_bounds_only_with_enough_runs(tmp_path
 
     files = [fake_run(tmp_path, "gt+3dgs", s, 30.0 + s, 30.0 + s - 0.1 * (1 + s % 2)) for s in range(6)]
     files += [fake_run(tmp_path, "prior+3dgs", s, 20.0, 20.05, views=("a", "b")) for s in range(2)]
-    io.write_json(tmp_path / "toy.json", {"combination": "toy+mean", "mean": {"psnr": 1.0}})
+    io.write_json(tmp_path / "toy.json", {"scene": "courtyard", "combination": "toy+mean", "mean": {"psnr": 1.0}})
     files.append(tmp_path / "toy.json")  # a reconstructor without a stopping rule: not a row
     df = stopping_table(files, tmp_path / "stopping").set_index("combination")
     assert list(df.index) == ["gt+3dgs", "prior+3dgs"] and df.loc["gt+3dgs", "n"] == 6

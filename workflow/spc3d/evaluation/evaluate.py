@@ -18,6 +18,7 @@ import numpy as np
 
 from spc3d import io, llff
 from spc3d.evaluation import scores
+from spc3d.evaluation.record import write_run
 from spc3d.names import METRICS
 from spc3d.physics import sensors, spc
 
@@ -87,7 +88,7 @@ def evaluate(
     train = io.read_json(recon_dir / "train.json")
     if train.get("status"):  # not reconstructed (e.g. COLMAP posed too few views): no scores, the reason
         record = {"scene": Path(scene_dir).name, "combination": combination_name(train), **train, "mean": None}
-        io.write_json(out_json, record)
+        write_run(out_json, record)
         return record
     if not llff.has_reference(scene_dir):
         return write_unscored(recon_dir, scene_dir, out_json, train, spc_dir)
@@ -108,7 +109,7 @@ def evaluate(
         "scored_on": scored_on(colour),
         "conventions": CONVENTIONS,
     }
-    io.write_json(out_json, record)
+    write_run(out_json, record)
     return record
 
 
@@ -172,7 +173,7 @@ def write_unscored(
         "no_reference": None if spc_dir is None else heldout_score(recon_dir, spc_dir, views),
         "conventions": CONVENTIONS,
     }
-    io.write_json(out_json, record)
+    write_run(out_json, record)
     return record
 
 

@@ -87,7 +87,8 @@ from pathlib import Path
 import numpy as np
 
 from spc3d import io
-from spc3d.names import STAGE1_METHODS, as_read, parse_combination, parse_source, reads_capture_frame, source_frames
+from spc3d.evaluation.record import RunRecord
+from spc3d.names import STAGE1_METHODS, parse_combination, parse_source, reads_capture_frame, source_frames
 
 METRIC = "psnr"
 ALPHA = 0.05  # 1 - the intervals' level; the two-sided level of sign_flip_p
@@ -145,19 +146,10 @@ def read_rows(metrics_files: list[str | os.PathLike]) -> dict[str, Row]:
     Captures without reference views and rows on estimated poses ("@") are left out."""
     rows: dict[str, Row] = {}
     for path in metrics_files:
-        rec = io.read_json(path)
-        if rec.get("reference") is False or "@" in rec["combination"]:
+        rec = RunRecord.read(path)
+        if not rec.reference or "@" in rec.combination:
             continue
-        budget = (rec.get("frames"), rec.get("capture_factor") or 1)
-        value = (rec.get("mean") or {}).get(METRIC)
-        _add(
-            rows,
-            as_read(rec["combination"], budget[0], rec.get("capture_factor")),
-            (rec["scene"], rec.get("seed")),
-            budget,
-            value,
-            path,
-        )
+        _add(rows, rec.row, (rec.scene, rec.seed), rec.budget, rec.score(METRIC), path)
     return rows
 
 

@@ -17,8 +17,8 @@ import os
 import numpy as np
 import pandas as pd
 
-from spc3d import io
 from spc3d.evaluation.findings import interval
+from spc3d.evaluation.record import RunRecord, read_runs
 from spc3d.evaluation.tables import write_plain_table, write_text_table
 
 CAPTION = "Adaptive stage-2 budgets: where each row stopped, and the trade against its full budget"
@@ -30,10 +30,9 @@ PROTOCOL = (
 )
 
 
-def read_runs(metrics_files: list[str | os.PathLike]) -> list[dict]:
+def stopped_runs(metrics_files: list[str | os.PathLike]) -> list[RunRecord]:
     """The scored runs that carry a stopping record (rows of trainers with a plateau rule)."""
-    runs = [io.read_json(f) for f in metrics_files]
-    return [r for r in runs if r.get("mean") and r.get("stopped")]
+    return [r for r in read_runs(metrics_files) if r.mean and r.stopped]
 
 
 def early(stopped: dict) -> bool:
@@ -41,29 +40,29 @@ def early(stopped: dict) -> bool:
     return stopped["reason"] == "plateau" and stopped["step"] < stopped["of"]
 
 
-def row(combination: str, runs: list[dict]) -> dict:
+def row(combination: str, runs: list[RunRecord]) -> dict:
     """One line of the table from the runs of one combination."""
-    steps = [r["stopped"]["step"] / r["stopped"]["of"] for r in runs]
+    steps = [r.stopped["step"] / r.stopped["of"] for r in runs]
     out = {
         "combination": combination,
         "n": len(runs),
-        "stopped early": f"{sum(early(r['stopped']) for r in runs)}/{len(runs)}",
+        "stopped early": f"{sum(early(r.stopped) for r in runs)}/{len(runs)}",
         "steps used": float(np.mean(steps)),
-        "max steps": runs[0]["stopped"]["of"],
-        "judged on": judged_on(runs[0]["stopped"].get("rule", {})),
-        "train s": float(np.mean([r["train_s"] for r in runs])),
+        "max steps": runs[0].stopped["of"],
+        "judged on": judged_on(runs[0].stopped.get("rule", {})),
+        "train s": float(np.mean([r.train_s for r in runs])),
         "capacity": capacity_text(runs),
     }
-    observed = [r for r in runs if r.get("at_stop")]
+    observed = [r for r in runs if r.at_stop]
     if len(observed) == len(runs):
-        d = np.array([r["at_stop"]["psnr"] - r["mean"]["psnr"] for r in runs])
+        d = np.array([r.at_stop["psnr"] - r.mean["psnr"] for r in runs])
         lo, hi = interval(d) if np.isfinite(d).all() else (math.nan, math.nan)
         out |= {
-            "time saved": float(np.mean([1.0 - r["at_stop"]["train_s"] / r["train_s"] for r in runs])),
+            "time saved": float(np.mean([1.0 - r.at_stop["train_s"] / r.train_s for r in runs])),
             "ΔPSNR": float(d.mean()),
             "ΔPSNR lo": lo,
             "ΔPSNR hi": hi,
-            "ΔSSIM": float(np.mean([r["at_stop"]["ssim"] - r["mean"]["ssim"] for r in runs])),
+            "ΔSSIM": float(np.mean([r.at_stop["ssim"] - r.mean["ssim"] for r in runs])),
         }
     return out
 
@@ -74,10 +73,11 @@ def judged_on(rule: dict) -> str:
     return f"{len(views)} held-out training views" if views else "training loss"
 
 
-def capacity_text(runs: list[dict]) -> str:
+def capacity_text(runs: list[RunRecord]) -> str:
     """Mean Gaussians (3DGS) or occupied grid cells (grid NeRF) at the end, as the record gives them."""
     for key in ("gaussians", "occupied_cells"):
-        values = [r["capacity"][key] for r in runs if isinstance(r.get("capacity"), dict) and key in r["capacity"]]
+        capacities = [r.capacity for r in runs]
+        values = [c[key] for c in capacities if isinstance(c, dict) and key in c]
         if values:
             return f"{np.mean(values):,.0f} {key.replace('_', ' ')}"
     return ""
@@ -85,10 +85,9 @@ def capacity_text(runs: list[dict]) -> str:
 
 def stopping_table(metrics_files: list[str | os.PathLike], stem: str | os.PathLike) -> pd.DataFrame:
     """Write ``stem``.csv / .md / .tex / .html; returns the table (empty when no row has a rule)."""
-    runs = read_runs(metrics_files)
-    groups: dict[str, list[dict]] = {}
-    for r in runs:
-        groups.setdefault(r["combination"], []).append(r)
+    groups: dict[str, list[RunRecord]] = {}
+    for r in stopped_runs(metrics_files):
+        groups.setdefault(r.combination, []).append(r)
     df = pd.DataFrame([row(c, rs) for c, rs in groups.items()])
     if df.empty:
         write_text_table(stem, f"{CAPTION}: no scored row has a stopping rule")

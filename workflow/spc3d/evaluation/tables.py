@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from spc3d import io
+from spc3d.evaluation.record import read_runs
 from spc3d.names import LABELS, METRICS, TRAINED_METHODS, as_read, parse_source, source_label
 
 # What every caption says about the protocol (the rule for the physics rows' display gain included).
@@ -121,21 +122,19 @@ td:first-child, th:first-child {{ text-align: left; }} th {{ background: #f0f0f0
 def collect(metrics_files: list[str | os.PathLike]) -> pd.DataFrame:
     """One row per metrics.json: scene, combination, seed, K, 3DGS initialisation and the mean metrics."""
     rows = []
-    for path in metrics_files:
-        rec = io.read_json(path)
-        if rec.get("reference") is False:  # a capture without reference views: no_reference_table
+    for rec in read_runs(metrics_files):
+        if not rec.reference:  # a capture without reference views: no_reference_table
             continue
-        init = rec.get("init")
         rows.append(
             {
-                "scene": rec["scene"],
-                "combination": as_read(rec["combination"], rec.get("frames"), rec.get("capture_factor")),
-                "seed": rec.get("seed"),
-                "K": rec.get("frames"),
-                "S": rec.get("capture_factor") or 1,
-                "init": init.get("used") if isinstance(init, dict) else init,
+                "scene": rec.scene,
+                "combination": rec.row,
+                "seed": rec.seed,
+                "K": rec.frames,
+                "S": rec.capture_factor,
+                "init": rec.init,
                 "poses": poses_text(rec.get("poses")),
-                **{k: (rec["mean"] or {}).get(k, np.nan) for k in METRICS},  # None: not reconstructed
+                **{k: rec.score(k) for k in METRICS},  # NaN: not reconstructed
             }
         )
     return pd.DataFrame(rows, columns=["scene", "combination", "seed", "K", "S", "init", "poses", *METRICS])
@@ -339,7 +338,7 @@ def write_formats(stem, numbers: pd.DataFrame, md: pd.DataFrame, tex: pd.DataFra
 def scoring_note(files: list[str | os.PathLike]) -> str:
     """The caption's sentence naming the scenes scored on luminance (captured by a colourless sensor:
     ``scored_on`` in their records, :func:`spc3d.evaluation.evaluate.scene_has_colour`); "" when there are none."""
-    scenes = sorted({r["scene"] for r in map(io.read_json, files) if r.get("scored_on", "RGB") != "RGB"})
+    scenes = sorted({r.scene for r in read_runs(files) if r.scored_on != "RGB"})
     if not scenes:
         return ""
     return (
@@ -500,17 +499,16 @@ NO_REFERENCE_PROTOCOL = (
 def no_reference_table(metrics_files: list[str], stem: str) -> pd.DataFrame:
     """Rows on scenes without reference views, scored by the held-out views' photons (``no_reference``)."""
     rows = []
-    for path in metrics_files:
-        rec = io.read_json(path)
-        score = rec.get("no_reference") if rec.get("reference") is False else None
+    for rec in read_runs(metrics_files):
+        score = rec.get("no_reference") if not rec.reference else None
         if score:
             rows.append(
                 {
-                    "scene": rec["scene"],
-                    "combination": rec["combination"],
-                    "K": rec.get("frames"),
+                    "scene": rec.scene,
+                    "combination": rec.combination,
+                    "K": rec.frames,
                     "poses": poses_text(rec.get("poses")),
-                    "seed": rec.get("seed"),
+                    "seed": rec.seed,
                     "excess NLL↓": score["excess_nll"],
                     "NLL": score["nll"],
                     "floor": score["floor_nll"],

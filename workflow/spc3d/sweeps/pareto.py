@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from spc3d import io
+from spc3d.evaluation.record import RunRecord
 from spc3d.jobs import BENCHMARK_COLUMNS
 from spc3d.names import METRICS
 from spc3d.sweeps.knobs import KNOBS, label
@@ -71,7 +72,7 @@ def point_record(point: dict) -> dict:
     Scores, iterations and capacity: the point's evaluate metrics.json; resolved settings: the
     train.json of its reconstruction (and translator), the spc.json of its SPC folder.
     """
-    metrics = io.read_json(point["metrics"])
+    metrics = RunRecord.read(point["metrics"])
     jobs = [(Path(b).parent.name, read_benchmark(b)) for b in point["benchmarks"]]
     times: dict[str, float] = {}
     for rule, bench in jobs:
@@ -81,8 +82,8 @@ def point_record(point: dict) -> dict:
     spc = io.read_json(Path(point["spc"]) / "spc.json") if point.get("spc") else None
     return {
         "combination": point["combination"],
-        "scene": metrics["scene"],
-        "seed": metrics["seed"],
+        "scene": metrics.scene,
+        "seed": metrics.seed,
         "setting": point["setting"],
         "used_knobs": point["used_knobs"],
         "times_s": {rule: round(t, 3) for rule, t in times.items()},
@@ -90,12 +91,12 @@ def point_record(point: dict) -> dict:
         "cpu_s": sum(float(b["user_s"]) + float(b["sys_s"]) for _, b in jobs),
         "peak_rss_mb": max(float(b["max_rss_mb"]) for _, b in jobs),
         "jobs": len(jobs),
-        "mean": metrics["mean"],
-        "per_view": metrics["per_view"],
+        "mean": metrics.mean,
+        "per_view": metrics.get("per_view"),
         "stage1": io.read_json(point["stage1"])["mean"] if point.get("stage1") else None,
-        "iterations": metrics["iterations"],
-        "capacity": metrics["capacity"],
-        "frames": metrics["frames"],
+        "iterations": metrics.get("iterations"),
+        "capacity": metrics.capacity,
+        "frames": metrics.frames,
         "resolved": {
             "stage2": recon["settings"],
             "translator": model and {k: model.get(k) for k in ("parameters", "train_s", "settings", "train", "pairs")},
