@@ -337,7 +337,8 @@ def write_formats(stem, numbers: pd.DataFrame, md: pd.DataFrame, tex: pd.DataFra
 
 def scoring_note(files: list[str | os.PathLike]) -> str:
     """The caption's sentence naming the scenes scored on luminance (captured by a colourless sensor:
-    ``scored_on`` in their records, run or stage-1 ones alike, :func:`spc3d.evaluation.evaluate.scene_has_colour`); "" when there are none."""
+    ``scored_on`` in their records, run or stage-1 ones alike,
+    :func:`spc3d.evaluation.evaluate.scene_has_colour`); "" when there are none."""
     scenes = sorted({r["scene"] for r in map(io.read_json, files) if r.get("scored_on", "RGB") != "RGB"})
     if not scenes:
         return ""
