@@ -42,7 +42,7 @@ from spc3d.jobs import scene_fold, training_scene_names  # noqa: E402
 from spc3d.names import parse_combination, parse_source, resolve_combinations, stage1_sources, translator_settings  # noqa: E402
 from spc3d.reconstruct import RECONSTRUCTORS  # noqa: E402
 from spc3d.reconstruct.views import Views  # noqa: E402
-from spc3d.translate import TRANSLATORS  # noqa: E402
+from spc3d.translate import MODULES  # noqa: E402
 from spc3d.translate.model_io import model_config  # noqa: E402
 
 PRESET = Path(__file__).resolve().parents[1] / "workflow" / "presets" / "paper.yaml"
@@ -109,7 +109,7 @@ def translator_step(method: str, settings: dict, crop: int | None):
     }
     settings = {k: v for k, v in settings.items() if k != "crop"}
     base = parse_source(method).base
-    model = TRANSLATORS[base].Translator(model_config(base, settings), torch.device("cpu"), vgg)
+    model = MODULES[base].Translator(model_config(base, settings), torch.device("cpu"), vgg)
     crop = crop or max(32, model.multiple)
     x, y = torch.rand(1, 3, crop, crop).round(), torch.rand(1, 3, crop, crop)
     return crop, lambda: model.train_step(x, y)

@@ -10,7 +10,7 @@ The capture: one monochrome 384 x 256 scene as means of K = 1, 4, 16, 64, 256 bi
    means against ``--draws`` simulator draws from it (nested, as the capture's), statistic by
    statistic, real with block-bootstrap intervals, simulated with the range over draws. Written
    to ``OUT/tables/real_spad_physics.md``.
-2. Stage 1: every trained model in ``--models`` (the methods of ``spc3d.translate.TRANSLATORS``
+2. Stage 1: every trained model in ``--models`` (the methods of ``spc3d.translate.MODULES``
    that have a folder there) translates the real K = 1 frame and ``--sim-frames`` frames the
    simulator draws from the reference (:func:`spc3d.translate.apply.translate_mean`, mono input
    copied to the three channels, luminance kept). Reference: the mean of the capture's *other*
@@ -160,7 +160,7 @@ def stage1(real: dict, models: Path, sim_frames: int, ensemble: int, block: int,
     import torch
 
     from spc3d.physics import spc
-    from spc3d.translate import TRANSLATORS
+    from spc3d.translate import MODULES
     from spc3d.translate.apply import mono_input_kind, translate_mean
     from spc3d.translate.model_io import load_translator
 
@@ -177,7 +177,7 @@ def stage1(real: dict, models: Path, sim_frames: int, ensemble: int, block: int,
     ]  # UNIT: one frame, λT per pixel
     rows, shown = [], {}
     candidates = [("binary frame, MLE (no model)", None)] + [
-        (m, models / m) for m in TRANSLATORS if (models / m / "model.pt").is_file()
+        (m, models / m) for m in MODULES if (models / m / "model.pt").is_file()
     ]
     for name, model_dir in candidates:
         t0 = time.perf_counter()

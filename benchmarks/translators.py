@@ -30,8 +30,8 @@ import numpy as np
 import torch
 
 from spc3d.evaluation import lpips_specs
-from spc3d.models import TRANSLATORS as SPECS
-from spc3d.translate import TRANSLATORS
+from spc3d.models import MODULES as SPECS
+from spc3d.translate import MODULES
 
 
 def make_batch(batch: int, crop: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
@@ -47,7 +47,7 @@ def build(method: str, seed: int = 0, prior: bool = True):
     """The method's Translator with Config() defaults on the CPU (seeded); ``prior=False``: the
     published network alone (``prior_sigma: 0``)."""
     torch.manual_seed(seed)
-    module = TRANSLATORS[method]
+    module = MODULES[method]
     rng = np.random.default_rng(seed)
     vgg = {k: (0.01 * rng.standard_normal(s)).astype(np.float32) for k, s in lpips_specs.expected_shapes("vgg").items()}
     cfg = module.Config() if prior else module.Config(prior_sigma=0.0)
@@ -98,7 +98,7 @@ def main() -> None:
     ap.add_argument("--threads", default="1,2", help="comma-separated torch thread counts")
     ap.add_argument("--steps", type=int, default=6, help="timed steps per round")
     ap.add_argument("--rounds", type=int, default=3)
-    trained = [m for m in TRANSLATORS if SPECS[m].trained]  # the prior and classical: no step
+    trained = [m for m in MODULES if SPECS[m].trained]  # the prior and classical: no step
     ap.add_argument("--methods", default=",".join(trained), help="comma-separated methods")
     ap.add_argument(
         "--allocator",

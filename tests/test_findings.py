@@ -836,10 +836,10 @@ def _claim_rows(scenes: int, offsets: dict[str, list[float]]) -> dict:
 
 
 def test_a_claim_with_a_row_not_run_is_recorded_as_such():
-    from spc3d.evaluation.findings import NOT_RUN, Claim, evaluate
+    from spc3d.evaluation.findings import NOT_RUN, Claim, decide
 
     claim = Claim("c", "ours", "a beats base", (("a", "base"), ("missing", "base")))
-    out = evaluate(claim, _claim_rows(6, {"a": [1.0] * 6}))
+    out = decide(claim, _claim_rows(6, {"a": [1.0] * 6}))
     assert (out["verdict"], out["n"], out["family"], out["decisive"], out["comparisons"]) == (
         NOT_RUN,
         0,
@@ -852,13 +852,13 @@ def test_a_claim_with_a_row_not_run_is_recorded_as_such():
 
 def test_an_undecided_claim_names_the_scenes_a_failure_would_need_only_below_them():
     """Two comparisons: a failure needs n ≥ 7 (Holm at 0.025 / 2); at n = 7 nothing is missing."""
-    from spc3d.evaluation.findings import Claim, evaluate
+    from spc3d.evaluation.findings import Claim, decide
 
     noisy = [0.9, -0.6, 0.4, 1.2, -0.3, 0.5, 0.1]
     claim = Claim("c", "ours", "a and b beat base", (("a", "base"), ("b", "base")))
-    six = evaluate(claim, _claim_rows(6, {"a": noisy[:6], "b": noisy[:6]}))
+    six = decide(claim, _claim_rows(6, {"a": noisy[:6], "b": noisy[:6]}))
     assert six["verdict"] == "INCONCLUSIVE" and six["note"] == "a failure among 2 comparisons needs n ≥ 7 scenes"
-    seven = evaluate(claim, _claim_rows(7, {"a": noisy, "b": noisy}))
+    seven = decide(claim, _claim_rows(7, {"a": noisy, "b": noisy}))
     assert seven["verdict"] == "INCONCLUSIVE" and seven["note"] == ""
 
 

@@ -24,7 +24,7 @@ from spc3d.names import ConfigError, parse_combination, resolve_combinations, st
 from spc3d.reconstruct import CONFIGS
 from spc3d.reconstruct.nerf_grid import GridNeRF
 from spc3d.translate.data import PairSampler
-from spc3d.translate.model_io import TRANSLATORS, build_translator, model_config
+from spc3d.translate.model_io import MODULES, build_translator, model_config
 
 from conftest import LLFF_ROOT, REPO, TINY_TRANSLATORS, run_snakemake
 
@@ -227,7 +227,7 @@ def test_the_crop_multiples_are_the_networks_own(method, changes):
 
 def test_only_the_networks_that_check_their_crops_are_listed():
     """The built-in translators whose train_step checks its crops are those with crop_halvings."""
-    builtin = {m: module for m, module in TRANSLATORS.items() if module.__name__.startswith("spc3d.translate.")}
+    builtin = {m: module for m, module in MODULES.items() if module.__name__.startswith("spc3d.translate.")}
     checked = {m for m, module in builtin.items() if "check_multiple(" in inspect.getsource(module)}
     assert checked == {m for m in builtin if models.TRANSLATORS[m].crop_halvings}
 

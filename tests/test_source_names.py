@@ -24,7 +24,7 @@ from spc3d.names import (
     stage1_sources,
     translator_settings,
 )
-from spc3d.translate import TRANSLATORS
+from spc3d.translate import MODULES
 from spc3d.translate.apply import translate_scene
 from spc3d.translate.train import TranslatorJob, train_translator, training_data
 
@@ -105,8 +105,8 @@ def test_labels_say_what_each_suffix_means():
 
 
 def test_registry_and_workflow_agree_on_the_prior():
-    assert "prior" in TRANSLATORS and "prior" in names.STAGE1_METHODS
-    assert "prior" not in names.TRAINED_METHODS and not TRANSLATORS["prior"].Translator.trainable
+    assert "prior" in MODULES and "prior" in names.STAGE1_METHODS
+    assert "prior" not in names.TRAINED_METHODS and not MODULES["prior"].Translator.trainable
 
 
 def test_the_prior_method_trains_nothing_and_translates_like_the_residuals_start(tmp_path):

@@ -184,7 +184,7 @@ class ScriptedTranslator(base.TranslatorBase):
 @pytest.fixture
 def scripted(monkeypatch):
     module = types.SimpleNamespace(Config=ScriptConfig, PAPER={}, Translator=ScriptedTranslator)
-    monkeypatch.setitem(translate.TRANSLATORS, "scripted", module)
+    monkeypatch.setitem(translate.MODULES, "scripted", module)
     return "scripted"
 
 

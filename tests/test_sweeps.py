@@ -83,12 +83,12 @@ def test_models_and_widths_match_the_registries():
     """The torch-free vocabulary of spc3d.names (used by the rules and the sweeps) names exactly
     the registered models; every translator with a network has a width knob."""
     from spc3d.reconstruct import RECONSTRUCTORS
-    from spc3d.translate import TRANSLATORS
+    from spc3d.translate import MODULES
 
     assert tuple(RECONSTRUCTORS) == names.STAGE2_MODELS
-    assert set(WIDTH_KEYS) == {m for m, module in TRANSLATORS.items() if module.Translator.trainable}
+    assert set(WIDTH_KEYS) == {m for m, module in MODULES.items() if module.Translator.trainable}
     for method, key in WIDTH_KEYS.items():
-        assert hasattr(TRANSLATORS[method].Config(), key)
+        assert hasattr(MODULES[method].Config(), key)
 
 
 def test_knobs_a_combination_uses():

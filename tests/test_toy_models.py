@@ -154,10 +154,10 @@ def test_a_plugin_registers_both_families_in_a_fresh_process():
     code = (
         "import sys; sys.path.insert(0, 'workflow');"
         "from spc3d import names; from spc3d.sweeps.budget import WIDTH_KEYS, ITERATION_FIELD;"
-        "from spc3d.translate import TRANSLATORS; from spc3d.reconstruct import RECONSTRUCTORS, CONFIGS;"
+        "from spc3d.translate import MODULES; from spc3d.reconstruct import RECONSTRUCTORS, CONFIGS;"
         f"assert names.STAGE1_METHODS[-1] == '{TOY_TRANSLATOR}' and names.STAGE2_MODELS[-1] == '{TOY_RECONSTRUCTOR}';"
         f"assert WIDTH_KEYS['{TOY_TRANSLATOR}'] == 'width' and ITERATION_FIELD['{TOY_RECONSTRUCTOR}'] == 'iterations';"
-        f"assert TRANSLATORS['{TOY_TRANSLATOR}'].Config().width == 3;"
+        f"assert MODULES['{TOY_TRANSLATOR}'].Config().width == 3;"
         f"assert CONFIGS['{TOY_RECONSTRUCTOR}']({{'iterations': 7}}).iterations == 7;"
         f"print(names.LABELS['{TOY_TRANSLATOR}'], sorted(RECONSTRUCTORS))"
     )

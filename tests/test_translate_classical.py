@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from spc3d import models
-from spc3d.translate import TRANSLATORS, blurred_mle, classical, model_io
+from spc3d.translate import MODULES, blurred_mle, classical, model_io
 from spc3d.translate.classical import DENOISERS, GRID, P_MAX, Config, Translator, inverse_vst, vst, vst_sigma
 
 from conftest import load_script
@@ -55,7 +55,7 @@ def test_the_registry_treats_it_as_an_untrained_method():
     spec = models.TRANSLATORS["classical"]
     assert not spec.trained and spec.width_field is None and not Translator.trainable
     assert classical.PAPER == {} and 15 <= len(GRID) <= 25 and set(DENOISERS) == {n for n, _ in GRID}
-    for name, module in TRANSLATORS.items():  # the spec's flag and the model's agree for every method
+    for name, module in MODULES.items():  # the spec's flag and the model's agree for every method
         assert models.TRANSLATORS[name].trained == module.Translator.trainable, name
 
 

@@ -66,7 +66,7 @@ class TinyTranslator(base.TranslatorBase):
 @pytest.fixture
 def tiny_registered(monkeypatch):
     module = types.SimpleNamespace(Config=TinyConfig, PAPER={"width": 8}, Translator=TinyTranslator)
-    monkeypatch.setitem(translate.TRANSLATORS, "tiny", module)
+    monkeypatch.setitem(translate.MODULES, "tiny", module)
     return "tiny"
 
 
@@ -89,8 +89,12 @@ def world(tmp_path_factory):
 
 
 def test_registry_matches_the_workflow_names():
-    assert tuple(translate.TRANSLATORS) == STAGE1_METHODS
-    for name, module in translate.TRANSLATORS.items():
+    assert tuple(translate.MODULES) == STAGE1_METHODS
+    with pytest.warns(DeprecationWarning, match=r"TRANSLATORS is now spc3d\.translate\.MODULES"):
+        assert translate.TRANSLATORS is translate.MODULES  # the old name, for plugins
+    with pytest.raises(AttributeError, match="no attribute 'MODELS'"):
+        translate.MODELS  # noqa: B018
+    for name, module in translate.MODULES.items():
         assert dataclasses.is_dataclass(module.Config) and set(module.PAPER) <= {
             f.name for f in dataclasses.fields(module.Config)
         }, name

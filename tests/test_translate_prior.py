@@ -11,7 +11,7 @@ import torch
 
 from spc3d.physics import spc
 from spc3d.pixels import linear_to_srgb
-from spc3d.translate import TRANSLATORS
+from spc3d.translate import MODULES
 from spc3d.translate.prior import P_MAX, PhysicsPrior, gaussian_kernel
 
 from conftest import TINY_TRANSLATORS
@@ -23,7 +23,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def build(method: str, **over):
-    module = TRANSLATORS[method]
+    module = MODULES[method]
     torch.manual_seed(0)
     return module.Translator(module.Config(**{**TINY[method], **over}), CPU)
 
@@ -162,7 +162,7 @@ def test_the_fitted_gain_is_saved_and_loaded_with_the_networks(method):
 
 @pytest.mark.parametrize("method", sorted(TINY))
 def test_paper_presets_are_the_published_networks_without_prior(method):
-    module = TRANSLATORS[method]
+    module = MODULES[method]
     assert module.PAPER["prior_sigma"] == 0.0
     assert build(method, prior_sigma=0.0).prior is None
     assert "prior" not in build(method, prior_sigma=0.0).modules()

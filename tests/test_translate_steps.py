@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from spc3d.evaluation import lpips_specs
-from spc3d.translate import TRANSLATORS
+from spc3d.translate import MODULES
 from spc3d.translate.base import to_signed
 from spc3d.translate.networks import conditional_d_step, set_requires_grad
 
@@ -36,7 +36,7 @@ def vgg_weights(seed: int = 0) -> dict[str, np.ndarray]:
 
 
 def build(method: str, **over):
-    module = TRANSLATORS[method]
+    module = MODULES[method]
     torch.manual_seed(0)
     return module.Translator(module.Config(**over), CPU, vgg_weights())
 
@@ -176,7 +176,7 @@ def compare(method: str, size: int = 64, steps: int = 3, fused: bool = True, exa
                 assert torch.equal(p, q), (method, name)
 
 
-@pytest.mark.parametrize("method", sorted(m for m, module in TRANSLATORS.items() if module.Translator.trainable))
+@pytest.mark.parametrize("method", sorted(m for m, module in MODULES.items() if module.Translator.trainable))
 def test_default_step_matches_the_plain_step(method):
     """The configured (CPU-sized) models, as the default run trains them, fused Adam included."""
     compare(method)
@@ -203,5 +203,5 @@ def test_optimisers_are_fused_on_this_cpu():
     version = tuple(int(v) for v in torch.__version__.split("+")[0].split(".")[:2])
     if version < (2, 4):
         pytest.skip("no fused CPU optimisers before torch 2.4")
-    for method in TRANSLATORS:
+    for method in MODULES:
         assert all(o.defaults.get("fused") for o in build(method).optimizers().values()), method

@@ -20,7 +20,7 @@ poses/        COLMAP poses, similarity alignment, poses from the photons
 inputs/       built-in scenes, COLMAP-format scenes, scene folders and SPC frames, augmentation, exposure
 captures/     real SPAD captures: photon cubes, capture folders, their import
 evaluation/   metrics, LPIPS, held-out evaluation, tables, findings (and their shift between runs), figures
-translate/    stage 1: binary -> sRGB translators and denoisers (``TRANSLATORS``), training, applying
+translate/    stage 1: binary -> sRGB translators and denoisers (``MODULES``), training, applying
 reconstruct/  stage 2: image sources, 3DGS / NeRF / grid NeRF (``RECONSTRUCTORS``), fit and render
 settings/     what each job runs with (the grid's answers per job), the results layout, the run's targets
 sweeps/       the speed-accuracy trade-off and photon-level sweeps (a sweep point's settings)

@@ -1,7 +1,7 @@
 """One torch-free description per model family: every translator (stage 1) and every reconstructor
 (stage 2) of the project, and what the rest of the code derives from them.
 
-From these specs come the registries (:data:`spc3d.translate.TRANSLATORS`,
+From these specs come the registries (:data:`spc3d.translate.MODULES`,
 :data:`spc3d.reconstruct.RECONSTRUCTORS`), the workflow's method and model names and labels
 (:mod:`spc3d.names`), the config's accepted model blocks (:mod:`spc3d.config`), the rules'
 branches (COLMAP points, pose refinement, GPU requests: :mod:`spc3d.settings`, ``common.smk``) and the

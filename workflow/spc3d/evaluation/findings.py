@@ -102,9 +102,9 @@ TIE_RTOL = 1e-9  # |pattern mean| within this fraction of mean |d| of the observ
 BISECT_RTOL = 1e-7  # interval ends to this fraction of the differences' range
 PRESET = "workflow/presets/findings.yaml"
 BASELINES = {"prior": "the prior", "classical": "the classical method"}  # the non-learned stage-1 methods
-TRANSLATORS = tuple(m for m in STAGE1_METHODS if m not in BASELINES and not m.endswith("-pub"))  # default networks
-PUBLISHED = tuple(f"{m}-pub" for m in TRANSLATORS)
-BLOCKS = ((TRANSLATORS, "residual networks"), (PUBLISHED, "published networks"))
+NETWORKS = tuple(m for m in STAGE1_METHODS if m not in BASELINES and not m.endswith("-pub"))  # default translators
+PUBLISHED = tuple(f"{m}-pub" for m in NETWORKS)
+BLOCKS = ((NETWORKS, "residual networks"), (PUBLISHED, "published networks"))
 DESCRIPTIVE = "DESCRIPTIVE ONLY"
 NOT_RUN = "NOT RUN"
 DECIDED = ("HOLDS", "EQUIVALENT", "DOES NOT HOLD", "INCONCLUSIVE")  # the verdicts of n ≥ MIN_SCENES
@@ -389,23 +389,23 @@ def default_rivals(nerf: str) -> dict[str, list[str]]:
     """The rivals of the claims over "every" row when the configuration lists none
     (``findings.rivals``): every residual translator and the untrained prior under both models, and
     the two MLE-image rows at K = 1 and 1× (one per loss)."""
-    two_stage = [f"{t}+{m}" for t in (*TRANSLATORS, "prior") for m in (nerf, "3dgs")]
+    two_stage = [f"{t}+{m}" for t in (*NETWORKS, "prior") for m in (nerf, "3dgs")]
     return {"two_stage": two_stage, "mle": ["mle-x1+3dgs", "mle-x1-mse+3dgs"]}
 
 
 def claims(rows: dict[str, Row], nerf: str, rivals: dict[str, list[str]] | None = None) -> list[Claim]:
     """The claims. Their rivals are listed (``rivals``: ``two_stage``, the two-stage rows a claim over
     "every two-stage row" compares with, and ``mle``, the MLE-image rows of the likelihood's claim;
-    :func:`default_rivals` when None), not inferred from the rows that ran: :func:`evaluate` makes a
+    :func:`default_rivals` when None), not inferred from the rows that ran: :func:`decide` makes a
     claim with a rival that did not run NOT RUN, naming it. The paper's claims over translators take
     the listed two-stage rows of the translator block that ran (:func:`translator_block`)."""
     rivals = default_rivals(nerf) | (rivals or {})
     block, label = translator_block(rows)
-    p = block[TRANSLATORS.index("pix2pixhd")]
+    p = block[NETWORKS.index("pix2pixhd")]
     p_nerf, p_3dgs, models = f"{p}+{nerf}", f"{p}+3dgs", (nerf, "3dgs")
     every = list(rivals["two_stage"])
     two_stage = [r for r in every if r.partition("+")[0] in block]
-    denoisers = [block[TRANSLATORS.index(d)] for d in ("restormer", "diffusion")]
+    denoisers = [block[NETWORKS.index(d)] for d in ("restormer", "diffusion")]
     mle = list(rivals["mle"])
     vs_mle = ", ".join(mle) or "no MLE row listed"
     two_vs_one = f"Two-stage beats single-stage with {{}}: Pix2PixHD ({label}) vs"
@@ -519,7 +519,7 @@ def decisive(comps: list[Comparison], outcome: str, alpha: float = ALPHA) -> Com
     return max(scored, key=lambda c: (c.adj_holds, -c.mean))
 
 
-def evaluate(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLEST_EFFECT) -> dict:
+def decide(claim: Claim, rows: dict[str, Row], smallest_effect: float = SMALLEST_EFFECT) -> dict:
     """A claim decided: its comparisons (rows of equal budget unless cross-budget), their p adjusted
     per family, the verdict against δ = ``smallest_effect``; ``family`` names the p the tables show.
     NOT RUN, naming them, when any row it lists did not run (``not_run``)."""
@@ -574,7 +574,7 @@ def over_baseline(
             if better in table and worse in table:
                 text = f"{t} over {BASELINES[baseline]} ({stage})"
                 claim = Claim(f"over-{baseline}:{t}:{stage}", "ours", text, ((better, worse),))
-                entry = evaluate(claim, table, smallest_effect)
+                entry = decide(claim, table, smallest_effect)
                 out.append(entry | {"translator": t, "block": label, "baseline": baseline, "stage": stage})
     return out
 
@@ -828,7 +828,7 @@ def write_findings(
     if not (math.isfinite(delta) and delta >= 0):
         raise ValueError(f"write_findings: smallest_effect (dB) must be finite and ≥ 0, got {smallest_effect!r}")
     rows, stage1 = read_rows(metrics_files), read_stage1(stage1_files)
-    results = [evaluate(c, rows, delta) for c in claims(rows, nerf_variant, rivals)]
+    results = [decide(c, rows, delta) for c in claims(rows, nerf_variant, rivals)]
     prior = over_baseline(rows, stage1, nerf_variant, "prior", delta)
     classical = over_baseline(rows, stage1, nerf_variant, "classical", delta)
     first_line = header(rows, results + prior + classical, delta)

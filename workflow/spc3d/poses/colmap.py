@@ -311,7 +311,7 @@ def colmap_poses(
         tmp.mkdir(parents=True, exist_ok=True)
         work = tmp / "work"
         rec = run_colmap(image_dir, work, ref, max_features, seed, num_threads)
-        record = evaluate(rec, ref, names, align)
+        record = pose_errors(rec, ref, names, align)
         if rec is not None:
             (tmp / "sparse" / "0").mkdir(parents=True)
             rec.write(tmp / "sparse" / "0")
@@ -331,7 +331,7 @@ def colmap_poses(
     return record
 
 
-def evaluate(rec: pycolmap.Reconstruction | None, ref: Cameras, names: list[str], align: str = "rotations") -> dict:
+def pose_errors(rec: pycolmap.Reconstruction | None, ref: Cameras, names: list[str], align: str = "rotations") -> dict:
     """Status, counts, pose error and reprojection error of a reconstruction (None: nothing registered)."""
     if rec is None:
         pose = pose_error(ref, ref.subset(np.zeros(0, int)), [], align)

@@ -1,4 +1,4 @@
-"""Stage-1 models: binary SPC image -> sRGB, one model per file, built through ``TRANSLATORS``.
+"""Stage-1 models: binary SPC image -> sRGB, one model per file, found through ``MODULES``.
 
     pix2pixhd   global generator (+ local enhancer), multiscale LSGAN, feature matching, VGG loss
     pix2pix     U-Net generator, 70x70 PatchGAN, vanilla GAN + L1
@@ -23,4 +23,19 @@ from __future__ import annotations
 from spc3d import models
 
 # name -> the model's module (Config, PAPER, Translator), from the specs of spc3d.models
-TRANSLATORS = {name: models.import_module(spec.module) for name, spec in models.TRANSLATORS.items()}
+MODULES = {name: models.import_module(spec.module) for name, spec in models.TRANSLATORS.items()}
+
+
+def __getattr__(name: str):
+    """``TRANSLATORS``, this registry's old name (a plugin may still import it), with a warning."""
+    if name == "TRANSLATORS":
+        import warnings
+
+        warnings.warn(
+            "spc3d.translate.TRANSLATORS is now spc3d.translate.MODULES (the model modules by method; "
+            "spc3d.models.TRANSLATORS holds their specs)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return MODULES
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

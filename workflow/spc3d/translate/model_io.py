@@ -24,7 +24,7 @@ import torch
 
 from spc3d import io
 from spc3d.training import build_config, default_device
-from spc3d.translate import TRANSLATORS
+from spc3d.translate import MODULES
 from spc3d.translate.camera import DOMAIN
 from spc3d.translate.curves import plot_curve
 
@@ -33,9 +33,9 @@ def model_config(method: str, settings: dict, frames: int | None = None):
     """The method's Config: ``preset: paper`` starts from the published sizes; other keys override.
     A Config with a ``frames`` field (a method that must know K: ``classical``) takes ``frames``, the
     job's stage1.frames (a sweep point's K), never its own settings block's: one K per run."""
-    if method not in TRANSLATORS:
-        raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(TRANSLATORS)}")
-    module = TRANSLATORS[method]
+    if method not in MODULES:
+        raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(MODULES)}")
+    module = MODULES[method]
     settings = dict(settings)
     preset = settings.pop("preset", None)
     settings.pop("checkpoint", None)
@@ -64,7 +64,7 @@ def check_pretrained(method: str, settings: dict) -> None:
 
 
 def build_translator(method: str, cfg, device: torch.device, vgg_weights: dict | None = None):
-    return TRANSLATORS[method].Translator(cfg, device, vgg_weights=vgg_weights)
+    return MODULES[method].Translator(cfg, device, vgg_weights=vgg_weights)
 
 
 def write_model_folder(out_dir, model, record: dict, curve: list[dict], modules: dict | None = None) -> None:
@@ -98,7 +98,7 @@ def load_translator(model_dir: str | os.PathLike, device: torch.device | None = 
             f"predates the exposure-aware display; delete {Path(model_dir)} so the workflow trains it again"
         )
     method = saved["method"]
-    cfg = build_config(TRANSLATORS[method].Config, saved["config"], f"{path} config")
+    cfg = build_config(MODULES[method].Config, saved["config"], f"{path} config")
     if any(f.name == "vgg_loss" for f in dataclasses.fields(cfg)):
         cfg = dataclasses.replace(cfg, vgg_loss=False)  # the perceptual loss is a training-only network
     model = build_translator(method, cfg, device or default_device())

@@ -301,7 +301,7 @@ class TranslatorJob:
     fingerprinted by their digest.
     """
 
-    method: str  # the stage-1 method (spc3d.translate.model_io.TRANSLATORS)
+    method: str  # the stage-1 method (spc3d.translate.MODULES)
     data: TrainingData  # where training samples and validation views come from (training_data())
     out_dir: str | os.PathLike  # results/models/{method}: model.pt, train.json, curve.csv, curve.png
     settings: dict  # stage1.{method}: the model's settings (checkpoint: published weights to start from)
