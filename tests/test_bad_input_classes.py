@@ -219,7 +219,7 @@ def test_every_sweep_point_is_cross_checked_with_its_knobs():
         sweep_points(config, "cap~100", [])[0],
         "courtyard",
     )
-    assert planned[0]["jobs"] == [] and "below stage2.3dgs.init_points" in planned[0]["error"]  # asked: raised
+    assert planned[0]["outputs"] == [] and "below stage2.3dgs.init_points" in planned[0]["error"]  # asked: raised
 
 
 def test_an_unused_settings_block_is_a_warning_naming_it():
