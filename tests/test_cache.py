@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -66,6 +67,40 @@ def test_comments_docstrings_and_formatting_are_not_code(fake_package):
     assert provenance.closure_digest([script]) == before
     (pkg / "sub" / "b.py").write_text(edited.replace("0.1", "0.2"))  # a constant: what runs
     assert provenance.closure_digest([script]) != before
+
+
+def test_a_files_analysis_is_kept_for_the_next_process_and_only_for_its_bytes(fake_package, tmp_path, monkeypatch):
+    """A kept analysis is read back by the next process (here: the in-process cache cleared), for the
+    same bytes only; an unreadable entry is made again, and ``off`` keeps nothing."""
+    pkg, script = fake_package
+    kept = tmp_path / "kept"
+    monkeypatch.setenv("SPC3D_CODE_CACHE", str(kept))
+    provenance._analysis.cache_clear()
+    b = pkg / "sub" / "b.py"
+    digest = provenance.source_digest(b)
+    entries = sorted(kept.glob("*.json"))
+    assert len(entries) == 1 and not list(kept.glob("*.tmp"))
+    entry = entries[0]
+    assert json.loads(entry.read_text()) == {"digest": digest, "names": []}
+    entry.write_text(json.dumps({"digest": "planted", "names": ["spc3d.c"]}))  # what a next process reads
+    provenance._analysis.cache_clear()
+    assert provenance.source_digest(b) == "planted" and provenance.imported_names(b) == {"spc3d.c"}
+    b.write_text("X = 2\n")  # other bytes: the planted entry is never read for them
+    provenance._analysis.cache_clear()
+    assert provenance.source_digest(b) not in ("planted", digest) and provenance.imported_names(b) == set()
+    entry.write_text("{not json")
+    b.write_text("X = 1\n")
+    provenance._analysis.cache_clear()
+    assert provenance.source_digest(b) == digest and json.loads(entry.read_text())["digest"] == digest
+    monkeypatch.setenv("SPC3D_CODE_CACHE", "off")
+    provenance._analysis.cache_clear()
+    (pkg / "c.py").write_text("Y = 3\n")
+    before = len(list(kept.glob("*.json")))
+    assert provenance.source_digest(pkg / "c.py") and len(list(kept.glob("*.json"))) == before
+    monkeypatch.setenv("SPC3D_CODE_CACHE", str(entry))  # a file, not a folder: nothing kept, no error
+    provenance._analysis.cache_clear()
+    assert provenance.source_digest(pkg / "c.py") == provenance.source_digest(pkg / "c.py")
+    provenance._analysis.cache_clear()
 
 
 def test_the_real_training_closure_has_the_training_code_and_not_the_tables():

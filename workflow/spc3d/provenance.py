@@ -14,6 +14,13 @@ Each file counts by its code only (:func:`source_digest`): its syntax tree witho
 written back as text, so a comment, a docstring or a reformatting reruns nothing, while any change
 of what runs (a loss constant, an operator) does. The same digest keys the checkpoints
 (:func:`spc3d.checkpoints.code_digest`).
+
+Parsing and writing back the hundred-odd files of a closure took about as long as the rest of a dry
+run, in every Snakemake process (each SLURM job's too). So each file version's analysis (its digest
+and its imports) is kept between processes in a small JSON file named by the hash of the file's path
+and bytes and of this analysis's version (:data:`ANALYSIS`): ``$SPC3D_CODE_CACHE``, else
+``~/.cache/spc3d/code``; ``SPC3D_CODE_CACHE=off`` keeps nothing. An entry is only ever read for the
+very bytes it was made from, so a stale entry cannot be read; an unreadable one is made again.
 """
 
 from __future__ import annotations
@@ -22,11 +29,18 @@ import ast
 import functools
 import hashlib
 import importlib.util
+import json
+import os
+import sys
+import tempfile
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 PACKAGE = "spc3d"
 ROOT = Path(__file__).resolve().parent  # the spc3d package folder
+# What a kept analysis depends on besides the file: this format, and the Python whose ast.unparse wrote it.
+ANALYSIS = f"spc3d-code-analysis-1 python-{sys.version_info[0]}.{sys.version_info[1]}"
 
 
 def module_file(name: str) -> Path | None:
@@ -71,13 +85,17 @@ def is_type_checking(test: ast.expr) -> bool:
     return "TYPE_CHECKING" in names
 
 
-def imported_names(path: Path) -> set[str]:
+def imported_names(path: Path) -> frozenset[str]:
     """Every dotted name a file imports when it runs, anywhere in it (imports inside functions count,
     ``if TYPE_CHECKING`` ones do not); relative imports resolved against the file's own package, and
     ``from a import b`` gives both ``a`` and ``a.b`` (``b`` may be a submodule or an attribute)."""
+    return analysis(Path(path).resolve()).names
+
+
+def names_in(tree: ast.AST, path: Path) -> set[str]:
+    """:func:`imported_names` of ``path``'s parsed ``tree``."""
     here = module_name(path)
     package = here if path.name == "__init__.py" else here.rpartition(".")[0] if here else None
-    tree = ast.parse(path.read_text(), filename=str(path))
     skip, out = set(), set()
     for node in ast.walk(tree):  # breadth first: an ``if`` is met before the statements under it
         if id(node) in skip:
@@ -149,19 +167,84 @@ def normalised_source(path: Path) -> str:
     """The code of a Python file without its comments, docstrings and formatting: its syntax tree,
     docstrings removed, written back by :func:`ast.unparse` (text, so the key does not depend on
     the ``ast.dump`` layout of the Python version)."""
-    return ast.unparse(without_docstrings(ast.parse(path.read_text(), filename=str(path))))
+    return normalised(ast.parse(path.read_bytes(), filename=str(path)))
+
+
+def normalised(tree: ast.AST) -> str:
+    """:func:`normalised_source` of a parsed file (changes ``tree``: its docstrings go)."""
+    return ast.unparse(without_docstrings(tree))
 
 
 def source_digest(path: str | Path) -> str:
     """sha256 of :func:`normalised_source`; computed once per file version."""
-    path = Path(path).resolve()
+    return analysis(Path(path).resolve()).digest
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """What the keys need of one file version: the digest of its code and the names it imports."""
+
+    digest: str  # sha256 of normalised_source
+    names: frozenset[str]  # imported_names
+
+
+def analysis(path: Path) -> Analysis:
+    """The file's :class:`Analysis`, made once per file version (in this process, and kept between
+    processes: the module docstring)."""
     stat = path.stat()
-    return _source_digest(path, stat.st_mtime_ns, stat.st_size)
+    return _analysis(path, stat.st_mtime_ns, stat.st_size)
 
 
 @functools.lru_cache(maxsize=4096)
-def _source_digest(path: Path, mtime_ns: int, size: int) -> str:
-    return hashlib.sha256(normalised_source(path).encode()).hexdigest()
+def _analysis(path: Path, mtime_ns: int, size: int) -> Analysis:
+    data = path.read_bytes()
+    here = (module_name(path) or "").encode()  # relative imports resolve against it
+    key = hashlib.sha256(b"\0".join([ANALYSIS.encode(), str(path).encode(), here, data])).hexdigest()
+    kept = read_kept(key)
+    if kept is not None:
+        return kept
+    tree = ast.parse(data, filename=str(path))
+    names = frozenset(names_in(tree, path))  # before normalised(), which drops the docstrings
+    made = Analysis(hashlib.sha256(normalised(tree).encode()).hexdigest(), names)
+    keep(key, made)
+    return made
+
+
+def analysis_folder() -> Path | None:
+    """Where analyses are kept between processes; None: nowhere (``SPC3D_CODE_CACHE=off``)."""
+    given = os.environ.get("SPC3D_CODE_CACHE", "")
+    if given.lower() == "off":
+        return None
+    return Path(given) if given else Path.home() / ".cache" / "spc3d" / "code"
+
+
+def read_kept(key: str) -> Analysis | None:
+    folder = analysis_folder()
+    if folder is None:
+        return None
+    try:
+        rec = json.loads((folder / f"{key}.json").read_text())
+        return Analysis(str(rec["digest"]), frozenset(rec["names"]))
+    except (OSError, ValueError, KeyError, TypeError):  # none kept, or unreadable: made again
+        return None
+
+
+def keep(key: str, made: Analysis) -> None:
+    """Write the analysis under a temporary name, then rename it into place (a reader sees it whole
+    or not at all); a folder that cannot be written keeps nothing, silently: it only costs time."""
+    folder = analysis_folder()
+    if folder is None:
+        return
+    text = json.dumps({"digest": made.digest, "names": sorted(made.names)})
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".tmp", delete=False) as f:
+            tmp = Path(f.name)
+            f.write(text)
+        os.replace(tmp, folder / f"{key}.json")
+    except OSError:
+        if "tmp" in locals():
+            tmp.unlink(missing_ok=True)
 
 
 def files_digest(files: Iterable[Path]) -> str:
