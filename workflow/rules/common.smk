@@ -16,7 +16,7 @@ from spc3d.inputs.scenes import LAYOUTS
 from spc3d.models import RECONSTRUCTORS as MODELS
 from spc3d.models import TRANSLATORS as STAGE1_SPECS
 from spc3d.names import (JOINT_SOURCES, PLAIN_SOURCES, POSES_PATTERN, SOURCE_PATTERN, STAGE1_METHODS, STAGE2_MODELS,
-    parse_combination, parse_source, stage1_sources)
+    parse_combination, stage1_sources)
 from snakemake.exceptions import WorkflowError
 from snakemake.io import apply_wildcards
 
@@ -98,7 +98,7 @@ def sweep_report(points, combos, clock=None):
 
 def get_translator_gpus(wildcards):
     """A network trains on CUDA when present; the untrained methods (prior, classical) need no GPU."""
-    return int(STAGE1_SPECS[parse_source(wildcards.method).base].trained)
+    return int(STAGE1_SPECS[settings_of(wildcards).translator_base(wildcards)].trained)
 
 
 def get_stage2_gpus(wildcards):

@@ -26,16 +26,17 @@ very bytes it was made from, so a stale entry cannot be read; an unreadable one 
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import hashlib
 import importlib.util
-import json
 import os
 import sys
-import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+from spc3d import io
 
 PACKAGE = "spc3d"
 ROOT = Path(__file__).resolve().parent  # the spc3d package folder
@@ -163,20 +164,15 @@ def is_string_statement(stmt: ast.stmt) -> bool:
     return isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) and isinstance(stmt.value.value, str)
 
 
-def normalised_source(path: Path) -> str:
-    """The code of a Python file without its comments, docstrings and formatting: its syntax tree,
-    docstrings removed, written back by :func:`ast.unparse` (text, so the key does not depend on
-    the ``ast.dump`` layout of the Python version)."""
-    return normalised(ast.parse(path.read_bytes(), filename=str(path)))
-
-
 def normalised(tree: ast.AST) -> str:
-    """:func:`normalised_source` of a parsed file (changes ``tree``: its docstrings go)."""
+    """The code of a parsed Python file without its comments, docstrings and formatting: its syntax
+    tree, docstrings removed, written back by :func:`ast.unparse` (text, so the key does not depend
+    on the ``ast.dump`` layout of the Python version). Changes ``tree``: its docstrings go."""
     return ast.unparse(without_docstrings(tree))
 
 
 def source_digest(path: str | Path) -> str:
-    """sha256 of :func:`normalised_source`; computed once per file version."""
+    """sha256 of the file's :func:`normalised` code; computed once per file version."""
     return analysis(Path(path).resolve()).digest
 
 
@@ -184,7 +180,7 @@ def source_digest(path: str | Path) -> str:
 class Analysis:
     """What the keys need of one file version: the digest of its code and the names it imports."""
 
-    digest: str  # sha256 of normalised_source
+    digest: str  # sha256 of normalised
     names: frozenset[str]  # imported_names
 
 
@@ -223,28 +219,20 @@ def read_kept(key: str) -> Analysis | None:
     if folder is None:
         return None
     try:
-        rec = json.loads((folder / f"{key}.json").read_text())
+        rec = io.read_json(folder / f"{key}.json")
         return Analysis(str(rec["digest"]), frozenset(rec["names"]))
     except (OSError, ValueError, KeyError, TypeError):  # none kept, or unreadable: made again
         return None
 
 
 def keep(key: str, made: Analysis) -> None:
-    """Write the analysis under a temporary name, then rename it into place (a reader sees it whole
-    or not at all); a folder that cannot be written keeps nothing, silently: it only costs time."""
+    """Write the analysis atomically (:func:`spc3d.io.write_json`: a reader sees it whole or not at
+    all); a folder that cannot be written keeps nothing, silently: it only costs time."""
     folder = analysis_folder()
     if folder is None:
         return
-    text = json.dumps({"digest": made.digest, "names": sorted(made.names)})
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".tmp", delete=False) as f:
-            tmp = Path(f.name)
-            f.write(text)
-        os.replace(tmp, folder / f"{key}.json")
-    except OSError:
-        if "tmp" in locals():
-            tmp.unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        io.write_json(folder / f"{key}.json", {"digest": made.digest, "names": sorted(made.names)})
 
 
 def files_digest(files: Iterable[Path]) -> str:

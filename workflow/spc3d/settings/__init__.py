@@ -9,6 +9,7 @@ name, so no rule helper has a branch for the sweeps. Neither module imports torc
 Modules
 -------
 grid    the grid's settings per job (frames, scenes, folds, translator and stage-2 settings)
+params  one typed params object per rule, built by grid (NamedTuples: Snakemake compares them)
 paths   the results layout: every folder and file a job reads, under a root (``results/`` or a point's)
 targets the files a run of the grid makes (default target, tables, summary, figures)
 """

@@ -298,7 +298,7 @@ class Grid:
         count): a change reruns the training, and ``--cache`` keys on it (spc3d.provenance)."""
         from spc3d.models import TRANSLATORS
 
-        return job_code(self.basedir, TRANSLATOR_SCRIPTS, TRANSLATORS[parse_source(w.method).base].module)
+        return job_code(self.basedir, TRANSLATOR_SCRIPTS, TRANSLATORS[self.translator_base(w)].module)
 
     def reconstruct_code(self, w) -> str:
         """The same key for a stage-2 fit: its script, its model's factory module and what they import."""
