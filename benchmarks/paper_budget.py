@@ -34,7 +34,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).parent))
 from rasterizer import make_scene, train_step  # noqa: E402
 
-from spc3d import models  # noqa: E402
+from spc3d import specs  # noqa: E402
 from spc3d.config import workflow_config  # noqa: E402
 from spc3d.evaluation import lpips_specs  # noqa: E402
 from spc3d.inputs.scenes import render_scene  # noqa: E402
@@ -71,16 +71,16 @@ def plan(config: dict) -> list[Item]:
     folds = {scene_fold(scene, train, scenes["leave_one_out"]) for scene in evaluate}
     items = []
     for method in stage1_sources(combos):
-        if not models.TRANSLATORS[parse_source(method).base].trained:
+        if not specs.TRANSLATORS[parse_source(method).base].trained:
             continue  # nothing to train (the prior, the classical denoiser)
         settings, training = translator_settings(config["stage1"], method)
         runs, steps = len(folds) * seeds, training["iterations"]
         items.append(Item("stage1", method, settings | {"crop": training["crop"]}, runs, steps))
     fits = Counter(parse_combination(c)[1] for c in combos)
     for model, n in fits.items():
-        spec = models.RECONSTRUCTORS[model]
+        spec = specs.RECONSTRUCTORS[model]
         settings = config["stage2"].get(model) or {}
-        steps = getattr(models.load(spec.config)(settings), spec.iteration_field)
+        steps = getattr(specs.load(spec.config)(settings), spec.iteration_field)
         items.append(Item("stage2", model, settings, n * len(evaluate) * seeds, steps))
     return items
 
@@ -136,7 +136,7 @@ def step_of(item: Item, smoke: bool):
         gs = make_scene(n, h, w)
         return f"3dgs fwd+bwd {n // 1000}k Gaussians {w}x{h}", lambda: train_step(gs, "native")
     settings = {**item.settings, "batch_rays": 64, "chunk": 1024} if smoke else item.settings
-    rays = models.load(models.RECONSTRUCTORS[item.name].config)(settings).batch_rays  # a preset's included
+    rays = specs.load(specs.RECONSTRUCTORS[item.name].config)(settings).batch_rays  # a preset's included
     return f"{item.name} ({rays} rays)", ray_step(item.name, settings)
 
 
@@ -144,7 +144,7 @@ def smoke_sizes(method: str) -> dict:
     """A translator's settings in config.yaml (the CPU sizes) at the sweeps' smallest width: the
     smoke mode's stand-in."""
     settings = translator_settings(workflow_config()["stage1"], method)[0]
-    width = models.TRANSLATORS[parse_source(method).base].width_field
+    width = specs.TRANSLATORS[parse_source(method).base].width_field
     return settings | ({width: 4} if width else {})
 
 

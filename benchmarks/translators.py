@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from spc3d.evaluation import lpips_specs
-from spc3d.models import TRANSLATORS as SPECS
+from spc3d.specs import TRANSLATORS as SPECS
 from spc3d.translate import MODULES
 
 

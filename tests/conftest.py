@@ -173,7 +173,7 @@ def session_folder(tmp_path_factory, name: str) -> Path:
 
 
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
-# The toy models of tests/test_toy_models.py, registered as a plugin (spc3d.models), join the smoke
+# The toy models of tests/test_toy_models.py, registered as a plugin (spc3d.specs), join the smoke
 # run: a model added outside the package goes through the same DAG into the tables.
 TOY_ENV = {"SPC3D_PLUGINS": str(REPO / "tests" / "test_toy_models.py")}
 TOY_COMBINATIONS = ["toy+toy-mean", "gt+toy-mean", "toy+3dgs"]

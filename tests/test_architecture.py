@@ -36,7 +36,7 @@ def test_import_resolution_on_known_modules():
     """The resolver itself: relative imports of a subpackage module and of an __init__."""
     assert "spc3d.training" in imported_modules(PACKAGE / "translate" / "train.py")
     assert "spc3d.translate.base" in imported_modules(PACKAGE / "translate" / "pix2pix.py")
-    assert "spc3d.models" in imported_modules(PACKAGE / "translate" / "__init__.py")
+    assert "spc3d.specs" in imported_modules(PACKAGE / "translate" / "__init__.py")
     assert "spc3d.reconstruct" in imported_modules(PACKAGE / "reconstruct" / "stage2.py")
 
 
@@ -52,12 +52,11 @@ def test_stage1_and_stage2_do_not_import_each_other(side, other):
 
 
 def test_workflow_vocabulary_does_not_import_torch():
-    """Parsing the Snakefile imports spc3d.names, spc3d.config and each job's settings objects; the
-    scene jobs import the simulator and the scoring jobs the scores, with their sRGB and PSNR
+    """The scene jobs import the simulator and the scoring jobs the scores, with their sRGB and PSNR
     (spc3d.pixels): all must stay torch-free."""
     code = (
         "import sys; sys.path.insert(0, 'workflow'); "
-        "import spc3d.models, spc3d.names, spc3d.config, spc3d.inputs.scenes, spc3d.settings, spc3d.sweeps.plan; "
+        "import spc3d.specs, spc3d.names, spc3d.config, spc3d.inputs.scenes, spc3d.settings, spc3d.sweeps.plan; "
         "import spc3d.pixels, spc3d.physics.spc, spc3d.inputs.build, spc3d.evaluation.scores; "
         "print('torch' in sys.modules)"
     )
@@ -65,9 +64,24 @@ def test_workflow_vocabulary_does_not_import_torch():
     assert out.stdout.strip() == "False"
 
 
+def test_planning_the_default_run_imports_neither_torch_nor_scikit_image(tmp_path):
+    """Snakemake's own process parses the Snakefile, checks every job's settings (spc3d.specs) and
+    plans the jobs: a dry run of the default grid imports neither torch nor scikit-image (each costs
+    every invocation about a second); the jobs' own processes import them."""
+    code = (
+        "import atexit, sys; "
+        "atexit.register(lambda: print('IMPORTED', 'torch' in sys.modules, 'skimage' in sys.modules)); "
+        f"sys.argv = ['snakemake', '-n', '--quiet', 'rules', '--cores', '1', '--directory', {str(tmp_path)!r}]; "
+        "from snakemake.cli import main; main()"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "IMPORTED False False" in out.stdout, out.stdout[-2000:]
+
+
 # Bottom to top: a module of a layer imports only modules of its own layer or of a lower one.
 LAYERS = (
-    ("models", "names", "io", "cameras", "llff", "pixels", "plotting", "runtime", "provenance"),
+    ("specs", "models", "names", "io", "cameras", "llff", "pixels", "plotting", "runtime", "provenance"),
     ("checkpoints", "training"),
     ("physics",),
     ("poses",),

@@ -7,6 +7,7 @@ from spc3d import cameras, io, llff
 from spc3d.inputs import augment
 from spc3d.inputs.build import simulate_scene
 from spc3d.physics import spc
+from spc3d.specs.translators import split_count
 
 IDENTITY = {"zoom": 1.0, "rotation_deg": 0.0, "shear_deg": 0.0, "flip": False}
 
@@ -42,8 +43,8 @@ def test_sampled_parameters_respect_ranges():
 
 
 def test_split_count_sums_to_total():
-    assert [augment.split_count(10, 3, i) for i in range(3)] == [4, 3, 3]
-    assert sum(augment.split_count(15000, 7, i) for i in range(7)) == 15000
+    assert [split_count(10, 3, i) for i in range(3)] == [4, 3, 3]
+    assert sum(split_count(15000, 7, i) for i in range(7)) == 15000
 
 
 @pytest.mark.parametrize(

@@ -84,7 +84,7 @@ CASES = [
     Case("unknown-top-level-key", r"sedd: unknown key; did you mean 'seed'", {"sedd": 1}),
     Case("misspelled-nested-key", r"spc\.frame: unknown key; did you mean 'frames'", {"spc": {"frame": 4}}),
     Case("wrong-type", r"resolution\.width = 'big': expected integer", {"resolution": {"width": "big"}}),
-    # --- ranges and order, one rule for every numeric setting (spc3d.training.check_range) ---------
+    # --- ranges and order, one rule for every numeric setting (spc3d.specs.build.check_range) ---------
     Case("negative-learning-rate", r"\.lr = -0\.001: must be > 0", {"stage1": {"pix2pixhd": {"lr": -0.001}}}),
     Case(
         "empty-densification-window",

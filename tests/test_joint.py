@@ -15,10 +15,11 @@ from spc3d.names import (
     source_label,
 )
 from spc3d.pixels import linear_to_srgb
-from spc3d.reconstruct import check_joint, config_joint, own_objective
+from spc3d.reconstruct import own_objective
 from spc3d.reconstruct.objectives import BernoulliObjective, JointConfig, JointObjective, RGBObjective
 from spc3d.reconstruct.sources import load_source
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
+from spc3d.specs.reconstructors import check_joint, config_joint
 
 LIKELIHOOD = BernoulliObjective(flux_scale=2.0e4, q=0.4, exposure_s=1.0e-4, dark_count_rate=100.0)
 

@@ -4,7 +4,7 @@ config.yaml sizes for the CPU must be set again in it, or the CPU value silently
 
 from spc3d.config import workflow_config
 from spc3d.names import translator_settings, translator_validation
-from spc3d.reconstruct import CONFIGS
+from spc3d.specs.reconstructors import reconstructor_config
 
 from conftest import REPO
 
@@ -12,7 +12,7 @@ PAPER = workflow_config(REPO / "workflow" / "presets" / "paper.yaml")
 
 
 def test_3dgs_runs_the_reference_schedule():
-    cfg = CONFIGS["3dgs"](PAPER["stage2"]["3dgs"])
+    cfg = reconstructor_config("3dgs", PAPER["stage2"]["3dgs"])
     reference = {"iterations": 30000, "densify_from": 500, "densify_until": 15000, "densify_every": 100}
     reference |= {"opacity_reset_every": 3000, "sh_interval": 1000, "densify_grad": 2e-4, "plateau_patience": 0}
     assert {k: getattr(cfg, k) for k in reference} == reference

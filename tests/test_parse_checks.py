@@ -15,16 +15,17 @@ import torch
 from snakemake.utils import update_config, validate
 
 from spc3d import config as spc_config
-from spc3d import llff, models
+from spc3d import llff, specs
 from spc3d.config import check_config, check_settings, non_finite, read_yaml, resolve_paths, training_image_sizes
 from spc3d.inputs.augment import AugmentSettings
 from spc3d.inputs.scenes import LAYOUTS, write_builtin_scene
 from spc3d.jobs import scene_specs
 from spc3d.names import ConfigError, parse_combination, resolve_combinations, stage1_sources
-from spc3d.reconstruct import CONFIGS
 from spc3d.reconstruct.nerf_grid import GridNeRF
+from spc3d.specs.reconstructors import reconstructor_config
+from spc3d.specs.translators import model_config
 from spc3d.translate.data import PairSampler
-from spc3d.translate.model_io import MODULES, build_translator, model_config
+from spc3d.translate.model_io import MODULES, build_translator
 
 from conftest import LLFF_ROOT, REPO, TINY_TRANSLATORS, run_snakemake
 
@@ -222,14 +223,14 @@ def test_the_crop_multiples_are_the_networks_own(method, changes):
     """The specs' crop_halvings restate each network's ``multiple``: the built models must agree."""
     for change in changes:
         cfg = model_config(method, {**TINY_TRANSLATORS[method], **change})
-        assert models.crop_multiple(method, cfg) == build_translator(method, cfg, torch.device("cpu")).multiple
+        assert specs.crop_multiple(method, cfg) == build_translator(method, cfg, torch.device("cpu")).multiple
 
 
 def test_only_the_networks_that_check_their_crops_are_listed():
     """The built-in translators whose train_step checks its crops are those with crop_halvings."""
     builtin = {m: module for m, module in MODULES.items() if module.__name__.startswith("spc3d.translate.")}
     checked = {m for m, module in builtin.items() if "check_multiple(" in inspect.getsource(module)}
-    assert checked == {m for m in builtin if models.TRANSLATORS[m].crop_halvings}
+    assert checked == {m for m in builtin if specs.TRANSLATORS[m].crop_halvings}
 
 
 # --- the grid schedule ------------------------------------------------------------------------------
@@ -243,7 +244,7 @@ def test_a_grid_schedule_that_starts_late_stops_the_parse():
         r"start it at iteration 0",
     ):
         parse(SMOKE, change, only("gt+3dgs", "gt+nerf"))
-    cfg = CONFIGS["nerf-grid"](change["stage2"]["nerf-grid"])
+    cfg = reconstructor_config("nerf-grid", change["stage2"]["nerf-grid"])
     with pytest.raises(ValueError):  # what the job would meet at its first step
         GridNeRF(cfg).res_for_step(1)
     parse(SMOKE, {"stage2": {"nerf-grid": {"res_schedule": [[1, 16], [20, 24]]}}}, only("gt+nerf"))
@@ -273,19 +274,18 @@ def test_yaml_syntax_error_in_a_configfile_is_named(tmp_path):
 
 
 def test_every_default_and_published_setting_lies_in_its_range():
-    """The range rule (spc3d.training.check_range) holds for every registered model's defaults and
+    """The range rule (spc3d.specs.build.check_range) holds for every registered model's defaults and
     published sizes: it refuses only what no model means."""
     import dataclasses
 
-    from spc3d import models
-    from spc3d.training import check_range
-    from spc3d.translate.train import TrainSettings
+    from spc3d.specs.build import check_range
+    from spc3d.specs.translators import TrainSettings
 
     configs = [("train", TrainSettings())]
-    for name, spec in models.TRANSLATORS.items():
-        module = models.import_module(spec.module)
+    for name, spec in specs.TRANSLATORS.items():
+        module = specs.import_module(spec.module)
         configs += [(name, module.Config()), (f"{name}-paper", module.Config(**module.PAPER))]
-    configs += [(name, models.load(spec.config)({})) for name, spec in models.RECONSTRUCTORS.items()]
+    configs += [(name, specs.load(spec.config)({})) for name, spec in specs.RECONSTRUCTORS.items()]
     for where, cfg in configs:
         for f in dataclasses.fields(cfg):
             check_range(where, f.name, getattr(cfg, f.name))
@@ -304,7 +304,7 @@ def test_every_default_and_published_setting_lies_in_its_range():
     ],
 )
 def test_the_range_rule_names_key_value_and_range(key, value, match):
-    from spc3d.training import check_range
+    from spc3d.specs.build import check_range
 
     with pytest.raises(ValueError, match=rf"stage1\.m\.{key} = .*{match}"):
         check_range("stage1.m", key, value)
@@ -338,7 +338,7 @@ def test_llff_images_narrower_than_the_working_width_are_named_as_upsampled(tmp_
 
 
 def test_tuple_settings_have_the_shape_their_annotation_says():
-    from spc3d.training import check_shape
+    from spc3d.specs.build import check_shape
 
     pairs = tuple[tuple[int, int], ...]
     check_shape("k", ((0, 16), (20, 24)), pairs)

@@ -202,6 +202,15 @@ def test_content_pools_are_disjoint_and_every_layout_keeps_to_its_pool():
         assert content(name) and content(name) <= pool, (name, sorted(content(name) - pool))
 
 
+def test_the_sample_images_shapes_are_the_stored_images_own():
+    """The table the planner reads instead of the images (scikit-image stays out of the parse)."""
+    from spc3d.inputs.scenes.textures import SAMPLE_IMAGES, _raw_image, source_shape
+
+    assert {name: _raw_image(name).shape[:2] for name in SAMPLE_IMAGES} == SAMPLE_IMAGES
+    with pytest.raises(ValueError, match="unknown texture 'bricks'; available: astronaut, brick"):
+        source_shape("bricks")
+
+
 def test_six_evaluation_layouts_hold_out_all_training_content():
     """The findings take the scene as the unit and need six evaluation scenes for any verdict; none
     shows a source of a training layout."""

@@ -12,11 +12,12 @@ from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.exposure import calibrate_display, write_display
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
-from spc3d.reconstruct import RECONSTRUCTORS, build_config
+from spc3d.reconstruct import RECONSTRUCTORS
 from spc3d.reconstruct.gaussians import GaussianConfig
 from spc3d.reconstruct.objectives import BernoulliObjective
 from spc3d.reconstruct.sources import load_source
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
+from spc3d.specs.build import build_config
 
 TINY_3DGS = {
     "iterations": 12,

@@ -1,5 +1,5 @@
 """Adding a model family is its code and its spec: a toy translator and a toy reconstructor, defined
-here and registered from here (``SPC3D_PLUGINS`` names this file; :mod:`spc3d.models`), run
+here and registered from here (``SPC3D_PLUGINS`` names this file; :mod:`spc3d.specs`), run
 through the smoke DAG from training to the tables, with no edit to the package.
 
 The toys are real models, only small: a 3x3 convolution as a residual over the physics prior, and
@@ -115,7 +115,7 @@ class MeanImageTrainer:
 
 
 def mean_config(settings: dict) -> MeanConfig:
-    from spc3d.training import build_config
+    from spc3d.specs.build import build_config
 
     return build_config(MeanConfig, settings, f"stage2.{TOY_RECONSTRUCTOR}")
 
@@ -127,11 +127,11 @@ def make_mean(views, objective, settings: dict, seed: int, points=None):
     return MeanImageTrainer(views, objective or RGBObjective("mse"), cfg, seed), cfg.iterations, cfg
 
 
-# --- the registration (called by spc3d.models when SPC3D_PLUGINS names this file) ----------------
+# --- the registration (called by spc3d.specs when SPC3D_PLUGINS names this file) ----------------
 
 
 def spc3d_register(register):
-    from spc3d.models import ReconstructorSpec, TranslatorSpec
+    from spc3d.specs import ReconstructorSpec, TranslatorSpec
 
     here = str(Path(__file__).resolve())
     register(TranslatorSpec(TOY_TRANSLATOR, "Toy (3x3 conv)", here, width_field="width"))
@@ -154,11 +154,13 @@ def test_a_plugin_registers_both_families_in_a_fresh_process():
     code = (
         "import sys; sys.path.insert(0, 'workflow');"
         "from spc3d import names; from spc3d.sweeps.budget import WIDTH_KEYS, ITERATION_FIELD;"
-        "from spc3d.translate import MODULES; from spc3d.reconstruct import RECONSTRUCTORS, CONFIGS;"
+        "from spc3d.translate import MODULES; from spc3d.reconstruct import RECONSTRUCTORS;"
+        "from spc3d.specs.reconstructors import reconstructor_config; from spc3d.specs.translators import model_config;"
         f"assert names.STAGE1_METHODS[-1] == '{TOY_TRANSLATOR}' and names.STAGE2_MODELS[-1] == '{TOY_RECONSTRUCTOR}';"
         f"assert WIDTH_KEYS['{TOY_TRANSLATOR}'] == 'width' and ITERATION_FIELD['{TOY_RECONSTRUCTOR}'] == 'iterations';"
         f"assert MODULES['{TOY_TRANSLATOR}'].Config().width == 3;"
-        f"assert CONFIGS['{TOY_RECONSTRUCTOR}']({{'iterations': 7}}).iterations == 7;"
+        f"assert model_config('{TOY_TRANSLATOR}', {{'width': 5}}) == MODULES['{TOY_TRANSLATOR}'].Config(width=5);"
+        f"assert reconstructor_config('{TOY_RECONSTRUCTOR}', {{'iterations': 7}}).iterations == 7;"
         f"print(names.LABELS['{TOY_TRANSLATOR}'], sorted(RECONSTRUCTORS))"
     )
     repo = Path(__file__).resolve().parents[1]
@@ -167,15 +169,44 @@ def test_a_plugin_registers_both_families_in_a_fresh_process():
     assert out.stdout.strip() == "Toy (3x3 conv) ['3dgs', 'nerf', 'nerf-grid', 'toy-mean']"
 
 
+def test_a_plugin_on_the_old_names_still_loads_with_a_warning():
+    """spc3d.models (the specs' old module) and spc3d.training.build_config (the builder's old home)
+    still answer, each with a DeprecationWarning naming the new place, and hand out the same objects."""
+    import subprocess
+    import warnings
+
+    code = (
+        "import sys, warnings; sys.path.insert(0, 'workflow'); warnings.simplefilter('always');"
+        "from spc3d import specs\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always'); import spc3d.models as old\n"
+        "assert old.TRANSLATORS is specs.TRANSLATORS and old.TranslatorSpec is specs.TranslatorSpec\n"
+        "print(caught[0].category.__name__, caught[0].message)"
+    )
+    repo = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.startswith("DeprecationWarning spc3d.models is now spc3d.specs"), out.stdout
+    from spc3d import training
+    from spc3d.specs import build
+
+    with pytest.warns(DeprecationWarning, match=r"spc3d\.training\.build_config is now spc3d\.specs\.build"):
+        assert training.build_config is build.build_config
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(AttributeError, match="no attribute 'build_configs'"):
+            training.build_configs  # noqa: B018
+
+
 def test_register_refuses_a_clash_and_a_bad_name():
-    from spc3d import models
+    from spc3d import specs
 
     with pytest.raises(ValueError, match="already registered"):
-        models.register(models.TranslatorSpec("pix2pix", "again", "spc3d.translate.pix2pix"))
+        specs.register(specs.TranslatorSpec("pix2pix", "again", "spc3d.translate.pix2pix"))
     with pytest.raises(ValueError, match="must match"):
-        models.register(models.TranslatorSpec("toy-net", "a dash ends a source name", "x"))
+        specs.register(specs.TranslatorSpec("toy-net", "a dash ends a source name", "x"))
     with pytest.raises(ValueError, match="defines no spc3d_register"):
-        models.load_plugins(str(Path(models.__file__)))
+        specs.load_plugins(str(Path(specs.__file__)))
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from spc3d import models
+from spc3d import specs
 from spc3d.translate import MODULES, blurred_mle, classical, model_io
 from spc3d.translate.classical import DENOISERS, GRID, P_MAX, Config, Translator, inverse_vst, vst, vst_sigma
 
@@ -52,11 +52,11 @@ def pinned(name: str, **params) -> Translator:
 
 
 def test_the_registry_treats_it_as_an_untrained_method():
-    spec = models.TRANSLATORS["classical"]
+    spec = specs.TRANSLATORS["classical"]
     assert not spec.trained and spec.width_field is None and not Translator.trainable
     assert classical.PAPER == {} and 15 <= len(GRID) <= 25 and set(DENOISERS) == {n for n, _ in GRID}
     for name, module in MODULES.items():  # the spec's flag and the model's agree for every method
-        assert models.TRANSLATORS[name].trained == module.Translator.trainable, name
+        assert specs.TRANSLATORS[name].trained == module.Translator.trainable, name
 
 
 @pytest.mark.parametrize("frames", [1, 4, 16])

@@ -13,7 +13,7 @@ import pytest
 import torch
 from torch import nn
 
-from spc3d import io, translate
+from spc3d import io, specs, translate
 from spc3d.checkpoints import CheckpointPolicy
 from spc3d.evaluation import figures, tables
 from spc3d.evaluation.figures import pick_view, qualitative_figure
@@ -95,6 +95,7 @@ def test_registry_matches_the_workflow_names():
     with pytest.raises(AttributeError, match="no attribute 'MODELS'"):
         translate.MODELS  # noqa: B018
     for name, module in translate.MODULES.items():
+        assert specs.settings_classes(name) == (module.Config, module.PAPER), name  # the torch-free ones
         assert dataclasses.is_dataclass(module.Config) and set(module.PAPER) <= {
             f.name for f in dataclasses.fields(module.Config)
         }, name

@@ -13,8 +13,8 @@ validate(config, schema="../schemas/config.schema.yaml")
 resolve_paths(config, workflow.basedir)
 
 from spc3d.inputs.scenes import LAYOUTS
-from spc3d.models import RECONSTRUCTORS as MODELS
-from spc3d.models import TRANSLATORS as STAGE1_SPECS
+from spc3d.specs import RECONSTRUCTORS as MODELS
+from spc3d.specs import TRANSLATORS as STAGE1_SPECS
 from spc3d.names import (JOINT_SOURCES, PLAIN_SOURCES, POSES_PATTERN, SOURCE_PATTERN, STAGE1_METHODS, STAGE2_MODELS,
     parse_combination, stage1_sources)
 from snakemake.exceptions import WorkflowError
@@ -37,8 +37,8 @@ FOLDS = training_folds(TRAIN_SCENES, EVAL_SCENES, config["scenes"]["leave_one_ou
 GRID = Grid(config, scene_specs(config, sorted(LAYOUTS)), FOLDS, workflow.basedir)
 TARGETS = Targets(GRID)  # the files the run makes: every row on every evaluation scene, for every seed
 ALL_SCENES, COMBINATIONS = TARGETS.scenes, TARGETS.combinations
-# Checked once, by the main process: each job's own process reads this file again, and would import
-# the torch model modules (their settings dataclasses) for nothing.
+# Checked once, by the main process (torch-free: spc3d.specs); each job's own process reads this
+# file again and builds only its own settings.
 if workflow.is_main_process:
     check_settings(config, stage1_sources(COMBINATIONS), sorted({parse_combination(c)[1] for c in COMBINATIONS}),
                    COMBINATIONS)

@@ -6,6 +6,8 @@ testable without Snakemake; values arrive as function arguments, never from the 
 Rooms, bottom to top (a module imports only its own room and those below it;
 ``tests/test_architecture.py`` keeps it so). Rule -> script -> function: ``workflow/rules/README.md``.
 
+specs/        the model specs (every translator and reconstructor) and the settings dataclasses of
+              every model, training and validation, built and checked without torch (``models``: old name)
 names         the vocabulary: sources and their grammar, combinations, labels, settings (torch-free)
 io            image and binary-frame files (OpenImageIO, packed ``.npz``), JSON records; atomic writes
 cameras       the one internal camera convention and conversions to/from LLFF and COLMAP

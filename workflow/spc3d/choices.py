@@ -26,8 +26,8 @@ from pathlib import Path
 from spc3d import io
 from spc3d.evaluation.evaluate import evaluate
 from spc3d.inputs.exposure import write_display
-from spc3d.reconstruct import check_candidates
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
+from spc3d.specs.reconstructors import check_candidates
 from spc3d.translate.apply import translate_scene
 
 

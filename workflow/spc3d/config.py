@@ -188,11 +188,11 @@ def strict_validator(jsonschema):
 
 def model_block_errors(config: dict, schema: dict) -> list[str]:
     """Keys of ``stage1`` / ``stage2`` that are neither the schema's own nor a registered model's
-    settings block (:mod:`spc3d.models`: the schema admits any block there, for plugins' models)."""
-    from spc3d import models
+    settings block (:mod:`spc3d.specs`: the schema admits any block there, for plugins' models)."""
+    from spc3d import specs
 
     lines = []
-    for block, registry in (("stage1", models.TRANSLATORS), ("stage2", models.RECONSTRUCTORS)):
+    for block, registry in (("stage1", specs.TRANSLATORS), ("stage2", specs.RECONSTRUCTORS)):
         known = sorted({*schema["properties"][block]["properties"], *registry})
         given = config.get(block) if isinstance(config.get(block), dict) else {}
         lines += [_unknown_key(block, key, known) for key in given if key not in known]
@@ -358,13 +358,10 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
     augmentation ranges), check published weights, input paths and the values that constrain each
     other, so that a wrong key or value is reported at parse time."""
     from spc3d.checks.crosscheck import check_rows
-    from spc3d.inputs.augment import AugmentSettings
     from spc3d.names import parse_source, translator_settings, translator_validation
-    from spc3d.reconstruct import CONFIGS, check_joint
-    from spc3d.training import build_config
-    from spc3d.translate.model_io import check_pretrained, model_config
-    from spc3d.translate.train import data_mode, train_settings
-    from spc3d.translate.validate import validation_settings
+    from spc3d.specs.build import build_config
+    from spc3d.specs.reconstructors import check_joint, reconstructor_config
+    from spc3d.specs.translators import AugmentSettings, data_mode, model_config, train_settings, validation_settings
 
     trainings = []  # (method, model Config, TrainSettings) of every translator trained
     try:
@@ -383,9 +380,11 @@ def check_settings(config: dict, methods: list[str], models: list[str], combinat
                 check_hold_out(config["scenes"], base, valid.hold_out)
             if settings.get("checkpoint"):
                 check_file(settings["checkpoint"], f"stage1.{base}.checkpoint", "published weights to start from")
+                from spc3d.translate.model_io import check_pretrained  # torch: only for published weights
+
                 check_pretrained(base, settings)
         for model in models:
-            built = CONFIGS[model](dict(config["stage2"][model]))
+            built = reconstructor_config(model, dict(config["stage2"][model]))
             if model == "nerf-grid":
                 check_grid_schedule(built.res_schedule)
         check_joint(dict(config["stage2"].get("joint") or {}))
@@ -444,9 +443,9 @@ def training_image_sizes(config: dict) -> dict[str, tuple[int | None, int]]:
 def check_crops(config: dict, trainings: list[tuple]) -> None:
     """Every trained translator's crop fits the smallest training image (the condition of the
     samplers, spc3d.translate.data.PairSampler and .online.OnlineSampler) and, for a network
-    that does not pad, is a multiple of its :func:`spc3d.models.crop_multiple` (checked when it trains a step).
+    that does not pad, is a multiple of its :func:`spc3d.specs.crop_multiple` (checked when it trains a step).
     ``trainings``: (method, model Config, TrainSettings) of each translator the run trains."""
-    from spc3d import models
+    from spc3d import specs
     from spc3d.names import parse_source
 
     sizes = training_image_sizes(config) if trainings else {}
@@ -465,9 +464,9 @@ def check_crops(config: dict, trainings: list[tuple]) -> None:
                 f"{scene!r} is {shown} at resolution.width = {config['resolution']['width']}); {base} "
                 f"trains on {s.crop}x{s.crop} crops of those images: use {key} <= {smallest}"
             )
-        multiple = models.crop_multiple(base, cfg)
+        multiple = specs.crop_multiple(base, cfg)
         if s.iterations and s.crop % multiple:
-            halvings = models.TRANSLATORS[base].crop_halvings
+            halvings = specs.TRANSLATORS[base].crop_halvings
             values = " + ".join(str(getattr(cfg, name)) for name in halvings)
             fit = max(multiple, s.crop // multiple * multiple)
             hint = f" (e.g. {fit})" if fit <= smallest else f" (at most {smallest} px fit the training images)"

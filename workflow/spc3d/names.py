@@ -1,7 +1,7 @@
 """The workflow's vocabulary: stage-1 methods, sources and their grammar, combinations and their
 photon budgets, labels, and the config turned into SPC / translator settings.
 
-The bottom of the package: torch-free (its one spc3d import, :mod:`spc3d.models`, is too), so
+The bottom of the package: torch-free (its one spc3d import, :mod:`spc3d.specs`, is too), so
 parsing the Snakefile stays fast and every room may use it. Nothing here knows about Snakemake
 objects or files.
 """
@@ -12,21 +12,21 @@ import dataclasses
 import difflib
 from dataclasses import dataclass
 
-from spc3d import models
+from spc3d import specs
 
 
 class ConfigError(ValueError):
     """A config value that passed the JSON schema but is still wrong (e.g. an unknown scene)."""
 
 
-# Stage-1 methods and stage-2 models: the model specs' names (spc3d.models). The untrained methods
+# Stage-1 methods and stage-2 models: the model specs' names (spc3d.specs). The untrained methods
 # (a spec's ``trained`` False) are rows of their own that show what learning adds: ``prior``, the
 # translators' untrained start (the blurred-MLE physics prior alone), and ``classical``, the best
 # non-learned denoiser. PLAIN_SOURCES: the stage-2 sources without stage 1.
-STAGE1_METHODS = tuple(models.TRANSLATORS)
-TRAINED_METHODS = tuple(n for n, spec in models.TRANSLATORS.items() if spec.trained)  # with a published form
+STAGE1_METHODS = tuple(specs.TRANSLATORS)
+TRAINED_METHODS = tuple(n for n, spec in specs.TRANSLATORS.items() if spec.trained)  # with a published form
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
-STAGE2_MODELS = tuple(models.RECONSTRUCTORS)
+STAGE2_MODELS = tuple(specs.RECONSTRUCTORS)
 # Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
 # the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
 BUDGET_SOURCES = ("mle", "bernoulli")
@@ -43,7 +43,7 @@ SOURCE_IMAGES = {
 }
 # How tables and figures name each source (the diffusion model is not DiffBIR; say so everywhere).
 LABELS = {
-    **{name: spec.label for name, spec in models.TRANSLATORS.items()},
+    **{name: spec.label for name, spec in specs.TRANSLATORS.items()},
     "mle": "MLE",
     "none": "binary frame (no stage 1)",
     "gt": "ground truth",
@@ -323,7 +323,7 @@ def stage2_row_settings(stage2: dict, model: str, poses: str | None) -> dict:
     refines cameras ``pose_refine`` per ``stage2.refine_poses`` unless the block sets it (all rows,
     or by default the rows on estimated poses, ``poses`` not None)."""
     settings, refine = dict(stage2.get(model) or {}), stage2.get("refine_poses", "estimated")
-    if models.RECONSTRUCTORS[model].refines_poses and "pose_refine" not in settings:
+    if specs.RECONSTRUCTORS[model].refines_poses and "pose_refine" not in settings:
         settings["pose_refine"] = refine == "all" or (refine == "estimated" and bool(poses))
     return settings
 

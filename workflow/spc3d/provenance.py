@@ -55,7 +55,7 @@ def module_file(name: str) -> Path | None:
 
 
 def entry_file(module: str) -> Path:
-    """The source of a registry's ``module`` (:func:`spc3d.models.import_module`'s forms: a dotted
+    """The source of a registry's ``module`` (:func:`spc3d.specs.import_module`'s forms: a dotted
     name or a ``.py`` path), found without importing it."""
     if module.endswith(".py"):
         return Path(module).resolve()

@@ -1,5 +1,5 @@
 """Settings checked against each other, in one place: what each value allows alone is the schema's and
-the settings dataclasses' (:func:`spc3d.training.check_range`); here are the values that are each
+the settings dataclasses' (:func:`spc3d.specs.build.check_range`); here are the values that are each
 valid but contradict another one, so that a feature would silently never run or a job would fail.
 
     check_translator(method, cfg, train, where)   architecture (Restormer heads, odd kernels), DDIM steps
@@ -99,7 +99,7 @@ def check_reconstructor(model: str, cfg, where: str) -> None:
 def check_joint(settings: dict, where: str = "stage2.joint") -> None:
     """A joint row fits the SPAD likelihood plus w(t) x a prior term: with the likelihood off and
     both weights 0 it has nothing to fit (``settings``: :func:`spc3d.names.joint_settings`)."""
-    from spc3d.reconstruct import config_joint
+    from spc3d.specs.reconstructors import config_joint
 
     cfg = config_joint(settings)
     if not cfg.likelihood and cfg.weight == 0 and cfg.weight_final == 0:
@@ -112,10 +112,9 @@ def check_joint(settings: dict, where: str = "stage2.joint") -> None:
 def check_rows(config: dict, methods: list[str], combinations: list[str]) -> None:
     """Every check above for the main configuration: each trained stage-1 method, each row's
     stage-2 settings as its job builds them (:func:`spc3d.names.stage2_row_settings`)."""
-    from spc3d.reconstruct import CONFIGS
-    from spc3d.training import build_config
-    from spc3d.translate.model_io import model_config
-    from spc3d.translate.train import TrainSettings
+    from spc3d.specs.build import build_config
+    from spc3d.specs.reconstructors import reconstructor_config
+    from spc3d.specs.translators import TrainSettings, model_config
 
     for method in methods:
         base = parse_source(method).base
@@ -125,7 +124,7 @@ def check_rows(config: dict, methods: list[str], combinations: list[str]) -> Non
     stage2 = config["stage2"]
     for combo in combinations:
         source, model, poses = parse_combination(combo)
-        built = CONFIGS[model](stage2_row_settings(stage2, model, poses))
+        built = reconstructor_config(model, stage2_row_settings(stage2, model, poses))
         check_reconstructor(model, built, f"stage2.{model}")
         if source.startswith(JOINT):
             check_joint(joint_settings(dict(stage2.get("joint") or {}), model), f"stage2.joint ({combo})")
@@ -135,9 +134,8 @@ def check_point(points, combo: str, value: str) -> None:
     """Every check above for one sweep point: ``combo`` at overlay ``value`` with the point's knobs
     applied (``points``: :class:`spc3d.sweeps.plan.PointSettings`), as the point's jobs build
     them; an error names the point and its knobs."""
-    from spc3d.reconstruct import CONFIGS
-    from spc3d.translate.model_io import model_config
-    from spc3d.translate.train import TrainSettings
+    from spc3d.specs.reconstructors import reconstructor_config
+    from spc3d.specs.translators import TrainSettings, model_config
 
     config = points.config
     source, model, _ = parse_combination(combo)
@@ -150,7 +148,7 @@ def check_point(points, combo: str, value: str) -> None:
             check_translator(base, model_config(base, settings), TrainSettings(**train), f"{where}: stage1.{base}")
         stage2, knobs = config["stage2"], points.setting(value)
         if model == "3dgs" and "cap" in knobs:
-            init = CONFIGS[model](stage2_row_settings(stage2, model, None)).init_points
+            init = reconstructor_config(model, stage2_row_settings(stage2, model, None)).init_points
             if knobs["cap"] < init:
                 key = (
                     "photon_level.budget.cap"
@@ -163,7 +161,7 @@ def check_point(points, combo: str, value: str) -> None:
                     "stage2.3dgs.init_points"
                 )
         settings = points.stage2(value, model, stage2_row_settings(stage2, model, None))
-        check_reconstructor(model, CONFIGS[model](settings), f"{where}: stage2.{model}")
+        check_reconstructor(model, reconstructor_config(model, settings), f"{where}: stage2.{model}")
         if source.startswith(JOINT):
             check_joint(joint_settings(dict(stage2.get("joint") or {}), model), f"{where}: stage2.joint")
     except ConfigError:
@@ -202,20 +200,20 @@ def unused_blocks(given: dict, rows: list[str], nerf_variant: str) -> list[str]:
     """A warning for each non-empty settings block of ``stage1`` / ``stage2`` in ``given`` (what the
     user's own config files set, not config.yaml's defaults) that no row of ``rows`` (the main
     configuration's and the sweeps') reads: it is silently ignored."""
-    from spc3d import models
+    from spc3d import specs
 
     used_methods, used_models, joint = set(), set(), False
     for combo in rows:
         source, model, poses = parse_combination(combo)
         used_models.add(nerf_variant if model == "nerf" else model)
         for name in (source, poses or ""):
-            if parse_source(name).base in models.TRANSLATORS:
+            if parse_source(name).base in specs.TRANSLATORS:
                 used_methods.add(parse_source(name).base)
         joint = joint or source.startswith(JOINT)
     out = []
     for block, registry, used in (
-        ("stage1", models.TRANSLATORS, used_methods),
-        ("stage2", models.RECONSTRUCTORS, used_models | ({"joint"} if joint else set())),
+        ("stage1", specs.TRANSLATORS, used_methods),
+        ("stage2", specs.RECONSTRUCTORS, used_models | ({"joint"} if joint else set())),
     ):
         for name, settings in (given.get(block) or {}).items():
             if (name in registry or name == "joint") and settings and name not in used:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -31,27 +31,9 @@ from spc3d import io, llff
 from spc3d.cameras import split_views
 from spc3d.physics import spc
 from spc3d.physics.record import camera_exposure, exposure_record, params_from_record, read_spc_record
+from spc3d.specs.translators import AugmentSettings
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class AugmentSettings:
-    """Ranges of the random affine maps."""
-
-    zoom: tuple[float, float] = (0.8, 1.25)  # zoom factor range, sampled log-uniformly
-    rotation_deg: float = 15.0  # max |rotation|
-    shear_deg: float = 10.0  # max |shear|
-    flip_prob: float = 0.5  # probability of a horizontal flip
-
-    def __post_init__(self):
-        lo, hi = self.zoom
-        if not 0 < lo <= hi:
-            raise ValueError(f"augment.zoom={list(self.zoom)}: need 0 < min <= max")
-        if not 0 <= self.flip_prob <= 1:
-            raise ValueError(f"augment.flip_prob={self.flip_prob}: must be in [0, 1]")
-        if self.rotation_deg < 0 or self.shear_deg < 0:
-            raise ValueError("augment.rotation_deg and augment.shear_deg must be >= 0")
 
 
 def sample_params(rng: np.random.Generator, s: AugmentSettings) -> dict:
@@ -100,11 +82,6 @@ def augment_image(srgb: np.ndarray, p: dict) -> np.ndarray:
     """Warp an sRGB (H, W, 3) image by the parameters ``p`` (in linear light, reflected borders)."""
     lin = warp_linear(spc.srgb_to_linear(srgb), p)
     return spc.linear_to_srgb(np.clip(lin, 0.0, 1.0)).astype(np.float32)
-
-
-def split_count(total: int, n_scenes: int, index: int) -> int:
-    """Samples for scene ``index`` of ``n_scenes`` when ``total`` are split as evenly as possible."""
-    return total // n_scenes + (1 if index < total % n_scenes else 0)
 
 
 def augment_scene(

@@ -10,65 +10,15 @@ has ``step / render / capacity / state / load`` and is driven by :func:`spc3d.tr
 ``objective`` None means the model's own RGB loss (3DGS: 0.8 L1 + 0.2 D-SSIM; NeRF: MSE); a
 :class:`objectives.BernoulliObjective` fits binary frames through the SPAD likelihood instead, a
 :class:`objectives.JointObjective` the likelihood plus the model's own loss towards stage-1 images.
-``CONFIGS`` builds each model's settings dataclass alone (the workflow checks them at parse time).
+Their settings dataclasses live in :mod:`spc3d.specs.reconstructors` (torch-free: the workflow builds
+and checks them at parse time).
 """
 
 from __future__ import annotations
 
-import math
-
-from spc3d import models
+from spc3d import specs
 from spc3d.reconstruct.objectives import JointObjective, RGBObjective
-from spc3d.training import build_config
-
-
-def config_3dgs(settings: dict):
-    from spc3d.reconstruct.gaussians import GaussianConfig
-
-    return build_config(GaussianConfig, settings, "stage2.3dgs")
-
-
-def config_nerf(settings: dict):
-    from spc3d.reconstruct.nerf import NerfConfig, nerf_preset
-
-    settings = dict(settings)
-    return build_config(NerfConfig, settings, "stage2.nerf", nerf_preset(settings.pop("preset", "paper")))
-
-
-def config_nerf_grid(settings: dict):
-    from spc3d.reconstruct.nerf_grid import GridConfig
-
-    return build_config(GridConfig, settings, "stage2.nerf-grid")
-
-
-def config_joint(settings: dict):
-    """stage2.joint: the joint rows' prior weight schedule and penalty (:class:`objectives.JointConfig`)."""
-    from spc3d.reconstruct.objectives import JointConfig
-
-    return build_config(JointConfig, settings, "stage2.joint")
-
-
-def check_joint(joint: dict) -> None:
-    """stage2.joint and each of its per-model entries, as :func:`config_joint` builds them."""
-    from spc3d.names import joint_settings
-
-    models, choose = joint.get("models") or {}, joint.get("choose") or {}
-    for key, given in (("models", models), ("choose", choose)):
-        unknown = sorted(set(given) - set(CONFIGS))
-        if unknown:
-            raise ValueError(f"stage2.joint.{key}: unknown model(s) {unknown}; use one of {sorted(CONFIGS)}")
-    for model in [None, *models]:
-        config_joint(joint_settings(joint, model))
-    for model, candidates in choose.items():
-        check_candidates(candidates, f"stage2.joint.choose.{model}")
-
-
-def check_candidates(candidates, where: str) -> list[float]:
-    """Candidate prior weights of a fold's choice (spc3d.choices): distinct finite numbers >= 0."""
-    values = [float(c) for c in candidates or ()]
-    if not values or any(not math.isfinite(v) or v < 0 for v in values) or len(set(values)) != len(values):
-        raise ValueError(f"{where} = {candidates}: need distinct finite weights >= 0, e.g. [0.1, 0.3, 1.0]")
-    return values
+from spc3d.specs.reconstructors import config_3dgs, config_nerf, config_nerf_grid
 
 
 def own_objective(objective, own: RGBObjective):
@@ -104,7 +54,6 @@ def make_nerf_grid(views, objective, settings: dict, seed: int, points=None):  #
     return RayTrainer(views, own_objective(objective, RGBObjective("mse")), "nerf-grid", cfg, seed), cfg.n_iters, cfg
 
 
-# name -> factory and name -> settings dataclass builder, from the specs of spc3d.models (a spec
-# names its functions as "module:function"; the built-in ones are the functions above).
-RECONSTRUCTORS = {name: models.load(spec.factory) for name, spec in models.RECONSTRUCTORS.items()}
-CONFIGS = {name: models.load(spec.config) for name, spec in models.RECONSTRUCTORS.items()}
+# name -> factory, from the specs of spc3d.specs (a spec names its factory as "module:function"; the
+# built-in ones are the functions above). Their settings: spc3d.specs.reconstructors.reconstructor_config.
+RECONSTRUCTORS = {name: specs.load(spec.factory) for name, spec in specs.RECONSTRUCTORS.items()}

@@ -15,8 +15,6 @@ Density control lives in :mod:`spc3d.reconstruct.densify`; the training loop in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -26,66 +24,9 @@ from spc3d.reconstruct.pose_refine import quat_mul
 from spc3d.reconstruct.splat import eval_sh, project_gaussians, project_gaussians_native, rasterize
 from spc3d.reconstruct.splat.native_sh import eval_sh_native
 from spc3d.reconstruct.splat.project import SH_C0
-from spc3d.training import require_positive
+from spc3d.specs.reconstructors import GaussianConfig
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
-
-
-@dataclass
-class GaussianConfig:
-    """3DGS settings; defaults are the reference implementation's (Kerbl et al. 2023, graphdeco-inria/
-    gaussian-splatting ``arguments/__init__.py``); the workflow's CPU budgets override some (config.yaml)."""
-
-    iterations: int = 30_000  # optimisation steps (one random training view each)
-    sh_degree: int = 3  # highest SH degree
-    sh_interval: int = 1000  # consider raising the active degree every this many iterations
-    lr_means: float = 1.6e-4  # x scene extent, decays exponentially to lr_means_final
-    lr_means_final: float = 1.6e-6  # x scene extent, the positions' learning rate at the last step
-    lr_sh_dc: float = 2.5e-3  # Adam lr of the SH degree-0 (base colour) coefficients
-    lr_sh_rest: float = 2.5e-3 / 20  # Adam lr of the higher SH coefficients (view-dependent colour)
-    lr_opacity: float = 0.05  # Adam lr of the opacity logits
-    lr_scales: float = 5e-3  # Adam lr of the log scales
-    lr_quats: float = 1e-3  # Adam lr of the rotation quaternions
-    ssim_weight: float = 0.2  # loss (1 - w) L1 + w (1 - SSIM)
-    densify_from: int = 500  # first iteration of clone / split / prune
-    densify_until: int = 15_000  # no density control after this iteration
-    densify_every: int = 100  # iterations between density-control passes
-    densify_grad: float = 2e-4  # view-space positional gradient threshold (NDC units, as 3DGS)
-    percent_dense: float = 0.01  # clone below / split above this fraction of the scene extent
-    opacity_reset_every: int = 3000  # opacities clamped down to 0.01 this often (while densifying)
-    prune_opacity: float = 0.005  # prune Gaussians whose opacity falls below this
-    max_screen_size: float = 20.0  # px; prune larger Gaussians after the first opacity reset
-    max_gaussians: int = 200_000  # hard cap on capacity
-    init_points: int = 5000  # random initialisation only
-    pose_refine: bool = False  # learn a correction of every training camera (spc3d.reconstruct.pose_refine)
-    pose_lr: float = 5e-4  # Adam lr of the corrections (radians; translation in scene extents), at pose_from
-    pose_lr_final: float = 5e-6  # their lr at the last iteration (exponential decay: they settle, not drift)
-    pose_from: int = 300  # iteration from which the corrections move (the Gaussians fit roughly first)
-    plateau_window: int = 100  # steps averaged into one value of the stopping rule (spc3d.training.Plateau)
-    plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
-    plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
-    plateau_tol: float = 0.0  # ... and by at least this much (objective units): below it the fit is done
-    plateau_views: int = 0  # training views held out of the fit whose objective judges the stop (0: the
-    # training objective itself; spc3d.reconstruct.views.hold_out)
-    backend: str = "native"  # rasterizer back-end
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # colour behind the last Gaussian (render space)
-
-    def __post_init__(self):
-        require_positive(
-            self, "iterations", "sh_interval", "densify_every", "max_gaussians", "init_points", "plateau_window"
-        )
-        if not 0 <= self.sh_degree <= 3:
-            raise ValueError(f"sh_degree = {self.sh_degree}: the rasterizer evaluates degrees 0..3")
-        if self.densify_until > 0 and self.densify_from >= self.densify_until:
-            raise ValueError(
-                f"densify_from = {self.densify_from}, densify_until = {self.densify_until}: densification would "
-                f"never run; set densify_until above densify_from (or densify_until: 0 for none)"
-            )
-        if self.max_gaussians < self.init_points:
-            raise ValueError(
-                f"max_gaussians = {self.max_gaussians} is below init_points = {self.init_points}: the cap would be "
-                f"broken from the first step; raise max_gaussians or lower init_points"
-            )
 
 
 class GaussianModel(nn.Module):

@@ -8,66 +8,14 @@ is MSE on both ``rgb_coarse`` and ``rgb``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
 from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.volume import composite, edges_from_points, sample_pdf, stratified_t
-from spc3d.training import require_positive, set_lr  # noqa: F401 - set_lr: part of this module's API (lr_at -> set_lr)
-
-
-@dataclass(frozen=True)
-class NerfConfig:
-    depth: int = 8  # layers of the density trunk
-    width: int = 256  # hidden units per trunk layer (the view branch has width // 2)
-    skips: tuple[int, ...] = (4,)  # the input is concatenated again after these trunk layers
-    freqs_xyz: int = 10  # positional-encoding frequencies 2^0..2^(L-1) for positions
-    freqs_dir: int = 4  # positional-encoding frequencies for viewing directions
-    use_viewdirs: bool = True  # colour depends on the viewing direction
-    n_coarse: int = 64  # stratified samples per ray
-    n_fine: int = 64  # importance samples per ray (the paper's LLFF config uses 128)
-    perturb: bool = True  # jitter stratified samples during training
-    raw_noise_std: float = 1.0  # std of noise added to raw density during training (regulariser)
-    white_bkgd: bool = False  # composite onto white instead of black
-    lr: float = 5e-4  # Adam learning rate at step 0
-    lr_final: float = 5e-5  # learning rate reached at ``n_iters`` (exponential decay)
-    n_iters: int = 200_000  # iteration budget the learning rate decays over
-    batch_rays: int = 1024  # rays per training step (N_rand)
-    chunk: int = 4096  # rays per forward pass when rendering whole images
-    plateau_window: int = 50  # steps averaged into one value of the stopping rule (spc3d.training.Plateau)
-    plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
-    plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
-    plateau_tol: float = 0.0  # ... and by at least this much (objective units): below it the fit is done
-    plateau_views: int = 0  # training views held out of the fit whose objective judges the stop (0: the
-    # training objective itself; spc3d.reconstruct.views.hold_out)
-
-    def __post_init__(self):
-        require_positive(self, "depth", "width", "n_coarse", "n_iters", "batch_rays", "chunk", "plateau_window")
-
-
-def nerf_preset(name: str) -> NerfConfig:
-    """'paper' (original defaults), 'llff' (128 fine samples), 'cpu' (small, for 2-core budgets)."""
-    presets = {
-        "paper": NerfConfig(),
-        "llff": NerfConfig(n_fine=128),
-        "cpu": NerfConfig(
-            depth=4,
-            width=64,
-            skips=(2,),
-            freqs_xyz=8,
-            freqs_dir=2,
-            n_coarse=32,
-            n_fine=32,
-            n_iters=3000,
-            batch_rays=1024,
-        ),
-    }
-    if name not in presets:
-        raise ValueError(f"unknown NeRF preset {name!r}; choose one of {sorted(presets)}")
-    return presets[name]
+from spc3d.specs.reconstructors import NerfConfig, nerf_preset  # noqa: F401 - nerf_preset: part of this module's API
+from spc3d.training import set_lr  # noqa: F401 - set_lr: part of this module's API (lr_at -> set_lr)
 
 
 def positional_encoding(x: torch.Tensor, n_freqs: int) -> torch.Tensor:

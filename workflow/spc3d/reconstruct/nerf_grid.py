@@ -21,7 +21,6 @@ After ``upsample`` the parameters are new tensors: build a new optimizer (DVGO d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 import torch.nn as nn
@@ -31,58 +30,7 @@ from numba import njit
 from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.nerf import positional_encoding
 from spc3d.reconstruct.volume import accumulate, composite_weights, march_grid, stratified_t
-from spc3d.training import require_positive
-
-
-@dataclass(frozen=True)
-class GridConfig:
-    channels: int = 12  # feature-grid channels fed to the colour MLP
-    res_schedule: tuple[tuple[int, int], ...] = ((0, 32), (500, 64), (1500, 96))  # (iteration, grid R³)
-    xy_extent: float = 1.3  # NDC x, y half-width of the box (off-centre views see past ±1)
-    n_samples: int = 96  # uniform samples per ray in t ∈ [0, 1] (uniform in disparity)
-    alpha_init: float = 1e-2  # initial α of one sample on a ray along the NDC z axis (DVGO fine stage)
-    occupancy_thres: float = 1e-2  # cells whose max α (same reference step) is below are empty. At
-    # alpha_init, cells that training has not raised above their initial density (never seen, behind
-    # surfaces, or carved out) are skipped: ~45 % fewer cells at 64³, same held-out PSNR
-    weight_thres: float = 1e-4  # samples with a smaller compositing weight skip the colour head
-    min_trans: float = 1e-3  # a ray stops once its transmittance is this low (early termination)
-    native: bool = True  # deferred model on the CPU: render with the numba marcher (volume.march_grid)
-    deferred: bool = True  # composite features along the ray, then run the colour head once per ray
-    # (deferred shading, as SNeRG: S× fewer head evaluations; False = head on every sample as DVGO)
-    mlp_width: int = 64  # colour-head hidden units
-    mlp_depth: int = 2  # colour-head hidden layers
-    freqs_dir: int = 4  # positional-encoding frequencies of the viewing direction
-    white_bkgd: bool = False  # composite onto white instead of black
-    perturb: bool = True  # jitter samples within their bins during training
-    lr_grid: float = 1.0  # Adam learning rate of both grids (DVGO: 0.1, tuned for ~20k iterations;
-    # 1.0 fits 300-1200 iterations several dB better, benchmarks/nerf_grid_quality.py)
-    lr_mlp: float = 1e-3  # Adam learning rate of the colour head (DVGO)
-    lr_decay: float = 0.1  # learning rates are multiplied by this factor over ``n_iters``
-    n_iters: int = 3000  # iteration budget (learning-rate decay horizon)
-    batch_rays: int = 4096  # rays per training step
-    tv_density: float = 1e-3  # weight of the density-grid total variation in ``tv_loss``
-    tv_features: float = 1e-5  # weight of the feature-grid total variation in ``tv_loss``
-    occupancy_every: int = 100  # trainer: call ``update_occupancy`` this often ...
-    occupancy_warmup: int = 200  # ... from this iteration on (before it every cell is kept)
-    chunk: int = 8192  # rays per forward pass when rendering whole images
-    plateau_window: int = 50  # steps averaged into one value of the stopping rule (spc3d.training.Plateau)
-    plateau_patience: int = 0  # windows in a row without a gain of plateau_gain stop the training (0: never)
-    plateau_gain: float = 0.01  # relative drop of the windowed training objective that counts as progress
-    plateau_tol: float = 0.0  # ... and by at least this much (objective units): below it the fit is done
-    plateau_views: int = 0  # training views held out of the fit whose objective judges the stop (0: the
-    # training objective itself; spc3d.reconstruct.views.hold_out)
-
-    def __post_init__(self):
-        require_positive(
-            self, "channels", "n_samples", "n_iters", "batch_rays", "occupancy_every", "chunk", "plateau_window"
-        )
-        if not self.res_schedule or any(res < 2 for _, res in self.res_schedule):
-            raise ValueError(f"res_schedule = {self.res_schedule}: needs (iteration, resolution >= 2) pairs")
-
-    @property
-    def step_ref(self) -> float:
-        """Reference sample spacing: NDC distance between samples on the axial ray (z spans 2)."""
-        return 2.0 / self.n_samples
+from spc3d.specs.reconstructors import GridConfig
 
 
 def corner_weights(coords: torch.Tensor, res: int) -> tuple[torch.Tensor, torch.Tensor]:

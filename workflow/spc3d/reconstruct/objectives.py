@@ -31,6 +31,7 @@ import torch
 from torch import Tensor
 
 from spc3d.pixels import linear_to_srgb
+from spc3d.specs.reconstructors import JointConfig
 
 LN2 = 0.6931471805599453
 
@@ -95,37 +96,6 @@ class Scheduled(Protocol):
     """An objective that changes over the run: a trainer calls ``at(step / iterations)`` before each step."""
 
     def at(self, t: float) -> None: ...
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """The prior term's weight schedule (over the fraction t of the run done) and penalty."""
-
-    # A constant 0.1, chosen on the training scenes (benchmarks/joint_weight.py prints the candidates' scores;
-    # docs/stage2.md#joint-rows): the best there, and every decaying schedule tried was worse.
-    weight: float = 0.1  # w at t = 0
-    weight_final: float = 0.1  # w from t = decay_until on
-    decay_until: float = 0.5  # fraction of the run over which w falls linearly (0: weight_final throughout)
-    likelihood: bool = True  # false: the prior term alone (= the two-stage row, for checks)
-    penalty: str = "own"  # "own": the model's two-stage image loss; "l1": L1 on sRGB (robust, for NeRF's MSE)
-
-    def __post_init__(self):
-        if self.penalty not in PENALTIES:
-            raise ValueError(f"stage2.joint.penalty = {self.penalty!r}: use one of {list(PENALTIES)}")
-        if not 0.0 <= self.decay_until <= 1.0:
-            raise ValueError(f"stage2.joint.decay_until = {self.decay_until}: a fraction of the run, in [0, 1]")
-        for key in ("weight", "weight_final"):
-            if not getattr(self, key) >= 0.0:
-                raise ValueError(f"stage2.joint.{key} = {getattr(self, key)}: the prior term's weight must be >= 0")
-
-    def weight_at(self, t: float) -> float:
-        """w at the fraction ``t`` of the run."""
-        if self.decay_until <= 0.0 or t >= self.decay_until:
-            return self.weight_final
-        return self.weight_final + (self.weight - self.weight_final) * (1.0 - max(t, 0.0) / self.decay_until)
-
-
-PENALTIES = ("own", "l1")
 
 
 @dataclass

@@ -40,9 +40,9 @@ from spc3d.inputs.exposure import read_gain
 from spc3d.names import SOURCE_IMAGES, parse_source, reads_capture_frame, source_images
 from spc3d.physics import spc
 from spc3d.physics.record import read_spc_record
-from spc3d.reconstruct import config_joint
 from spc3d.reconstruct.objectives import BernoulliObjective, JointObjective, RGBObjective
 from spc3d.reconstruct.views import Views
+from spc3d.specs.reconstructors import config_joint
 
 FRAME_SOURCES = ("bernoulli",)
 

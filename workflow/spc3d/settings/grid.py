@@ -11,7 +11,6 @@ import functools
 from pathlib import Path
 
 from spc3d.jobs import folder_files, llff_input_files, scene_fold
-from spc3d.models import RECONSTRUCTORS
 from spc3d.names import (
     display_budget,
     joint_settings,
@@ -40,6 +39,8 @@ from spc3d.settings.params import (
     TranslatorParams,
 )
 from spc3d.settings.paths import Paths
+from spc3d.specs import RECONSTRUCTORS
+from spc3d.specs.translators import split_count
 
 # The scripts a translator's weights depend on: its own job's and those upstream of it.
 TRANSLATOR_SCRIPTS = ("prepare_scene", "simulate_scene", "augment_scene", "train_translator")
@@ -119,8 +120,6 @@ class Grid:
 
     def augment_count(self, w) -> int:
         """Augmented pairs of one training scene (augment.count split over the training scenes)."""
-        from spc3d.inputs.augment import split_count
-
         train = self.train
         return split_count(self.config["augment"]["count"], len(train), train.index(w.scene))
 
@@ -296,7 +295,7 @@ class Grid:
         """The library code a translator's weights depend on (its job's and the upstream scripts, its
         model's module and every spc3d module they import; comments, docstrings and formatting do not
         count): a change reruns the training, and ``--cache`` keys on it (spc3d.provenance)."""
-        from spc3d.models import TRANSLATORS
+        from spc3d.specs import TRANSLATORS
 
         return job_code(self.basedir, TRANSLATOR_SCRIPTS, TRANSLATORS[self.translator_base(w)].module)
 

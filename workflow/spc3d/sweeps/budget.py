@@ -14,16 +14,18 @@ from __future__ import annotations
 
 import dataclasses
 
-from spc3d import models
+from spc3d import specs
 from spc3d.names import STAGE1_METHODS
-from spc3d.training import build_config
+from spc3d.specs.build import build_config
+from spc3d.specs.reconstructors import reconstructor_config
+from spc3d.specs.translators import TrainSettings, model_config
 
-# From the model specs (spc3d.models): the translator's main width (``width`` knob) per stage-1
+# From the model specs (spc3d.specs): the translator's main width (``width`` knob) per stage-1
 # method with a network (not the untrained ``prior`` / ``classical``), and the stage-2 settings counted
 # in iterations (``iters``).
-WIDTH_KEYS = {name: spec.width_field for name, spec in models.TRANSLATORS.items() if spec.width_field}
-ITERATION_FIELD = {name: spec.iteration_field for name, spec in models.RECONSTRUCTORS.items()}
-SCHEDULE_FIELDS = {name: spec.schedule_fields for name, spec in models.RECONSTRUCTORS.items()}
+WIDTH_KEYS = {name: spec.width_field for name, spec in specs.TRANSLATORS.items() if spec.width_field}
+ITERATION_FIELD = {name: spec.iteration_field for name, spec in specs.RECONSTRUCTORS.items()}
+SCHEDULE_FIELDS = {name: spec.schedule_fields for name, spec in specs.RECONSTRUCTORS.items()}
 CROP_MULTIPLE = 16  # translator training crops: at least a multiple of this (and of the network's own)
 
 
@@ -41,9 +43,6 @@ def scale_spec(spec: dict, res: int | None) -> dict:
 def translator_settings(settings: dict, train: dict, method: str, knobs: dict, scene: dict) -> tuple[dict, dict]:
     """(the method's model overrides with ``width``, its training settings with ``steps`` and a crop
     that fits ``scene``'s images)."""
-    from spc3d.translate.model_io import model_config
-    from spc3d.translate.train import TrainSettings
-
     if method not in STAGE1_METHODS:
         raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(STAGE1_METHODS)}")
     settings = dict(settings)
@@ -52,7 +51,7 @@ def translator_settings(settings: dict, train: dict, method: str, knobs: dict, s
     train = dataclasses.asdict(build_config(TrainSettings, dict(train), "stage1.train"))
     if "steps" in knobs:
         train["iterations"] = knobs["steps"]
-    multiple = max(CROP_MULTIPLE, models.crop_multiple(method, model_config(method, settings)))
+    multiple = max(CROP_MULTIPLE, specs.crop_multiple(method, model_config(method, settings)))
     train["crop"] = fit_crop(train["crop"], scene, multiple)
     return settings, train
 
@@ -70,14 +69,9 @@ def fit_crop(crop: int, scene: dict, multiple: int = CROP_MULTIPLE) -> int:
     return fitted
 
 
-def stage2_config(model: str, settings: dict):
-    """The model's resolved config dataclass (its spec's config builder, :mod:`spc3d.models`)."""
-    return models.load(models.RECONSTRUCTORS[model].config)(settings)
-
-
 def stage2_settings(settings: dict, model: str, knobs: dict) -> dict:
     """Every setting of the stage-2 model (a complete override dict) with iters / cap / grid applied."""
-    cfg = dataclasses.asdict(stage2_config(model, settings))
+    cfg = dataclasses.asdict(reconstructor_config(model, settings))
     if "iters" in knobs:
         factor = knobs["iters"] / cfg[ITERATION_FIELD[model]]
         cfg[ITERATION_FIELD[model]] = knobs["iters"]

@@ -9,8 +9,9 @@
     classical   the best non-learned denoiser: binomial VST, NLM / wavelet / TV / Gaussian, MLE
                 (chosen on the training scenes' held-out views; like ``prior``, nothing is trained)
 
-Each module holds ``Config`` (CPU-budget defaults), ``PAPER`` (the published sizes) and
-``Translator`` (the contract in :mod:`.base`); shared layers live in :mod:`.networks` (the VGG
+Each module holds ``Translator`` (the contract in :mod:`.base`) and, imported from the torch-free
+:mod:`spc3d.specs.translators` where the workflow checks them at parse time, ``Config`` (CPU-budget
+defaults) and ``PAPER`` (the published sizes); shared layers live in :mod:`.networks` (the VGG
 perceptual loss in :mod:`.vgg`, the physics prior in :mod:`.prior`). The
 training loop is :mod:`.train`, a model folder's files :mod:`.model_io` (its curve figure
 :mod:`.curves`), applying a model to a scene and stage-1 scoring :mod:`.apply`.
@@ -20,10 +21,10 @@ Physics baselines without training (``mle``, the raw binary frame ``none``) are 
 
 from __future__ import annotations
 
-from spc3d import models
+from spc3d import specs
 
-# name -> the model's module (Config, PAPER, Translator), from the specs of spc3d.models
-MODULES = {name: models.import_module(spec.module) for name, spec in models.TRANSLATORS.items()}
+# name -> the model's module (Config, PAPER, Translator), from the specs of spc3d.specs
+MODULES = {name: specs.import_module(spec.module) for name, spec in specs.TRANSLATORS.items()}
 
 
 def __getattr__(name: str):
@@ -33,7 +34,7 @@ def __getattr__(name: str):
 
         warnings.warn(
             "spc3d.translate.TRANSLATORS is now spc3d.translate.MODULES (the model modules by method; "
-            "spc3d.models.TRANSLATORS holds their specs)",
+            "spc3d.specs.TRANSLATORS holds their specs)",
             DeprecationWarning,
             stacklevel=2,
         )

@@ -10,20 +10,12 @@ translator that does not beat it in the tables has learnt nothing the physics di
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor, nn
 
+from spc3d.specs.translators import PRIOR_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
+from spc3d.specs.translators import PriorConfig as Config
 from spc3d.translate.base import TranslatorBase
-
-
-@dataclass(frozen=True)
-class Config:
-    prior_sigma: float = 2.0  # blur of the prior in pixels (the translators' default; must be > 0)
-
-
-PAPER: dict = {}  # the paper has no such method: its preset is the default
 
 
 class Translator(TranslatorBase):

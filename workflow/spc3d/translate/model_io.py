@@ -23,37 +23,13 @@ import pandas as pd
 import torch
 
 from spc3d import io
-from spc3d.training import build_config, default_device
+from spc3d.specs import settings_classes
+from spc3d.specs.build import build_config
+from spc3d.specs.translators import model_config
+from spc3d.training import default_device
 from spc3d.translate import MODULES
 from spc3d.translate.camera import DOMAIN
 from spc3d.translate.curves import plot_curve
-
-
-def model_config(method: str, settings: dict, frames: int | None = None):
-    """The method's Config: ``preset: paper`` starts from the published sizes; other keys override.
-    A Config with a ``frames`` field (a method that must know K: ``classical``) takes ``frames``, the
-    job's stage1.frames (a sweep point's K), never its own settings block's: one K per run."""
-    if method not in MODULES:
-        raise ValueError(f"unknown stage-1 method {method!r}; choose one of {sorted(MODULES)}")
-    module = MODULES[method]
-    settings = dict(settings)
-    preset = settings.pop("preset", None)
-    settings.pop("checkpoint", None)
-    if preset not in (None, "paper"):
-        raise ValueError(f"stage1.{method}.preset={preset!r}: use 'paper' or leave it out (CPU default)")
-    has_frames = any(f.name == "frames" for f in dataclasses.fields(module.Config))
-    if has_frames and "frames" in settings:
-        raise ValueError(
-            f"stage1.{method}.frames: the frames per input are stage1.frames for every method; set K there"
-        )
-    if has_frames and frames is not None:
-        settings["frames"] = frames
-    base = (
-        module.Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in module.PAPER.items()})
-        if preset == "paper"
-        else None
-    )
-    return build_config(module.Config, settings, f"stage1.{method}", base)
 
 
 def check_pretrained(method: str, settings: dict) -> None:
@@ -98,7 +74,7 @@ def load_translator(model_dir: str | os.PathLike, device: torch.device | None = 
             f"predates the exposure-aware display; delete {Path(model_dir)} so the workflow trains it again"
         )
     method = saved["method"]
-    cfg = build_config(MODULES[method].Config, saved["config"], f"{path} config")
+    cfg = build_config(settings_classes(method)[0], saved["config"], f"{path} config")
     if any(f.name == "vgg_loss" for f in dataclasses.fields(cfg)):
         cfg = dataclasses.replace(cfg, vgg_loss=False)  # the perceptual loss is a training-only network
     model = build_translator(method, cfg, device or default_device())

@@ -29,9 +29,10 @@ from torch import Tensor
 
 from spc3d import llff
 from spc3d.cameras import split_views
-from spc3d.inputs.augment import AugmentSettings, sample_params, warp_linear
+from spc3d.inputs.augment import sample_params, warp_linear
 from spc3d.physics import sensors, spc
 from spc3d.physics.record import camera_exposure, params_from_record, read_spc_record
+from spc3d.specs.translators import AugmentSettings
 from spc3d.translate.camera import to_camera
 from spc3d.translate.data import chw, sensor_pattern
 

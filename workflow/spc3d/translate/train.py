@@ -38,33 +38,22 @@ from pathlib import Path
 import torch
 
 from spc3d.checkpoints import Checkpoint, CheckpointPolicy, digest_arrays, digest_path, fingerprint
-from spc3d.inputs.augment import AugmentSettings
-from spc3d.training import build_config, default_device, peak_rss_mb, run, seed_everything
+from spc3d.specs.build import build_config
+from spc3d.specs.translators import (
+    AugmentSettings,
+    TrainSettings,
+    data_mode,
+    model_config,
+    train_settings,
+    validation_settings,
+)
+from spc3d.training import default_device, peak_rss_mb, run, seed_everything
 from spc3d.translate.data import PairSampler, load_pairs
-from spc3d.translate.model_io import build_translator, model_config, write_model_folder
+from spc3d.translate.model_io import build_translator, write_model_folder
 from spc3d.translate.online import OnlineSampler, load_sources
-from spc3d.translate.validate import Validator, load_views, validation_settings
+from spc3d.translate.validate import Validator, load_views
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class TrainSettings:
-    """How long and on what a stage-1 model trains (the config's ``stage1.train``)."""
-
-    iterations: int = 400  # optimisation steps (paper: 100 + 100 epochs over ~15k pairs)
-    batch_size: int = 4  # pairs per step (pix2pix/pix2pixHD: 1)
-    crop: int = 64  # random square crop side in pixels (pix2pix: 256 from 286)
-    decay_from: float = 0.5  # fraction of the iterations after which lr decays linearly to 0
-    log_every: int = 10  # iterations between curve points
-
-    def __post_init__(self):
-        if self.iterations < 0 or self.batch_size < 1 or self.crop < 8 or self.log_every < 1:
-            raise ValueError(
-                f"stage1.train: need iterations >= 0, batch_size >= 1, crop >= 8, log_every >= 1; got {self}"
-            )
-        if not 0.0 <= self.decay_from <= 1.0:
-            raise ValueError(f"stage1.train.decay_from={self.decay_from}: must be in [0, 1]")
 
 
 def lr_scale(it: int, s: TrainSettings) -> float:
@@ -73,18 +62,6 @@ def lr_scale(it: int, s: TrainSettings) -> float:
     if it <= start or s.iterations == 0:
         return 1.0
     return max(0.0, 1.0 - (it - start) / max(s.iterations - start, 1.0))
-
-
-def train_settings(train: dict, method: str, pretrained: str | None = None) -> TrainSettings:
-    """``stage1.train`` (with the method's own ``train`` block) as TrainSettings; 0 iterations only
-    when the method starts from published weights (an untrained network is not a result)."""
-    s = build_config(TrainSettings, train, f"stage1.{method}.train")
-    if s.iterations == 0 and not pretrained:
-        raise ValueError(
-            f"stage1.train.iterations = 0 for {method}: an untrained network is not a result; use "
-            f"iterations >= 1 (0 only with published weights, stage1.{method}.checkpoint)"
-        )
-    return s
 
 
 class TranslatorTrainer:
@@ -172,19 +149,6 @@ def fit(
         "curve": trainer.curve,
         "stopped": stopped,
     }
-
-
-DATA_MODES = ("fixed", "online")
-
-
-def data_mode(mode: str) -> str:
-    """``stage1.data``, checked."""
-    if mode not in DATA_MODES:
-        raise ValueError(
-            f"stage1.data = {mode!r}: use one of {list(DATA_MODES)} (fixed: the augmented pairs of "
-            f"results/augment; online: fresh augmentations and SPC photons every step)"
-        )
-    return mode
 
 
 @dataclass(frozen=True)

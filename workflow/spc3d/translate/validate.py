@@ -33,33 +33,9 @@ from spc3d import io, llff
 from spc3d.cameras import split_views
 from spc3d.evaluation.metrics import psnr
 from spc3d.physics.record import camera_exposure, read_spc_record
-from spc3d.training import build_config
+from spc3d.specs.translators import ValidationSettings
 from spc3d.translate.camera import from_camera
 from spc3d.translate.data import binary_input, chw, sensor_draws, sensor_pattern
-
-
-@dataclass(frozen=True)
-class ValidationSettings:
-    """When a translator is validated and when it stops (the config's ``stage1.validation``)."""
-
-    # every and patience: config.yaml's stage1.validation (their home; tests/test_defaults.py checks they agree)
-    every: int = 50  # steps between validations, plus one at the last step (0: none, the last model is kept)
-    patience: int = 4  # validations without a better PSNR before training stops (0: never stop early)
-    hold_out: int = 0  # the last N training scenes: not trained on, every view validated (0: held-out views)
-
-    def __post_init__(self):
-        if min(self.every, self.patience, self.hold_out) < 0:
-            raise ValueError(
-                f"need every, patience and hold_out >= 0, got every = {self.every}, patience = {self.patience}, "
-                f"hold_out = {self.hold_out}"
-            )
-
-
-def validation_settings(values: dict | None, where: str = "stage1.validation") -> ValidationSettings:
-    """``stage1.validation`` (with a method's own block) as ValidationSettings; None: no validation."""
-    if values is None:
-        return ValidationSettings(every=0)
-    return build_config(ValidationSettings, dict(values), where)
 
 
 @dataclass

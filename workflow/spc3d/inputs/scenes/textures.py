@@ -29,27 +29,30 @@ from spc3d.inputs.scenes.procedural import PATTERNS, pattern
 from spc3d.llff import area_matrix
 from spc3d.physics.spc import srgb_to_linear
 
-SAMPLE_IMAGES = (
-    "astronaut",
-    "brick",
-    "camera",
-    "chelsea",
-    "coffee",
-    "coins",
-    "colorwheel",
-    "grass",
-    "gravel",
-    "horse",
-    "hubble_deep_field",
-    "immunohistochemistry",
-    "moon",
-    "page",
-    "retina",
-    "rocket",
-    "text",
-    "clock",
-    "cell",
-)
+# scikit-image's sample images used as textures, with their stored (height, width): a layout's
+# texture shapes (and so which content a scene shows, checked when the workflow is planned) come
+# without importing scikit-image or reading an image (tests/test_scenes.py checks them).
+SAMPLE_IMAGES: dict[str, tuple[int, int]] = {
+    "astronaut": (512, 512),
+    "brick": (512, 512),
+    "camera": (512, 512),
+    "chelsea": (300, 451),
+    "coffee": (400, 600),
+    "coins": (303, 384),
+    "colorwheel": (370, 371),
+    "grass": (512, 512),
+    "gravel": (512, 512),
+    "horse": (328, 400),
+    "hubble_deep_field": (872, 1000),
+    "immunohistochemistry": (512, 512),
+    "moon": (512, 512),
+    "page": (191, 384),
+    "retina": (1411, 1411),
+    "rocket": (427, 640),
+    "text": (172, 448),
+    "clock": (300, 400),
+    "cell": (660, 550),
+}
 # Disjoint pools of content (photographs and procedural patterns; "solid" paint is no content).
 TRAIN_SOURCES = frozenset(
     {
@@ -211,7 +214,9 @@ def source_shape(name: str) -> tuple[int, int]:
     """(h, w) of a source's texture, without building it."""
     if name.startswith("proc:"):
         return _scaled_shape(*pattern_shape(name.removeprefix("proc:")))
-    return _scaled_shape(*_raw_image(name).shape[:2])
+    if name not in SAMPLE_IMAGES:
+        _raw_image(name)  # its error names the sources there are
+    return _scaled_shape(*SAMPLE_IMAGES[name])
 
 
 def pattern_shape(kind: str) -> tuple[int, int]:
