@@ -11,7 +11,7 @@ import pytest
 import torch
 from torch import nn
 
-from spc3d import io, translate
+from spc3d import io, specs, translate
 from spc3d.cameras import split_views
 from spc3d.checkpoints import Checkpoint, CheckpointPolicy
 from spc3d.inputs import augment
@@ -19,6 +19,7 @@ from spc3d.inputs.augment import AugmentSettings
 from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
+from spc3d.specs.translators import validation_settings
 from spc3d.training import run
 from spc3d.translate import base, model_io, online, train, validate
 from spc3d.translate.camera import CAMERA_WHITE, from_camera
@@ -181,9 +182,17 @@ class ScriptedTranslator(base.TranslatorBase):
         return {"loss": float((self.forward_image(binary) - rgb).abs().mean().detach())}
 
 
+SCRIPT_PAPER: dict = {}
+
+
 @pytest.fixture
 def scripted(monkeypatch):
-    module = types.SimpleNamespace(Config=ScriptConfig, PAPER={}, Translator=ScriptedTranslator)
+    """The scripted translator as a model of the run: its spec (settings from here) and its module."""
+    spec = specs.TranslatorSpec(
+        "scripted", "Scripted", __name__, config=f"{__name__}:ScriptConfig", paper=f"{__name__}:SCRIPT_PAPER"
+    )
+    monkeypatch.setitem(specs.TRANSLATORS, "scripted", spec)
+    module = types.SimpleNamespace(Config=ScriptConfig, PAPER=SCRIPT_PAPER, Translator=ScriptedTranslator)
     monkeypatch.setitem(translate.MODULES, "scripted", module)
     return "scripted"
 
@@ -389,7 +398,7 @@ def test_hold_out_leaves_a_scene_to_train_on(world, tmp_path):
     with pytest.raises(ValueError, match=r"hold_out = 2 keeps every training scene out .*orchard, gallery"):
         train.make_validator(data, {"every": 5, "hold_out": 2}, 1, 10)
     with pytest.raises(ValueError, match="hold_out = -1"):
-        validate.validation_settings({"hold_out": -1})
+        validation_settings({"hold_out": -1})
     fixed = train.training_data("fixed", [tmp_path / "a", tmp_path / "b"], *_dirs(world))
     kept, scenes, spc_dirs = fixed.hold_out(1)
     assert kept.augment_dirs == (str(tmp_path / "a"),) and kept.scene_dirs == (str(world / "scenes" / "orchard"),)
@@ -433,10 +442,10 @@ def test_training_data_errors_name_the_setting(kwargs, match):
 
 def test_validation_settings_are_checked(world, tmp_path):
     with pytest.raises(ValueError, match=r"stage1\.validation: unknown setting\(s\) \['evry'\]; did you mean 'every'"):
-        validate.validation_settings({"evry": 3})
+        validation_settings({"evry": 3})
     with pytest.raises(ValueError, match="patience = -1"):
-        validate.validation_settings({"patience": -1})
-    assert validate.validation_settings(None).every == 0
+        validation_settings({"patience": -1})
+    assert validation_settings(None).every == 0
     data = train.training_data("fixed", [tmp_path])
     with pytest.raises(ValueError, match=r"stage1\.validation\.every = 5 needs the training scenes' folders"):
         train.make_validator(data, {"every": 5}, 1, 10)

@@ -63,9 +63,16 @@ class TinyTranslator(base.TranslatorBase):
         return {"loss": loss.item()}
 
 
+TINY_PAPER = {"width": 8}
+
+
 @pytest.fixture
 def tiny_registered(monkeypatch):
-    module = types.SimpleNamespace(Config=TinyConfig, PAPER={"width": 8}, Translator=TinyTranslator)
+    """The tiny translator as a model of the run: its spec (settings from here) and its module."""
+    here = f"{__name__}:Tiny"
+    spec = specs.TranslatorSpec("tiny", "Tiny", __name__, config=f"{here}Config", paper=f"{__name__}:TINY_PAPER")
+    monkeypatch.setitem(specs.TRANSLATORS, "tiny", spec)
+    module = types.SimpleNamespace(Config=TinyConfig, PAPER=TINY_PAPER, Translator=TinyTranslator)
     monkeypatch.setitem(translate.MODULES, "tiny", module)
     return "tiny"
 
