@@ -11,7 +11,7 @@ evaluation scenes. The scene cache is keyed by name and width only: delete it af
 
     python benchmarks/nerf_grid_quality.py                                   # config.yaml's settings
     python benchmarks/nerf_grid_quality.py --set n_samples=48 --set batch_rays=2048 --seeds 0 1
-    python benchmarks/nerf_grid_quality.py --model nerf --set n_iters=300    # the MLP NeRF instead
+    python benchmarks/nerf_grid_quality.py --model nerf-mlp --set n_iters=300  # the MLP NeRF instead
 ``--smoke``: gallery at 32 px wide, 3 iterations of 64 rays on a 12-voxel grid (seconds).
 """
 
@@ -136,7 +136,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=list(TRAINING_SCENES), choices=TRAINING_SCENES)
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
-    ap.add_argument("--model", default="nerf-grid", choices=["nerf-grid", "nerf"])
+    ap.add_argument("--model", default="nerf-grid", choices=["nerf-grid", "nerf-mlp"])
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override of the config block")
     ap.add_argument("--config", default=str(REPO / "config.yaml"), help="base settings: its stage2.<model> block")
     ap.add_argument("--no-config", action="store_true", help="start from the dataclass defaults instead")

@@ -115,7 +115,7 @@ def main() -> None:
         )
     torch.set_num_threads(args.threads)
     settings = yaml.safe_load(Path(args.config).read_text())["stage2"]
-    settings["nerf"] = settings.get("nerf", {})
+    settings["nerf-mlp"] = settings.get("nerf-mlp", {})
     for item in args.set:
         key, _, value = item.partition("=")
         model, _, field = key.partition(".")

@@ -27,7 +27,7 @@ from spc3d.names import ConfigError, combination_problem, resolve_combinations
 from spc3d.physics import spc
 from spc3d.sweeps import plan
 
-from conftest import LLFF_ROOT
+from conftest import LLFF_ROOT, run_snakemake
 
 # --- YAML 1.1 numbers that are another value ----------------------------------------------------
 
@@ -134,9 +134,9 @@ def test_fractions_weights_colours_and_thresholds_have_both_ends(change, combos,
             r"lr_means_final = 0\.001 is above lr_means = 0\.00016: .*set lr_means_final <= lr_means",
         ),
         (
-            {"stage2": {"nerf_variant": "nerf", "nerf": {"lr_final": 1e-2}}},
+            {"stage2": {"nerf_variant": "nerf-mlp", "nerf-mlp": {"lr_final": 1e-2}}},
             ["gt+nerf"],
-            r"stage2\.nerf\.lr_final = 0\.01 is above lr = 0\.0005",
+            r"stage2\.nerf-mlp\.lr_final = 0\.01 is above lr = 0\.0005",
         ),
         (
             {"stage2": {"nerf-grid": {"res_schedule": [[0, 16], [60, 24]]}}},
@@ -225,12 +225,46 @@ def test_every_sweep_point_is_cross_checked_with_its_knobs():
 def test_an_unused_settings_block_is_a_warning_naming_it():
     given = {
         "stage1": {"cyclegan": {"ngf": 8}, "restormer": {}},
-        "stage2": {"nerf": {"n_iters": 5}, "joint": {"weight": 1}},
+        "stage2": {"nerf-mlp": {"n_iters": 5}, "joint": {"weight": 1}},
     }
     warnings = unused_blocks(given, ["gt+3dgs", "pix2pix+nerf-grid"], "nerf-grid")
-    assert [w.split(" is set")[0] for w in warnings] == ["stage1.cyclegan", "stage2.nerf", "stage2.joint"]
+    assert [w.split(" is set")[0] for w in warnings] == ["stage1.cyclegan", "stage2.nerf-mlp", "stage2.joint"]
     assert "no row uses the method 'cyclegan'" in warnings[0] and "stage2.nerf_variant = 'nerf-grid'" in warnings[1]
-    assert unused_blocks(given, ["cyclegan+nerf", "joint-cyclegan+3dgs"], "nerf") == []
+    assert unused_blocks(given, ["cyclegan+nerf", "joint-cyclegan+3dgs"], "nerf-mlp") == []
+
+
+def test_the_mlp_nerfs_old_names_run_as_the_new_ones_with_a_warning(tmp_path):
+    """stage2.nerf (the MLP NeRF's block before it became nerf-mlp), nerf_variant: nerf and the
+    joint rows' per-model keys still run: moved to the new names, one warning each."""
+    old = {
+        "stage2": {
+            "nerf_variant": "nerf",
+            "nerf": {"n_iters": 5},
+            "joint": {"models": {"nerf": {"weight": 2.0}}, "choose": {"nerf": [1.0, 3.0]}},
+        }
+    }
+    config = merged(old)
+    warnings = spc_config.upgrade_keys(config)
+    stage2 = config["stage2"]
+    assert "nerf" not in stage2 and stage2["nerf-mlp"] == {**merged()["stage2"]["nerf-mlp"], "n_iters": 5}
+    assert stage2["nerf_variant"] == "nerf-mlp"
+    assert stage2["joint"]["models"] == {"nerf-grid": {"weight": 3.0, "weight_final": 3.0}, "nerf-mlp": {"weight": 2.0}}
+    assert stage2["joint"]["choose"] == {"nerf-mlp": [1.0, 3.0]}
+    assert [w.split(" is now")[0] for w in warnings] == [
+        "stage2.nerf",
+        "stage2.nerf_variant = 'nerf'",
+        "stage2.joint.models.nerf",
+        "stage2.joint.choose.nerf",
+    ]
+    assert "the MLP NeRF is 'nerf-mlp'" in warnings[0] and spc_config.upgrade_keys(config) == []
+    parsed = parse({"stage2": {"nerf_variant": "nerf", "nerf": {"n_iters": 5}}}, only("gt+nerf"))
+    assert parsed["stage2"]["nerf-mlp"]["n_iters"] == 5
+    case = tmp_path / "old.yaml"
+    case.write_text("stage2:\n  nerf_variant: nerf\n  nerf: {n_iters: 5}\n  combinations: [gt+nerf]\n")
+    out = run_snakemake(tmp_path / "work", "-n", "--configfile", str(case), timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stderr.count("spc3d warning: stage2.nerf is now stage2.nerf-mlp") == 1, out.stderr[-3000:]
+    assert "gt+nerf-mlp" in out.stdout and "gt+nerf/" not in out.stdout
 
 
 # --- combination names: per part ----------------------------------------------------------------------
@@ -239,7 +273,10 @@ def test_an_unused_settings_block_is_a_warning_naming_it():
 @pytest.mark.parametrize(
     "combo,message",
     [
-        ("restormer+nerf_grid", "unknown model 'nerf_grid'; did you mean 'nerf-grid'? valid: 3dgs, nerf, nerf-grid"),
+        (
+            "restormer+nerf_grid",
+            "unknown model 'nerf_grid'; did you mean 'nerf-grid'? valid: 3dgs, nerf-mlp, nerf-grid, nerf",
+        ),
         ("pix2pix_hd+3dgs", "unknown source 'pix2pix_hd'; did you mean 'pix2pixhd'? valid: gt, none, mle, bernoulli,"),
         ("gt+3dgs@colmp", "unknown pose source after '@' 'colmp'"),
         ("pix2pixhd", "a row is 'source+model' and has no '+' here (e.g. 'pix2pixhd+3dgs'"),

@@ -689,7 +689,7 @@ def test_a_colourless_capture_is_scored_on_luminance(tmp_path, lpips_cache):
     assert mono["mean"]["psnr"] > 50 > rgb["mean"]["psnr"] + 20  # equal up to the render's 8-bit rounding
     assert mono["mean"]["lpips_alex"] < 0.01 < rgb["mean"]["lpips_alex"]
 
-    tables.two_stage_table([tmp_path / "mono.json"], tmp_path / "two_stage", "nerf")
+    tables.two_stage_table([tmp_path / "mono.json"], tmp_path / "two_stage", "nerf-mlp")
     assert "Scene scene: captured by a colourless sensor" in (tmp_path / "two_stage.md").read_text()
-    tables.two_stage_table([tmp_path / "rgb.json"], tmp_path / "two_stage_rgb", "nerf")
+    tables.two_stage_table([tmp_path / "rgb.json"], tmp_path / "two_stage_rgb", "nerf-mlp")
     assert "colourless" not in (tmp_path / "two_stage_rgb.md").read_text()

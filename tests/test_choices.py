@@ -207,7 +207,7 @@ def test_one_stopping_rule_for_every_row_of_a_model():
     check_one_rule({"3dgs": {"plateau_views": 2}}, ["restormer+3dgs", "gt+3dgs"])  # one kind: one rule
     for preset in sorted((REPO / "workflow" / "presets").glob("*.yaml")) + [REPO / "config.yaml"]:
         stage2 = yaml.safe_load(preset.read_text()).get("stage2") or {}
-        for model in ("3dgs", "nerf", "nerf-grid"):  # no preset stops a row early (one rule)
+        for model in ("3dgs", "nerf-mlp", "nerf-grid"):  # no preset stops a row early (one rule)
             block = stage2.get(model) or {}
             assert not block.get("plateau_views") and not block.get("plateau_patience"), (preset.name, model)
 

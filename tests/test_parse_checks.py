@@ -16,7 +16,15 @@ from snakemake.utils import update_config, validate
 
 from spc3d import config as spc_config
 from spc3d import llff, specs
-from spc3d.config import check_config, check_settings, non_finite, read_yaml, resolve_paths, training_image_sizes
+from spc3d.config import (
+    check_config,
+    check_settings,
+    non_finite,
+    read_yaml,
+    resolve_paths,
+    training_image_sizes,
+    upgrade_keys,
+)
 from spc3d.inputs.augment import AugmentSettings
 from spc3d.inputs.scenes import LAYOUTS, write_builtin_scene
 from spc3d.jobs import scene_specs
@@ -48,6 +56,7 @@ def parse(*changes) -> dict:
     """The top of workflow/rules/common.smk: schema (and finiteness), defaults, paths, scenes, then
     every settings block the combinations use (check_settings); the parsed config."""
     config = merged(*changes)
+    upgrade_keys(config)
     check_config(config, SCHEMA)
     validate(config, schema=str(SCHEMA_PATH))  # fills in the schema's defaults, as common.smk does
     resolve_paths(config, REPO)

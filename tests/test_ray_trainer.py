@@ -19,7 +19,7 @@ from spc3d.reconstruct.views import Views
 
 GRID = {"n_iters": 20, "batch_rays": 32, "chunk": 512, "n_samples": 8, "res_schedule": [[0, 6]]}
 MLP = {"n_iters": 20, "batch_rays": 32, "chunk": 512, "preset": "cpu"}
-SETTINGS = {"nerf-grid": GRID, "nerf": MLP}
+SETTINGS = {"nerf-grid": GRID, "nerf-mlp": MLP}
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def record_forward(model):
     return seen
 
 
-@pytest.mark.parametrize("kind", ["nerf-grid", "nerf"])
+@pytest.mark.parametrize("kind", ["nerf-grid", "nerf-mlp"])
 def test_a_step_fits_the_sampled_pixels_colours_from_their_rays_in_training_mode(views, kind):
     objective = Recording()
     trainer = trainer_of(views, kind, objective)
@@ -77,7 +77,7 @@ def test_a_step_fits_the_sampled_pixels_colours_from_their_rays_in_training_mode
 
 def test_the_mlp_nerf_is_fitted_on_its_coarse_and_fine_outputs(views):
     objective = Recording()
-    trainer = trainer_of(views, "nerf", objective)
+    trainer = trainer_of(views, "nerf-mlp", objective)
     assert trainer.model.fine is not None
     seen = record_forward(trainer.model)
     loss = trainer.step(1)["loss"]
@@ -89,7 +89,7 @@ def test_the_mlp_nerf_is_fitted_on_its_coarse_and_fine_outputs(views):
 
 def test_an_mlp_nerf_without_a_fine_network_is_fitted_on_its_one_output(views):
     objective = Recording()
-    trainer = trainer_of(views, "nerf", objective, n_fine=0)
+    trainer = trainer_of(views, "nerf-mlp", objective, n_fine=0)
     loss = trainer.step(1)["loss"]
     assert len(objective.calls) == 1 and loss == pytest.approx(objective.calls[0][3], rel=1e-6)
 
@@ -124,7 +124,7 @@ def test_the_grid_refreshes_its_occupancy_every_so_often_from_its_warmup_on(view
     assert refreshed == [6, 9, 12]
 
 
-@pytest.mark.parametrize("kind", ["nerf-grid", "nerf"])
+@pytest.mark.parametrize("kind", ["nerf-grid", "nerf-mlp"])
 def test_a_step_reports_its_loss_and_for_image_targets_the_training_psnr(views, kind):
     """The PSNR of the render clipped to [0, 1] as a viewer sees it (scaled 100× here to overshoot)."""
     trainer = trainer_of(views, kind)
@@ -140,7 +140,7 @@ def test_a_step_reports_its_loss_and_for_image_targets_the_training_psnr(views, 
     assert math.isnan(bits.step(1)["psnr"])  # not against bit fractions
 
 
-@pytest.mark.parametrize("kind", ["nerf-grid", "nerf"])
+@pytest.mark.parametrize("kind", ["nerf-grid", "nerf-mlp"])
 def test_the_check_loss_is_the_objective_on_the_held_out_views_without_a_graph(views, kind):
     objective = Recording()
     trainer = trainer_of(views, kind, objective, plateau_views=1, plateau_patience=2)
@@ -152,7 +152,7 @@ def test_the_check_loss_is_the_objective_on_the_held_out_views_without_a_graph(v
     assert objective.calls and not any(grad for _, _, grad, _ in objective.calls)
 
 
-@pytest.mark.parametrize("kind", ["nerf-grid", "nerf"])
+@pytest.mark.parametrize("kind", ["nerf-grid", "nerf-mlp"])
 def test_a_render_builds_no_graph(views, kind):
     trainer = trainer_of(views, kind)
     image = trainer.render(views.cameras, 0)

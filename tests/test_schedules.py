@@ -75,7 +75,7 @@ def test_nerf_learning_rates_decay_geometrically_per_group():
     assert half == pytest.approx({"density": 0.01, "features": 0.01, "mlp": 1e-4})
 
 
-@pytest.mark.parametrize("model", ["nerf-grid", "nerf"])
+@pytest.mark.parametrize("model", ["nerf-grid", "nerf-mlp"])
 def test_the_ray_trainers_set_their_learning_rates_at_every_step(views, model):
     settings = {"n_iters": 10, "batch_rays": 32, "chunk": 512}
     if model == "nerf-grid":

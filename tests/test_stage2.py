@@ -90,7 +90,7 @@ def test_unknown_source_and_setting_are_named(scene):
         load_source("sketch", scene / "scenes" / "gallery", scene / "spc" / "gallery")
     with pytest.raises(ValueError, match=r"stage2.3dgs: unknown setting\(s\) \['iters'\]"):
         build_config(GaussianConfig, {"iters": 3}, "stage2.3dgs")
-    assert set(RECONSTRUCTORS) == {"3dgs", "nerf", "nerf-grid"}
+    assert set(RECONSTRUCTORS) == {"3dgs", "nerf-mlp", "nerf-grid"}
 
 
 def heldout(folder) -> np.ndarray:

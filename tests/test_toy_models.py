@@ -166,7 +166,7 @@ def test_a_plugin_registers_both_families_in_a_fresh_process():
     repo = Path(__file__).resolve().parents[1]
     out = subprocess.run([sys.executable, "-c", code], cwd=repo, env=plugin_env(), capture_output=True, text=True)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "Toy (3x3 conv) ['3dgs', 'nerf', 'nerf-grid', 'toy-mean']"
+    assert out.stdout.strip() == "Toy (3x3 conv) ['3dgs', 'nerf-grid', 'nerf-mlp', 'toy-mean']"
 
 
 def test_a_plugin_on_the_old_names_still_loads_with_a_warning():

@@ -1,13 +1,18 @@
 # Config validation and the small named helpers the rules use (no logic in the rules themselves).
+import sys
 from pathlib import Path
 
 from snakemake.utils import validate
 
-from spc3d.config import check_config, check_settings, read_yaml, resolve_paths
+from spc3d.config import check_config, check_settings, read_yaml, resolve_paths, upgrade_keys
 from spc3d.checks.crosscheck import check_capture_frames
 
-# Short messages naming the key (Snakemake's own validate prints the whole schema), then its
-# validate fills in the defaults; every relative path is then taken from the repository root.
+# Renamed keys moved to their new names (a warning each), short messages naming the key (Snakemake's
+# own validate prints the whole schema), then its validate fills in the defaults; every relative
+# path is then taken from the repository root.
+for warning in upgrade_keys(config):
+    if workflow.is_main_process:
+        print(f"spc3d warning: {warning}", file=sys.stderr)
 check_config(config, read_yaml(Path(workflow.basedir) / "workflow" / "schemas" / "config.schema.yaml"))
 validate(config, schema="../schemas/config.schema.yaml")
 resolve_paths(config, workflow.basedir)

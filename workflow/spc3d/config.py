@@ -154,6 +154,36 @@ def read_yaml(path: str | os.PathLike, empty_ok: bool = False) -> dict:
 # --- the schema, as short messages -----------------------------------------------------------
 
 
+# Stage-2 models renamed: a config that still writes the old name runs, with a warning naming the
+# new one. "nerf" was the MLP NeRF's name and is the row family that stage2.nerf_variant resolves.
+RENAMED_MODELS = {"nerf": "nerf-mlp"}
+
+
+def upgrade_keys(config: dict) -> list[str]:
+    """Move renamed models' keys of ``config`` to their new names, in place: a ``stage2.<old>``
+    settings block (laid over the new block's defaults), ``stage2.nerf_variant`` and the keys of
+    ``stage2.joint.models`` / ``choose``. Returns one warning per key moved."""
+    stage2 = config.get("stage2")
+    if not isinstance(stage2, dict):
+        return []
+    joint = stage2.get("joint") if isinstance(stage2.get("joint"), dict) else {}
+    out = []
+    for old, new in RENAMED_MODELS.items():
+        why = f"'{old}' in a row is the NeRF family that stage2.nerf_variant picks; the MLP NeRF is '{new}'"
+        if isinstance(stage2.get(old), dict):
+            stage2[new] = {**(stage2.get(new) or {}), **stage2.pop(old)}
+            out.append(f"stage2.{old} is now stage2.{new} ({why}): rename the block")
+        if stage2.get("nerf_variant") == old:
+            stage2["nerf_variant"] = new
+            out.append(f"stage2.nerf_variant = {old!r} is now {new!r} ({why})")
+        for key in ("models", "choose"):
+            given = joint.get(key)
+            if isinstance(given, dict) and old in given:
+                given[new] = given.pop(old)
+                out.append(f"stage2.joint.{key}.{old} is now stage2.joint.{key}.{new} ({why})")
+    return out
+
+
 def check_config(config: dict, schema: dict) -> None:
     """Raise :class:`ConfigError` listing every schema violation of ``config`` and every number in it
     that is not finite (:func:`non_finite`), one short line each."""
@@ -338,6 +368,7 @@ def workflow_config(*changes: str | os.PathLike | dict) -> dict:
     config = read_yaml(Path(SCHEMA).parents[2] / "config.yaml")
     for change in changes:
         update_config(config, change if isinstance(change, dict) else read_yaml(change))
+    upgrade_keys(config)
     validate(config, schema=str(SCHEMA))
     return config
 

@@ -27,6 +27,10 @@ STAGE1_METHODS = tuple(specs.TRANSLATORS)
 TRAINED_METHODS = tuple(n for n, spec in specs.TRANSLATORS.items() if spec.trained)  # with a published form
 PLAIN_SOURCES = ("gt", "none", "mle", "bernoulli")
 STAGE2_MODELS = tuple(specs.RECONSTRUCTORS)
+# A configured row's model may also be the NeRF family: "x+nerf" is row "x+<stage2.nerf_variant>"
+# (nerf-mlp, the paper's MLP NeRF, or nerf-grid), so that one key swaps every NeRF row of a run.
+NERF_FAMILY = "nerf"
+ROW_MODELS = (*STAGE2_MODELS, NERF_FAMILY)
 # Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
 # the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
 BUDGET_SOURCES = ("mle", "bernoulli")
@@ -239,12 +243,12 @@ def combination_problem(combo: str) -> str | None:
     if "+" not in combo:
         base = parse_source(combo).base
         example = f"{combo}+3dgs" if base in PLAIN_SOURCES + STAGE1_METHODS else f"gt+{combo}"
-        if example == f"gt+{combo}" and combo not in STAGE2_MODELS:
+        if example == f"gt+{combo}" and combo not in ROW_MODELS:
             example = "pix2pixhd+3dgs"
-        return f"a row is 'source+model' and has no '+' here (e.g. {example!r}; models: {', '.join(STAGE2_MODELS)})"
+        return f"a row is 'source+model' and has no '+' here (e.g. {example!r}; models: {', '.join(ROW_MODELS)})"
     source, model, poses = parse_combination(combo)
-    if model not in STAGE2_MODELS:
-        return nearest(model, STAGE2_MODELS, "model")
+    if model not in ROW_MODELS:
+        return nearest(model, ROW_MODELS, "model")
     base = parse_source(source).base
     if base not in PLAIN_SOURCES + STAGE1_METHODS:
         return nearest(base, PLAIN_SOURCES + STAGE1_METHODS, "source") + (
@@ -295,7 +299,8 @@ def check_source(source: str, combo: str, where: str) -> None:
 
 
 def resolve_combinations(combinations: list[str], nerf_variant: str, where: str = "stage2.combinations") -> list[str]:
-    """``source+model[@poses]`` names with the family ``nerf`` resolved to the configured NeRF variant."""
+    """``source+model[@poses]`` names with the family ``nerf`` resolved to the configured NeRF variant
+    (``stage2.nerf_variant``: ``nerf-mlp`` or ``nerf-grid``)."""
     out = []
     for combo in combinations:
         source, model, poses = parse_combination(combo)
@@ -305,7 +310,7 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
         if poses is not None:
             check_pose_source(poses, combo, where)
         check_source(source, combo, where)
-        resolved = f"{source}+{nerf_variant if model == 'nerf' else model}"
+        resolved = f"{source}+{nerf_variant if model == NERF_FAMILY else model}"
         out.append(resolved + (f"@{poses}" if poses else ""))
     return list(dict.fromkeys(out))
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from spc3d.names import (
     JOINT,
+    NERF_FAMILY,
     ConfigError,
     joint_settings,
     parse_combination,
@@ -74,7 +75,7 @@ def check_reconstructor(model: str, cfg, where: str) -> None:
                 f"this row's camera corrections would never move; start them below {n} (e.g. {n // 4})"
             )
         decays = (("lr_means", "lr_means_final"), ("pose_lr", "pose_lr_final"))
-    elif model == "nerf":
+    elif model == "nerf-mlp":
         decays = (("lr", "lr_final"),)
     elif model == "nerf-grid":
         late = [it for it, _ in cfg.res_schedule if it >= cfg.n_iters]
@@ -205,7 +206,7 @@ def unused_blocks(given: dict, rows: list[str], nerf_variant: str) -> list[str]:
     used_methods, used_models, joint = set(), set(), False
     for combo in rows:
         source, model, poses = parse_combination(combo)
-        used_models.add(nerf_variant if model == "nerf" else model)
+        used_models.add(nerf_variant if model == NERF_FAMILY else model)
         for name in (source, poses or ""):
             if parse_source(name).base in specs.TRANSLATORS:
                 used_methods.add(parse_source(name).base)
@@ -221,7 +222,7 @@ def unused_blocks(given: dict, rows: list[str], nerf_variant: str) -> list[str]:
                 rows_hint = "no joint-<method> row" if name == "joint" else f"no row uses the {what} {name!r}"
                 variant = (
                     f" (the rows' 'nerf' is stage2.nerf_variant = {nerf_variant!r})"
-                    if name in ("nerf", "nerf-grid") and name != nerf_variant
+                    if name in ("nerf-mlp", "nerf-grid") and name != nerf_variant
                     else ""
                 )
                 out.append(

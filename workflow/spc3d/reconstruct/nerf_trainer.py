@@ -41,8 +41,8 @@ def all_rays(cams: Cameras, idx) -> tuple[Tensor, Tensor, Tensor]:
 
 
 class RayTrainer:
-    """Fits a NeRF (``kind`` "nerf") or GridNeRF (``kind`` "nerf-grid") to ``views`` on ``device``
-    (default: CUDA if available, else CPU)."""
+    """Fits a NeRF (``kind`` "nerf": the MLP of model ``nerf-mlp``) or GridNeRF (``kind``
+    "nerf-grid") to ``views`` on ``device`` (default: CUDA if available, else CPU)."""
 
     def __init__(
         self, views: Views, objective, kind: str, cfg, seed: int = 0, device: str | torch.device | None = None

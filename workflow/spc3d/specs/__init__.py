@@ -128,7 +128,12 @@ for _spec in (
         refines_poses=True,
     ),
     ReconstructorSpec(
-        "nerf", "NeRF", "spc3d.reconstruct:make_nerf", "spc3d.specs.reconstructors:config_nerf", "n_iters", gpu=True
+        "nerf-mlp",
+        "NeRF (MLP) [nerf-mlp]",
+        "spc3d.reconstruct:make_nerf",
+        "spc3d.specs.reconstructors:config_nerf",
+        "n_iters",
+        gpu=True,
     ),
     ReconstructorSpec(
         "nerf-grid",

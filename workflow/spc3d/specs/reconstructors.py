@@ -213,7 +213,7 @@ def config_3dgs(settings: dict):
 
 def config_nerf(settings: dict):
     settings = dict(settings)
-    return build_config(NerfConfig, settings, "stage2.nerf", nerf_preset(settings.pop("preset", "paper")))
+    return build_config(NerfConfig, settings, "stage2.nerf-mlp", nerf_preset(settings.pop("preset", "paper")))
 
 
 def config_nerf_grid(settings: dict):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from spc3d.names import PLAIN_SOURCES, STAGE2_MODELS, combination_problem, nearest
+from spc3d.names import NERF_FAMILY, PLAIN_SOURCES, ROW_MODELS, combination_problem, nearest
 
 # Knob -> (type, what it sets). Order = the order of path components in a default table.
 KNOBS: dict[str, tuple[type, str]] = {
@@ -33,7 +33,7 @@ KNOBS: dict[str, tuple[type, str]] = {
 def split_combination(combo: str) -> tuple[str, str]:
     """``"pix2pixhd+3dgs"`` -> ``("pix2pixhd", "3dgs")``."""
     source, sep, model = combo.partition("+")
-    if not sep or not source or model not in STAGE2_MODELS:
+    if not sep or not source or model not in ROW_MODELS:
         raise ValueError(f"combination {combo!r}: {combination_problem(combo) or 'must be source+model'}")
     return source, model
 
@@ -50,7 +50,7 @@ def parse_combinations(
             raise ValueError(f"{key}: {e}") from None
         if source not in sources:
             raise ValueError(f"{key}: {combo!r}: {nearest(source, sources, 'source')}")
-        out.append(f"{source}+{nerf_variant if model == 'nerf' else model}")
+        out.append(f"{source}+{nerf_variant if model == NERF_FAMILY else model}")
     if not out:
         raise ValueError(f"{key}: give at least one combination")
     return list(dict.fromkeys(out))
