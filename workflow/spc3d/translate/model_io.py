@@ -1,7 +1,7 @@
 """A stage-1 model folder: building a method's translator, writing what a training leaves, loading it back.
 
-``model_config`` resolves a method's settings (``preset: paper``, overrides) to its Config and
-``build_translator`` builds its Translator; ``check_pretrained`` loads published weights early.
+``build_translator`` builds a method's Translator from its Config (resolved from its settings by
+:func:`spc3d.specs.translators.model_config`); ``check_pretrained`` loads published weights early.
 ``write_model_folder`` writes a trained translator's folder (``results/models/{method}/``, atomically):
 
     model.pt      the kept networks (every module's state) + method name + resolved Config + the
