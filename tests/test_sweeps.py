@@ -1,6 +1,7 @@
 """Budget sweeps: Pareto fronts, knobs and tables, a point's settings overlay, a tiny sweep through
 Snakemake end to end (the grid's rules under the overlay), reports, the rules."""
 
+import json
 import re
 import subprocess
 import sys
@@ -17,7 +18,7 @@ from spc3d.sweeps import knobs, plan
 from spc3d.sweeps.budget import WIDTH_KEYS
 from spc3d.sweeps.pareto import front_steps, pareto_mask
 
-from conftest import REPO, run_snakemake
+from conftest import REPO, exclusive, run_snakemake, session_folder
 
 TABLE = REPO / "workflow" / "tradeoff.tsv"
 SMOKE = REPO / "workflow" / "presets" / "smoke.yaml"
@@ -234,24 +235,28 @@ PHOTON_ROWS = ("detection~0.2/K~2", "detection~0.6/K~2")
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, lpips_cache):
     """`snakemake tradeoff photon_level` on the smoke preset: gt+3dgs and pix2pix+3dgs at one
-    budget, mle+3dgs at two exposures (K = 2)."""
-    root = tmp_path_factory.mktemp("sweep")
-    (root / "t.tsv").write_text("iters\tres\tK\twidth\tsteps\tcap\n10\t48\t1\t8\t2\t500\n")
-    config = {
-        "metrics": {"lpips_source": str(lpips_cache)},
-        "tradeoff": {"combinations": ["gt+3dgs", "pix2pix+3dgs"], "table": str(root / "t.tsv")},
-        "photon_level": {
-            "combinations": ["mle+3dgs"],
-            "detection": [0.2, 0.6],
-            "frames": [2],
-            "budget": {"iters": 10, "res": 48, "cap": 500},  # smoke's init_points
-        },
-    }
-    (root / "sweep.yaml").write_text(yaml.safe_dump(config))
-    proc = run_snakemake(
-        root, "--cores", "2", "tradeoff", "photon_level", "--configfile", str(SMOKE), str(root / "sweep.yaml")
-    )
-    assert proc.returncode == 0, proc.stderr[-4000:]
+    budget, mle+3dgs at two exposures (K = 2). Run once per test session: the xdist worker that
+    asks first builds it, another waits for it (the tests only read it)."""
+    root = session_folder(tmp_path_factory, "sweep")
+    with exclusive(root / "build.lock"):
+        if not (root / "built.json").exists():
+            (root / "t.tsv").write_text("iters\tres\tK\twidth\tsteps\tcap\n10\t48\t1\t8\t2\t500\n")
+            config = {
+                "metrics": {"lpips_source": str(lpips_cache)},
+                "tradeoff": {"combinations": ["gt+3dgs", "pix2pix+3dgs"], "table": str(root / "t.tsv")},
+                "photon_level": {
+                    "combinations": ["mle+3dgs"],
+                    "detection": [0.2, 0.6],
+                    "frames": [2],
+                    "budget": {"iters": 10, "res": 48, "cap": 500},  # smoke's init_points
+                },
+            }
+            (root / "sweep.yaml").write_text(yaml.safe_dump(config))
+            args = ("--cores", "2", "tradeoff", "photon_level", "--configfile", str(SMOKE), str(root / "sweep.yaml"))
+            proc = run_snakemake(root, *args)
+            (root / "built.json").write_text(json.dumps({"rc": proc.returncode, "err": proc.stderr[-4000:]}))
+    built = json.loads((root / "built.json").read_text())
+    assert built["rc"] == 0, built["err"]
     return root
 
 
