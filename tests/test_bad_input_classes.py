@@ -9,6 +9,8 @@ Snakemake's workflow.
 """
 
 import os
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -261,6 +263,9 @@ def test_the_mlp_nerfs_old_names_run_as_the_new_ones_with_a_warning(tmp_path):
     assert parsed["stage2"]["nerf-mlp"]["n_iters"] == 5
     case = tmp_path / "old.yaml"
     case.write_text("stage2:\n  nerf_variant: nerf\n  nerf: {n_iters: 5}\n  combinations: [gt+nerf]\n")
+    checker = subprocess.run([sys.executable, "-m", "spc3d.config", str(case)], capture_output=True, text=True)
+    assert checker.returncode == 0 and "spc3d warning: stage2.nerf is now stage2.nerf-mlp" in checker.stdout
+    assert checker.stdout.rstrip().endswith(f"{case}: ok"), checker.stdout
     out = run_snakemake(tmp_path / "work", "-n", "--configfile", str(case), timeout=120)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stderr.count("spc3d warning: stage2.nerf is now stage2.nerf-mlp") == 1, out.stderr[-3000:]

@@ -703,7 +703,10 @@ def main(argv: list[str] | None = None) -> int:
     schema, failed = read_yaml(SCHEMA), 0
     for file in files:
         try:
-            check_config(read_yaml(file), schema)
+            config = read_yaml(file)
+            for warning in upgrade_keys(config):
+                print(f"{file}: spc3d warning: {warning}")
+            check_config(config, schema)
             print(f"{file}: ok")
         except ConfigError as e:
             failed += 1
