@@ -5,7 +5,7 @@
 
 Reads a finished run's training data (``RESULTS_DIR/augment/{scene}``, ``scenes/``, ``spc/`` of the
 training scenes; e.g. ``results`` after the default ``snakemake --cores 2``). For every candidate of
-:data:`spc3d.specs.translators.CLASSICAL_GRID` whose family can run here (wavelets need PyWavelets, BM3D the
+:data:`spc3d.specs.translators.classical.GRID` whose family can run here (wavelets need PyWavelets, BM3D the
 non-commercial ``bm3d`` package; the others are reported as not run) it fits the gain on the
 augmented pairs (every ``--every``-th; 1 = all, as the chosen model's gain is fitted), then prints
 its PSNR and SSIM on the training scenes' held-out views (the validation slice of stage 1, displayed

@@ -109,6 +109,9 @@ def test_the_real_training_closure_has_the_training_code_and_not_the_tables():
     names = {provenance.module_name(p) for p in files}
     assert {"spc3d.translate.train", "spc3d.translate.pix2pix", "spc3d.translate.networks"} <= names
     assert "spc3d.evaluation.tables" not in names and "spc3d.translate.restormer" not in names
+    # its settings, from its own file: another model's defaults are not part of its key
+    specs = {name for name in names if name and name.startswith("spc3d.specs.translators")}
+    assert specs == {"spc3d.specs.translators", "spc3d.specs.translators.pix2pix"}
 
 
 def test_a_translator_checkpoints_beside_its_models_folder():

@@ -87,33 +87,26 @@ def register(spec: TranslatorSpec | ReconstructorSpec) -> None:
     registry[spec.name] = spec
 
 
-def _builtin(name: str, label: str, module: str, settings: str, width_field: str | None, **kw) -> TranslatorSpec:
-    """A built-in translator: its Translator in spc3d.translate.<module>, its settings dataclass
-    ``<settings>Config`` and published sizes ``<SETTINGS>_PAPER`` in :mod:`.translators`."""
-    here = "spc3d.specs.translators"
-    config, paper = f"{here}:{settings}Config", f"{here}:{settings.upper()}_PAPER"
-    return TranslatorSpec(name, label, f"spc3d.translate.{module}", width_field, config=config, paper=paper, **kw)
+def _builtin(name: str, label: str, module: str, width_field: str | None, **kw) -> TranslatorSpec:
+    """A built-in translator: its Translator in ``spc3d.translate.<module>``, its settings dataclass
+    ``Config`` and published sizes ``PAPER`` in ``spc3d.specs.translators.<name>``."""
+    here = f"spc3d.specs.translators.{name}"
+    return TranslatorSpec(
+        name, label, f"spc3d.translate.{module}", width_field, config=f"{here}:Config", paper=f"{here}:PAPER", **kw
+    )
 
 
 for _spec in (
-    _builtin(
-        "pix2pixhd",
-        "Pix2PixHD",
-        "pix2pixhd",
-        "Pix2PixHD",
-        "ngf",
-        crop_halvings=("n_downsample_global", "n_local_enhancers"),
-    ),
-    _builtin("pix2pix", "Pix2Pix", "pix2pix", "Pix2Pix", "ngf", crop_halvings=("num_downs",)),
-    _builtin("cyclegan", "CycleGAN", "cyclegan", "CycleGAN", "ngf", crop_halvings=("n_downsampling",)),
-    _builtin("restormer", "Restormer", "restormer", "Restormer", "dim"),
-    _builtin("diffusion", "Diffusion (DiffBIR stand-in)", "diffusion", "Diffusion", "base_channels"),
-    _builtin("prior", "Physics prior (blurred MLE, no training)", "blurred_mle", "Prior", None, trained=False),
+    _builtin("pix2pixhd", "Pix2PixHD", "pix2pixhd", "ngf", crop_halvings=("n_downsample_global", "n_local_enhancers")),
+    _builtin("pix2pix", "Pix2Pix", "pix2pix", "ngf", crop_halvings=("num_downs",)),
+    _builtin("cyclegan", "CycleGAN", "cyclegan", "ngf", crop_halvings=("n_downsampling",)),
+    _builtin("restormer", "Restormer", "restormer", "dim"),
+    _builtin("diffusion", "Diffusion (DiffBIR stand-in)", "diffusion", "base_channels"),
+    _builtin("prior", "Physics prior (blurred MLE, no training)", "blurred_mle", None, trained=False),
     _builtin(
         "classical",
         "Classical denoiser (best of NLM / wavelet / TV / Gaussian after a VST, then MLE)",
         "classical",
-        "Classical",
         None,
         trained=False,
     ),

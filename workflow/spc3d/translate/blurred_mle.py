@@ -13,8 +13,10 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from spc3d.specs.translators import PRIOR_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
-from spc3d.specs.translators import PriorConfig as Config
+from spc3d.specs.translators.prior import (
+    PAPER,  # noqa: F401 - the contract of spc3d.translate
+    Config,
+)
 from spc3d.translate.base import TranslatorBase
 
 

@@ -47,12 +47,14 @@ import torch
 from torch import Tensor, nn
 
 from spc3d.evaluation.metrics import psnr
-from spc3d.specs.translators import CLASSICAL_GRID as GRID
-from spc3d.specs.translators import CLASSICAL_GRID_DIGEST as GRID_DIGEST
-from spc3d.specs.translators import CLASSICAL_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
-from spc3d.specs.translators import ClassicalConfig as Config
-from spc3d.specs.translators import classical_label as label
-from spc3d.specs.translators import classical_pinned_index as pinned_index
+from spc3d.specs.translators.classical import (
+    GRID,
+    GRID_DIGEST,
+    PAPER,  # noqa: F401 - the contract of spc3d.translate
+    Config,
+    label,
+    pinned_index,
+)
 from spc3d.translate.base import TranslatorBase
 from spc3d.translate.prior import P_MAX, PhysicsPrior
 
@@ -209,7 +211,7 @@ class Classical(PhysicsPrior):
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
         if int(state_dict["grid"]) != GRID_DIGEST:
             raise ValueError(
-                "classical: this model's choice indexes another candidate grid (spc3d.specs.translators.CLASSICAL_GRID "
+                "classical: this model's choice indexes another candidate grid (spc3d.specs.translators.classical.GRID "
                 "has changed since it was selected); train it again"
             )
         return super().load_state_dict(state_dict, strict, assign)

@@ -24,8 +24,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from spc3d.specs.translators import CYCLEGAN_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
-from spc3d.specs.translators import CycleGANConfig as Config
+from spc3d.specs.translators.cyclegan import (
+    PAPER,  # noqa: F401 - the contract of spc3d.translate
+    Config,
+)
 from spc3d.translate.base import TranslatorBase, adam, from_signed, to_signed
 from spc3d.translate.networks import (
     GANLoss,

@@ -34,8 +34,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from spc3d.specs.translators import DIFFUSION_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
-from spc3d.specs.translators import DiffusionConfig as Config
+from spc3d.specs.translators.diffusion import (
+    PAPER,  # noqa: F401 - the contract of spc3d.translate
+    Config,
+)
 from spc3d.translate.base import TranslatorBase, adam, from_signed, pad_to_multiple, to_signed
 from spc3d.translate.ddim import NoiseSchedule, ddim_sample, make_betas
 

@@ -16,8 +16,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from spc3d.specs.translators import PIX2PIX_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
-from spc3d.specs.translators import Pix2PixConfig as Config
+from spc3d.specs.translators.pix2pix import (
+    PAPER,  # noqa: F401 - the contract of spc3d.translate
+    Config,
+)
 from spc3d.translate.base import PairedGANBase, adam, to_signed
 from spc3d.translate.networks import (
     GANLoss,

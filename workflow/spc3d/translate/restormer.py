@@ -36,8 +36,10 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from spc3d import io
-from spc3d.specs.translators import RESTORMER_PAPER as PAPER  # noqa: F401 - the contract of spc3d.translate
-from spc3d.specs.translators import RestormerConfig as Config
+from spc3d.specs.translators.restormer import (
+    PAPER,  # noqa: F401 - the contract of spc3d.translate
+    Config,
+)
 from spc3d.translate.base import TranslatorBase, adam, pad_to_multiple
 
 # ----------------------------------------------------------------------------------------------
