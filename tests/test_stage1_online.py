@@ -19,7 +19,7 @@ from spc3d.inputs.augment import AugmentSettings
 from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.physics import spc
-from spc3d.specs.translators import validation_settings
+from spc3d.specs.translators import model_config, validation_settings
 from spc3d.training import run
 from spc3d.translate import base, model_io, online, train, validate
 from spc3d.translate.camera import CAMERA_WHITE, from_camera
@@ -455,7 +455,7 @@ def test_published_weights_without_training_are_validated_once(world, tmp_path):
     from spc3d.translate import restormer
 
     tiny = {**TINY_RESTORMER, "prior_sigma": 0.0}  # the published design, as published weights need
-    published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
+    published = restormer.Translator(model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
     settings = {**tiny, "checkpoint": str(tmp_path / "real_denoising.pth")}
     rec = train.train_translator(_online_job(world, tmp_path, "restormer", settings, {"iterations": 0, "crop": 16}))

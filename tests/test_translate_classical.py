@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from spc3d import specs
+from spc3d.specs.translators import model_config
 from spc3d.translate import MODULES, blurred_mle, classical, model_io
 from spc3d.translate.classical import DENOISERS, GRID, P_MAX, Config, Translator, inverse_vst, vst, vst_sigma
 
@@ -150,14 +151,14 @@ def test_a_fitted_model_survives_its_folder(tmp_path):
 
 def test_settings_errors_name_the_setting():
     with pytest.raises(ValueError, match=r"stage1\.classical: denoisers = \['bm4d'\].*unknown denoiser \['bm4d'\]"):
-        model_io.model_config("classical", {"denoisers": ["bm4d"]})
+        model_config("classical", {"denoisers": ["bm4d"]})
     with pytest.raises(ValueError, match=r"stage1\.classical: .*choice = 'median'.*choose from"):
-        model_io.model_config("classical", {"choice": "median"})
+        model_config("classical", {"choice": "median"})
     with pytest.raises(ValueError, match=r"params = \{'sigma': 7\.0\}: not one candidate.*gaussian\(sigma=2\.0\)"):
-        model_io.model_config("classical", {"choice": "gaussian", "params": {"sigma": 7.0}})
+        model_config("classical", {"choice": "gaussian", "params": {"sigma": 7.0}})
     with pytest.raises(ValueError, match=r"stage1\.classical\.frames: .*stage1\.frames"):
-        model_io.model_config("classical", {"frames": 4})
-    assert model_io.model_config("classical", {}, frames=4).frames == 4  # the job's K
+        model_config("classical", {"frames": 4})
+    assert model_config("classical", {}, frames=4).frames == 4  # the job's K
     with pytest.raises(RuntimeError, match="no denoiser chosen yet"):
         Translator(Config(), CPU).translate(torch.zeros(1, 3, 8, 8))
 

@@ -23,6 +23,7 @@ from spc3d.inputs.build import simulate_scene
 from spc3d.inputs.scenes import write_builtin_scene
 from spc3d.names import LABELS, STAGE1_METHODS, translator_settings
 from spc3d.physics import spc
+from spc3d.specs.translators import model_config
 from spc3d.training import run
 from spc3d.translate import base, data, model_io, train
 from spc3d.translate.apply import self_ensemble, translate_scene
@@ -157,15 +158,15 @@ def test_lr_schedule_is_constant_then_linear_to_zero():
 
 
 def test_model_config_presets_and_unknown_keys(tiny_registered):
-    assert model_io.model_config("tiny", {}).width == 4
-    assert model_io.model_config("tiny", {"preset": "paper"}).width == 8
-    assert model_io.model_config("tiny", {"preset": "paper", "width": 3}).width == 3
+    assert model_config("tiny", {}).width == 4
+    assert model_config("tiny", {"preset": "paper"}).width == 8
+    assert model_config("tiny", {"preset": "paper", "width": 3}).width == 3
     with pytest.raises(ValueError, match="stage1.tiny: unknown setting.*'depth'"):
-        model_io.model_config("tiny", {"depth": 3})
+        model_config("tiny", {"depth": 3})
     with pytest.raises(ValueError, match="unknown stage-1 method 'pix3pix'"):
-        model_io.model_config("pix3pix", {})
+        model_config("pix3pix", {})
     with pytest.raises(ValueError, match="preset='huge'"):
-        model_io.model_config("tiny", {"preset": "huge"})
+        model_config("tiny", {"preset": "huge"})
 
 
 def test_translator_settings_merge_the_method_train_block():
@@ -393,7 +394,7 @@ def test_restormer_starts_from_a_published_checkpoint(world, tmp_path):
 
     tiny = {"dim": 8, "heads": [1, 1, 1, 1], "prior_sigma": 0.0}  # published weights: no physics prior
     torch.manual_seed(5)
-    published = restormer.Translator(model_io.model_config("restormer", tiny), torch.device("cpu"))
+    published = restormer.Translator(model_config("restormer", tiny), torch.device("cpu"))
     torch.save({"params": published.net.state_dict()}, tmp_path / "real_denoising.pth")
     pairs = train.training_data("fixed", [world / "augment" / "orchard"])
     rec = train.train_translator(
