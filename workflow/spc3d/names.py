@@ -31,6 +31,13 @@ STAGE2_MODELS = tuple(specs.RECONSTRUCTORS)
 # (nerf-mlp, the paper's MLP NeRF, or nerf-grid), so that one key swaps every NeRF row of a run.
 NERF_FAMILY = "nerf"
 ROW_MODELS = (*STAGE2_MODELS, NERF_FAMILY)
+
+
+def row_model(model: str, nerf_variant: str) -> str:
+    """The stage-2 model a row's ``model`` names: the NeRF family resolved to ``nerf_variant``."""
+    return nerf_variant if model == NERF_FAMILY else model
+
+
 # Sources whose photon budget is chosen per row: "mle-k16" is the MLE of 16 frames per view; without
 # the suffix they use stage2.frames. Translators use stage1.frames; "none" is frame 0; "gt" is the oracle.
 BUDGET_SOURCES = ("mle", "bernoulli")
@@ -310,7 +317,7 @@ def resolve_combinations(combinations: list[str], nerf_variant: str, where: str 
         if poses is not None:
             check_pose_source(poses, combo, where)
         check_source(source, combo, where)
-        resolved = f"{source}+{nerf_variant if model == NERF_FAMILY else model}"
+        resolved = f"{source}+{row_model(model, nerf_variant)}"
         out.append(resolved + (f"@{poses}" if poses else ""))
     return list(dict.fromkeys(out))
 

@@ -19,11 +19,11 @@ from __future__ import annotations
 
 from spc3d.names import (
     JOINT,
-    NERF_FAMILY,
     ConfigError,
     joint_settings,
     parse_combination,
     parse_source,
+    row_model,
     stage2_row_settings,
     translator_settings,
 )
@@ -206,7 +206,7 @@ def unused_blocks(given: dict, rows: list[str], nerf_variant: str) -> list[str]:
     used_methods, used_models, joint = set(), set(), False
     for combo in rows:
         source, model, poses = parse_combination(combo)
-        used_models.add(nerf_variant if model == NERF_FAMILY else model)
+        used_models.add(row_model(model, nerf_variant))
         for name in (source, poses or ""):
             if parse_source(name).base in specs.TRANSLATORS:
                 used_methods.add(parse_source(name).base)

@@ -25,7 +25,7 @@ import pandas as pd
 
 from spc3d import io
 from spc3d.evaluation.record import read_runs
-from spc3d.names import LABELS, METRICS, NERF_FAMILY, TRAINED_METHODS, as_read, parse_source, source_label
+from spc3d.names import LABELS, METRICS, NERF_FAMILY, TRAINED_METHODS, as_read, parse_source, row_model, source_label
 
 # What every caption says about the protocol (the rule for the physics rows' display gain included).
 PROTOCOL = (
@@ -182,14 +182,14 @@ def extra_rows(summary: pd.DataFrame, spec: list, nerf_variant: str, unlisted: b
     frame budgets, the joint rows (likelihood + stage-1 prior, both tables), and the published
     networks ("-pub") of the spec's translator rows (their own block);
     ``unlisted``: also every other translator and oracle row (models the paper has not, plugins')."""
-    listed = {f"{src}+{nerf_variant if fam == NERF_FAMILY else fam}" for _, src, fam, *_ in spec}
+    listed = {f"{src}+{row_model(fam, nerf_variant)}" for _, src, fam, *_ in spec}
     rows = []
     for label, src, family, paper, _ in spec:
-        model = nerf_variant if family == NERF_FAMILY else family
+        model = row_model(family, nerf_variant)
         pub = f"{src}-pub+{model}"
         if src in TRAINED_METHODS and pub in summary.index and pub not in listed:  # once, if spec lacks it
             rows.append((f"{label} — published network (prior_sigma 0)", f"{src}-pub", family, paper, "published"))
-    listed |= {f"{src}+{nerf_variant if fam == NERF_FAMILY else fam}" for _, src, fam, *_ in rows}
+    listed |= {f"{src}+{row_model(fam, nerf_variant)}" for _, src, fam, *_ in rows}
     for combo in summary.index:
         source, _, model = combo.partition("+")
         name = parse_source(source)
@@ -209,7 +209,7 @@ def table(
     rows = []
     extra = extra_rows(summary, spec, nerf_variant, unlisted) if in_blocks else []
     for label, source, family, paper, role in spec + extra:
-        model = nerf_variant if family == NERF_FAMILY else family
+        model = row_model(family, nerf_variant)
         combo = f"{source}+{model}"
         have = combo in summary.index
         row = {

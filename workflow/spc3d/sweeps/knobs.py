@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from spc3d.names import NERF_FAMILY, PLAIN_SOURCES, ROW_MODELS, combination_problem, nearest
+from spc3d.names import PLAIN_SOURCES, ROW_MODELS, combination_problem, nearest, row_model
 
 # Knob -> (type, what it sets). Order = the order of path components in a default table.
 KNOBS: dict[str, tuple[type, str]] = {
@@ -50,7 +50,7 @@ def parse_combinations(
             raise ValueError(f"{key}: {e}") from None
         if source not in sources:
             raise ValueError(f"{key}: {combo!r}: {nearest(source, sources, 'source')}")
-        out.append(f"{source}+{nerf_variant if model == NERF_FAMILY else model}")
+        out.append(f"{source}+{row_model(model, nerf_variant)}")
     if not out:
         raise ValueError(f"{key}: give at least one combination")
     return list(dict.fromkeys(out))

@@ -174,14 +174,19 @@ def mip_pyramid(img: np.ndarray) -> tuple[np.ndarray, ...]:
     return tuple(np.ascontiguousarray(level.transpose(2, 0, 1), dtype=np.float32) for level in levels)
 
 
-@functools.cache
-def _raw_image(name: str) -> np.ndarray:
-    """Sample image ``name`` as stored by scikit-image (cheap: no filtering)."""
+def check_sample(name: str) -> None:
+    """``name`` must be one of :data:`SAMPLE_IMAGES`; the error names the sources there are."""
     if name not in SAMPLE_IMAGES:
         raise ValueError(
             f"unknown texture {name!r}; available: {', '.join(SAMPLE_IMAGES)} or "
             f"{', '.join('proc:' + p for p in PATTERNS)}"
         )
+
+
+@functools.cache
+def _raw_image(name: str) -> np.ndarray:
+    """Sample image ``name`` as stored by scikit-image (cheap: no filtering)."""
+    check_sample(name)
     import skimage.data  # lazy: only scene generation needs it
 
     img = np.asarray(getattr(skimage.data, name)())
@@ -214,8 +219,7 @@ def source_shape(name: str) -> tuple[int, int]:
     """(h, w) of a source's texture, without building it."""
     if name.startswith("proc:"):
         return _scaled_shape(*pattern_shape(name.removeprefix("proc:")))
-    if name not in SAMPLE_IMAGES:
-        _raw_image(name)  # its error names the sources there are
+    check_sample(name)
     return _scaled_shape(*SAMPLE_IMAGES[name])
 
 
