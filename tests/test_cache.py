@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from spc3d import provenance
+from spc3d import provenance, specs
 from spc3d.jobs import translator_checkpoint
 
 from conftest import SMOKE, run_snakemake
@@ -114,6 +114,26 @@ def test_the_real_training_closure_has_the_training_code_and_not_the_tables():
     assert specs == {"spc3d.specs.translators", "spc3d.specs.translators.pix2pix"}
 
 
+@pytest.mark.parametrize(
+    ("model", "own", "other"),
+    [("3dgs", {"spc3d.reconstruct.splatting", "spc3d.reconstruct.splat.native"}, "spc3d.reconstruct.nerf_trainer")]
+    + [
+        (m, {"spc3d.reconstruct.nerf_trainer", "spc3d.reconstruct.volume"}, "spc3d.reconstruct.splatting")
+        for m in ("nerf-mlp", "nerf-grid")
+    ],
+)
+def test_a_fits_closure_has_its_own_models_code_and_not_the_others(model, own, other):
+    # the key of rule reconstruct: its script and its model's factory module (Grid.reconstruct_code)
+    scripts = Path(__file__).resolve().parents[1] / "workflow" / "scripts"
+    factory = specs.RECONSTRUCTORS[model].factory.rpartition(":")[0]
+    names = {
+        provenance.module_name(p)
+        for p in provenance.closure([scripts / "reconstruct.py", provenance.entry_file(factory)])
+    }
+    assert {"spc3d.reconstruct.stage2", "spc3d.reconstruct.objectives", *own} <= names
+    assert other not in names and "spc3d.evaluation.tables" not in names
+
+
 def test_a_translator_checkpoints_beside_its_models_folder():
     path = translator_checkpoint("results/sweeps/p1/models-cfa-without-fern/pix2pix-1")
     assert path == Path("results/sweeps/p1/checkpoints/models-cfa-without-fern/pix2pix-1/checkpoint.pt")
@@ -157,13 +177,6 @@ def test_a_second_workflow_directory_trains_nothing_and_a_changed_setting_retrai
     third, log = train("w3", "--config", "seed=1")  # another seed: other weights, trained anew
     assert "Moving output file results/models/pix2pix to cache" in log
     assert len(list(store.iterdir())) == 2 and third.resolve() != entries[0].resolve()
-
-
-def test_the_real_reconstruct_closure_has_the_objectives_trainers_and_rasterizer():
-    scripts = Path(__file__).resolve().parents[1] / "workflow" / "scripts"
-    names = {provenance.module_name(p) for p in provenance.closure([scripts / "reconstruct.py"])}
-    assert {"spc3d.reconstruct.objectives", "spc3d.reconstruct.splatting", "spc3d.reconstruct.nerf_trainer"} <= names
-    assert "spc3d.reconstruct.splat.native" in names and "spc3d.evaluation.tables" not in names
 
 
 def copy_workflow(dest: Path) -> Path:

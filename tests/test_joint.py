@@ -15,8 +15,7 @@ from spc3d.names import (
     source_label,
 )
 from spc3d.pixels import linear_to_srgb
-from spc3d.reconstruct import own_objective
-from spc3d.reconstruct.objectives import BernoulliObjective, JointConfig, JointObjective, RGBObjective
+from spc3d.reconstruct.objectives import BernoulliObjective, JointConfig, JointObjective, RGBObjective, own_objective
 from spc3d.reconstruct.sources import load_source
 from spc3d.reconstruct.stage2 import ReconstructJob, reconstruct
 from spc3d.specs.reconstructors import check_joint, config_joint

@@ -22,10 +22,11 @@ from torch import Tensor
 from spc3d.cameras import Cameras, transform_cameras
 from spc3d.evaluation.metrics import psnr
 from spc3d.reconstruct import nerf, nerf_grid
-from spc3d.reconstruct.objectives import Scheduled
+from spc3d.reconstruct.objectives import RGBObjective, Scheduled, own_objective
 from spc3d.reconstruct.rays import camera_rays, ndc_rays, recenter, view_dirs
 from spc3d.reconstruct.views import Views, hold_out
 from spc3d.reconstruct.volume import render_chunked
+from spc3d.specs.reconstructors import config_nerf, config_nerf_grid
 from spc3d.training import Plateau, default_device, set_lr
 
 
@@ -145,3 +146,15 @@ class RayTrainer:
         self.opt.load_state_dict(state["opt"])
         self.rng.bit_generator.state = state["rng"]
         self.plateau.load(state["plateau"])
+
+
+def make_nerf(views, objective, settings: dict, seed: int, points=None):  # points: unused by NeRF
+    """The ``nerf-mlp`` factory (:data:`spc3d.reconstruct.RECONSTRUCTORS`); its own loss is the MSE."""
+    cfg = config_nerf(settings)
+    return RayTrainer(views, own_objective(objective, RGBObjective("mse")), "nerf", cfg, seed), cfg.n_iters, cfg
+
+
+def make_nerf_grid(views, objective, settings: dict, seed: int, points=None):  # points: unused
+    """The ``nerf-grid`` factory (:data:`spc3d.reconstruct.RECONSTRUCTORS`); its own loss is the MSE."""
+    cfg = config_nerf_grid(settings)
+    return RayTrainer(views, own_objective(objective, RGBObjective("mse")), "nerf-grid", cfg, seed), cfg.n_iters, cfg

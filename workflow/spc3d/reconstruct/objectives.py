@@ -102,7 +102,7 @@ class Scheduled(Protocol):
 class JointObjective:
     """SPAD likelihood + w(t) x image loss towards a stage-1 output; target (..., C + 3): the
     likelihood's C channels, then the stage-1 image (sRGB). ``image``: the two-stage loss (None
-    until the model sets its own, :func:`spc3d.reconstruct.own_objective`). A trainer calls
+    until the model sets its own, :func:`own_objective`). A trainer calls
     :meth:`at` with its progress before each step (the schedule)."""
 
     likelihood: object  # BernoulliObjective or a capture's MosaicBernoulliObjective
@@ -134,3 +134,13 @@ class JointObjective:
 
 def _bchw(x: Tensor) -> Tensor:
     return (x if x.dim() == 4 else x[None]).permute(0, 3, 1, 2)
+
+
+def own_objective(objective, own: RGBObjective):
+    """The objective a model fits: its own RGB loss ``own`` when none is given; a joint objective
+    without an image loss gets ``own`` as its prior term."""
+    if objective is None:
+        return own
+    if isinstance(objective, JointObjective) and objective.image is None:
+        objective.image = own
+    return objective

@@ -27,10 +27,11 @@ from spc3d.evaluation.metrics import psnr
 from spc3d.reconstruct.adam import FusedAdam
 from spc3d.reconstruct.densify import DensityControl
 from spc3d.reconstruct.gaussians import PARAM_NAMES, GaussianConfig, GaussianModel, initial_model, scene_extent
-from spc3d.reconstruct.objectives import Scheduled
+from spc3d.reconstruct.objectives import RGBObjective, Scheduled, own_objective
 from spc3d.reconstruct.pose_refine import PoseCorrections, RowAdam, heldout_cameras
 from spc3d.reconstruct.splat.project import CameraError
 from spc3d.reconstruct.views import Views, hold_out
+from spc3d.specs.reconstructors import config_3dgs
 from spc3d.training import Plateau
 
 
@@ -226,3 +227,12 @@ class SplatTrainer:
             with torch.no_grad():
                 self.poses.delta.copy_(delta)
             self.pose_opt.load_state_dict(opt)
+
+
+def make_3dgs(views, objective, settings: dict, seed: int, points=None):
+    """The ``3dgs`` factory (:data:`spc3d.reconstruct.RECONSTRUCTORS`): a trainer of the settings' config, started
+    from ``points`` (xyz, rgb) when given; its own loss is 0.8 L1 + 0.2 D-SSIM (``ssim_weight``)."""
+    cfg = config_3dgs(settings)
+    xyz, rgb = points if points is not None else (None, None)
+    trainer = SplatTrainer(views, own_objective(objective, RGBObjective("l1", cfg.ssim_weight)), cfg, seed, xyz, rgb)
+    return trainer, cfg.iterations, cfg

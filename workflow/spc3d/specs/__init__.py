@@ -113,7 +113,7 @@ for _spec in (
     ReconstructorSpec(
         "3dgs",
         "3DGS",
-        "spc3d.reconstruct:make_3dgs",
+        "spc3d.reconstruct.splatting:make_3dgs",
         "spc3d.specs.reconstructors:config_3dgs",
         "iterations",
         ("densify_from", "densify_until", "densify_every", "opacity_reset_every", "sh_interval"),
@@ -123,7 +123,7 @@ for _spec in (
     ReconstructorSpec(
         "nerf-mlp",
         "NeRF (MLP) [nerf-mlp]",
-        "spc3d.reconstruct:make_nerf",
+        "spc3d.reconstruct.nerf_trainer:make_nerf",
         "spc3d.specs.reconstructors:config_nerf",
         "n_iters",
         gpu=True,
@@ -131,7 +131,7 @@ for _spec in (
     ReconstructorSpec(
         "nerf-grid",
         "NeRF [nerf-grid]",
-        "spc3d.reconstruct:make_nerf_grid",
+        "spc3d.reconstruct.nerf_trainer:make_nerf_grid",
         "spc3d.specs.reconstructors:config_nerf_grid",
         "n_iters",
         ("occupancy_every", "occupancy_warmup"),
