@@ -8,6 +8,7 @@
 - The workflow vocabulary stays torch-free.
 """
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -168,3 +169,27 @@ def test_the_graph_checks_see_a_climb_and_a_cycle(tmp_path, monkeypatch):
         test_no_import_climbs_to_a_higher_room()
     with pytest.raises(AssertionError, match="import cycle"):
         test_no_import_cycle()
+
+
+def reading_path_files(text: str) -> list[Path]:
+    """The files of the reading path's table in workflow/rules/README.md, each resolved: a name in
+    a row is looked for in the folder of the row's first file, the workflow, spc3d, the scripts or the repo."""
+    rows = [line for line in text.splitlines() if re.match(r"\| \d+ \|", line)]
+    found, roots = [], [REPO / "workflow", REPO / "workflow" / "spc3d", REPO / "workflow" / "scripts", REPO]
+    for row in rows:
+        names = re.findall(r"`([\w/.]+\.(?:py|smk|yaml)|[\w/]+/)`", row.split("|")[2])
+        first = next(r / names[0] for r in roots if (r / names[0]).exists())
+        for name in names:
+            folders = [first if first.is_dir() else first.parent, *roots]
+            hits = [f / name for f in folders if (f / name).exists()]
+            assert hits, f"workflow/rules/README.md reading path: {name!r} (row {row.split('|')[1].strip()}) not found"
+            found.append(hits[0].resolve())
+    return found
+
+
+def test_the_reading_paths_files_exist_and_its_count_is_the_one_it_states():
+    text = (REPO / "workflow" / "rules" / "README.md").read_text()
+    files = {f for f in reading_path_files(text) if f.is_file() and "scripts" not in f.parts}
+    stated = re.search(r"the (\d+) files its settings pass through \((\d+)\s+steps\)", text)
+    assert stated, "workflow/rules/README.md no longer states its reading path's count"
+    assert (len(files), len(re.findall(r"^\| \d+ \|", text, re.M))) == tuple(map(int, stated.groups()))
