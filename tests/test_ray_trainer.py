@@ -33,6 +33,19 @@ def trainer_of(views, kind, objective=None, **settings):
     return trainer
 
 
+@pytest.mark.parametrize(
+    ("kind", "own"),
+    [("3dgs", RGBObjective("l1", 0.2)), ("nerf-mlp", RGBObjective("mse")), ("nerf-grid", RGBObjective("mse"))],
+)
+def test_each_factory_fits_its_models_own_loss_when_given_no_objective(views, kind, own):
+    # 3DGS: 0.8 L1 + 0.2 D-SSIM (its ssim_weight); the NeRF family: MSE (RECONSTRUCTORS' factories)
+    settings = SETTINGS.get(kind, {"iterations": 2, "init_points": 20})
+    trainer, _, _ = RECONSTRUCTORS[kind](views, None, settings, 0)
+    assert trainer.objective == own
+    with pytest.raises(ValueError, match="kind 'l2'"):
+        RGBObjective("l2")
+
+
 class Recording(RGBObjective):
     """The RGB objective, keeping each call's prediction, target, grad mode and value."""
 

@@ -45,6 +45,10 @@ class RGBObjective:
     name: str = "rgb"
     stops_on_plateau = True  # its floor is 0: a relative gain of the loss measures the fit
 
+    def __post_init__(self):
+        if self.kind not in ("l1", "mse"):  # any other kind would be fitted as MSE without a word
+            raise ValueError(f"RGBObjective kind {self.kind!r}: use 'l1' or 'mse'")
+
     def loss(self, pred: Tensor, target: Tensor) -> Tensor:
         """pred, target: (..., H, W, 3) for SSIM, any (..., 3) without it."""
         err = (pred - target).abs().mean() if self.kind == "l1" else (pred - target).square().mean()
