@@ -42,7 +42,7 @@ def test_each_factory_fits_its_models_own_loss_when_given_no_objective(views, ki
     settings = SETTINGS.get(kind, {"iterations": 2, "init_points": 20})
     trainer, _, _ = RECONSTRUCTORS[kind](views, None, settings, 0)
     assert trainer.objective == own
-    with pytest.raises(ValueError, match="kind 'l2'"):
+    with pytest.raises(ValueError, match=r"^RGBObjective kind 'l2': use 'l1' or 'mse'$"):
         RGBObjective("l2")
 
 
