@@ -193,3 +193,14 @@ def test_the_reading_paths_files_exist_and_its_count_is_the_one_it_states():
     stated = re.search(r"the (\d+) files its settings pass through \((\d+)\s+steps\)", text)
     assert stated, "workflow/rules/README.md no longer states its reading path's count"
     assert (len(files), len(re.findall(r"^\| \d+ \|", text, re.M))) == tuple(map(int, stated.groups()))
+
+
+def test_importing_a_stage2_module_imports_no_trainer_until_the_registry_is_read():
+    # spc3d.reconstruct.RECONSTRUCTORS loads every factory's module, so it is built on first use only
+    code = (
+        "import sys; sys.path.insert(0, 'workflow'); import spc3d.reconstruct.objectives; "
+        "loaded = lambda: {m for m in sys.modules if m.endswith(('.splatting', '.nerf_trainer'))}; "
+        "before = loaded(); from spc3d.reconstruct import RECONSTRUCTORS; print(sorted(before), sorted(loaded()))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["[]", "['spc3d.reconstruct.nerf_trainer',", "'spc3d.reconstruct.splatting']"]

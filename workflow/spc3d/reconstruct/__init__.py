@@ -23,6 +23,13 @@ from __future__ import annotations
 
 from spc3d import specs
 
-# name -> factory, from the specs of spc3d.specs (a spec names its factory as "module:function"). Their
-# settings: spc3d.specs.reconstructors.reconstructor_config.
-RECONSTRUCTORS = {name: specs.load(spec.factory) for name, spec in specs.RECONSTRUCTORS.items()}
+
+def __getattr__(name: str):
+    """``RECONSTRUCTORS``, the plain dict name -> factory, from the specs of :mod:`spc3d.specs` (a spec names
+    its factory as ``"module:function"``; their settings: ``spc3d.specs.reconstructors.reconstructor_config``).
+    Built on first use, not at import: loading the factories imports every trainer, which importing
+    any module of this package (the objectives, say) does not need."""
+    if name != "RECONSTRUCTORS":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    registry = globals()["RECONSTRUCTORS"] = {n: specs.load(spec.factory) for n, spec in specs.RECONSTRUCTORS.items()}
+    return registry
